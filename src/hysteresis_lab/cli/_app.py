@@ -1,0 +1,41 @@
+"""Shared plumbing of the Hydra command-line apps: config location and error reporting."""
+
+from __future__ import annotations
+
+import functools
+import logging
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import TypeVar
+
+from hysteresis_lab.errors import HysteresisLabError
+
+log = logging.getLogger("hysteresis_lab")
+
+T = TypeVar("T")
+
+
+def config_dir() -> str:
+    """Absolute path of the repository's ``conf/`` folder (the project installs editable)."""
+    path = Path(__file__).resolve().parents[3] / "conf"
+    if not path.is_dir():
+        raise HysteresisLabError(
+            f"configuration folder {path} not found. Fix: install hysteresis_lab from a source "
+            "checkout with `pip install -e .` so that conf/ sits beside src/."
+        )
+    return str(path)
+
+
+def report_errors(task: Callable[..., T]) -> Callable[..., T]:
+    """Turn a `HysteresisLabError` into one logged line and exit status 2 (no traceback)."""
+
+    @functools.wraps(task)
+    def wrapper(*args, **kwargs):
+        try:
+            return task(*args, **kwargs)
+        except HysteresisLabError as exc:
+            log.error("%s", exc)
+            sys.exit(2)
+
+    return wrapper

@@ -1,0 +1,73 @@
+"""Build `DatasetSplits` and DataModules from a ``data`` config node (Hydra or plain dict)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+from hydra.errors import InstantiationException
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf
+
+from hysteresis_lab.data.datamodules import WindowDataModule
+from hysteresis_lab.data.splits import DatasetSplits
+from hysteresis_lab.data.windows import Layout, WindowSpec
+from hysteresis_lab.errors import ConfigError, HysteresisLabError
+
+
+def _as_dict(cfg: Mapping[str, Any] | DictConfig) -> dict[str, Any]:
+    if isinstance(cfg, DictConfig):
+        return OmegaConf.to_container(cfg, resolve=True)  # type: ignore[return-value]
+    return dict(cfg)
+
+
+def build_splits(data_cfg: Mapping[str, Any] | DictConfig) -> DatasetSplits:
+    """Load the data set that ``data_cfg.splits`` (a ``_target_`` node) describes."""
+    cfg = _as_dict(data_cfg)
+    splits_cfg = cfg.get("splits")
+    if not isinstance(splits_cfg, Mapping) or "_target_" not in splits_cfg:
+        raise ConfigError(
+            f"data config '{cfg.get('name', '?')}' has no 'splits._target_'. Fix: choose a data "
+            "config such as data=default, data=csv or data=fsm, or add a splits node."
+        )
+    try:
+        splits = instantiate(splits_cfg, _convert_="all")
+    except InstantiationException as exc:
+        cause = exc.__cause__
+        if isinstance(cause, HysteresisLabError):
+            raise cause from None
+        raise ConfigError(f"could not load data '{cfg.get('name', '?')}': {exc}") from None
+    if not isinstance(splits, DatasetSplits):
+        raise ConfigError(
+            f"data.splits._target_ returned {type(splits).__name__}, not DatasetSplits."
+        )
+    return splits
+
+
+def build_datamodule(
+    data_cfg: Mapping[str, Any] | DictConfig,
+    layout: Layout,
+    seed: int = 0,
+    splits: DatasetSplits | None = None,
+) -> WindowDataModule:
+    """A `WindowDataModule` for ``data_cfg`` in the layout the model needs."""
+    cfg = _as_dict(data_cfg)
+    window = cfg.get("window", {}) or {}
+    scaling = cfg.get("scaling", {}) or {}
+    unknown = set(window) - {"na", "nb", "nk"}
+    if unknown:
+        raise ConfigError(
+            f"unknown key(s) {sorted(unknown)} in data.window. Fix: use na, nb and nk."
+        )
+    return WindowDataModule(
+        splits if splits is not None else build_splits(cfg),
+        window=WindowSpec(**window),
+        layout=layout,
+        scaling=scaling.get("mode", "paper"),
+        u_scale=scaling.get("u_scale", 100.0),
+        y_scale=scaling.get("y_scale", 20.0),
+        val_fraction=cfg.get("val_fraction", 0.1),
+        batch_size=cfg.get("batch_size", 128),
+        seed=seed,
+        num_workers=cfg.get("num_workers", 0),
+    )

@@ -1,0 +1,130 @@
+"""Build a registered model for a DataModule and fit it (Lightning for nets, scikit-learn for SVM)."""
+
+from __future__ import annotations
+
+import inspect
+import logging
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import lightning as L
+import numpy as np
+import torch
+from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint
+from lightning.pytorch.loggers import TensorBoardLogger
+
+from hysteresis_lab.data.datamodules import WindowDataModule
+from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.models.registry import get_model_class
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class TrainResult:
+    """A fitted model, its validation MSE (scaled units: the sweep objective) and cost."""
+
+    model: Any
+    val_mse: float
+    train_seconds: float
+    checkpoint: Path | None = None
+
+
+def model_layout(model_cfg: Mapping[str, Any]) -> str:
+    """The regressor layout ("flat" or "sequence") of the model named in ``model_cfg``."""
+    return get_model_class(_model_name(model_cfg)).layout
+
+
+def build_model(model_cfg: Mapping[str, Any], datamodule: WindowDataModule) -> Any:
+    """Instantiate the registered model ``model_cfg['name']`` for the DataModule's data."""
+    name = _model_name(model_cfg)
+    cls = get_model_class(name)
+    params = {k: v for k, v in model_cfg.items() if k != "name"}
+    accepted = _accepted_parameters(cls)
+    unknown = sorted(set(params) - accepted)
+    if unknown:
+        raise ConfigError(
+            f"model '{name}' has no parameter(s) {unknown}. Valid: {sorted(accepted)}. "
+            f"Fix: remove the override or correct its spelling (e.g. model.{sorted(accepted)[0]}=...)."
+        )
+    window = datamodule.window
+    return cls(
+        nu=datamodule.nu,
+        ny=datamodule.ny,
+        na=window.na,
+        nb=window.nb,
+        nk=window.nk,
+        scaler=datamodule.scaler.to_dict(),
+        **params,
+    )
+
+
+def fit(
+    model: Any,
+    datamodule: WindowDataModule,
+    trainer_cfg: Mapping[str, Any],
+    output_dir: Path,
+    logger: TensorBoardLogger | None = None,
+    callbacks: list[Any] | None = None,
+) -> TrainResult:
+    """Fit ``model``; nets keep the checkpoint with the best validation loss."""
+    datamodule.setup()
+    start = time.perf_counter()
+    if not isinstance(model, L.LightningModule):
+        x, target = datamodule.scale_windows(datamodule.train_windows)
+        model.fit(x, target)
+        x_val, t_val = datamodule.scale_windows(datamodule.val_windows)
+        val_mse = float(np.mean((model.predict_scaled(x_val) - t_val) ** 2))
+        return TrainResult(model, val_mse, time.perf_counter() - start)
+
+    checkpoint = ModelCheckpoint(
+        dirpath=output_dir / "checkpoints",
+        filename="best-{epoch:03d}-{val_loss:.3e}",
+        monitor="val_loss",
+        mode="min",
+        save_top_k=1,
+        save_last=False,
+    )
+    all_callbacks: list[Any] = [checkpoint, *(callbacks or [])]
+    if logger is not None:
+        all_callbacks.append(LearningRateMonitor(logging_interval="epoch"))
+    trainer = L.Trainer(
+        **dict(trainer_cfg),
+        logger=logger if logger is not None else False,
+        callbacks=all_callbacks,
+        default_root_dir=str(output_dir),
+    )
+    trainer.fit(model, datamodule=datamodule)
+    seconds = time.perf_counter() - start
+    best = checkpoint.best_model_path
+    if best:
+        state = torch.load(best, map_location=model.device, weights_only=True)["state_dict"]
+        model.load_state_dict(state)
+    score = checkpoint.best_model_score
+    val_mse = float(score) if score is not None else float("nan")
+    log.info("best validation MSE %.4e (scaled) after %.1f s; checkpoint %s", val_mse, seconds, best)
+    return TrainResult(model.eval(), val_mse, seconds, Path(best) if best else None)
+
+
+def _model_name(model_cfg: Mapping[str, Any]) -> str:
+    name = model_cfg.get("name")
+    if not name:
+        raise ConfigError("the model config has no 'name'. Fix: choose one with model=<name>.")
+    return str(name)
+
+
+def _accepted_parameters(cls: type) -> set[str]:
+    """Keyword parameters of ``cls.__init__``, following ``**kwargs`` up the class hierarchy."""
+    names: set[str] = set()
+    for klass in cls.__mro__:
+        init = klass.__dict__.get("__init__")
+        if init is None:
+            continue
+        params = inspect.signature(init).parameters.values()
+        names |= {p.name for p in params if p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)}
+        if not any(p.kind == p.VAR_KEYWORD for p in params):
+            break
+    return names - {"self", "nu", "ny", "na", "nb", "nk", "scaler"}
