@@ -14,7 +14,7 @@ from hysteresis_lab.errors import DataError
 def _as_2d(values: Any, what: str, source: str) -> np.ndarray:
     """Return ``values`` as a float64 array of shape (N, channels)."""
     try:
-        arr = np.asarray(values, dtype=np.float64)
+        arr = np.array(values, dtype=np.float64)  # a copy: the caller keeps a writable array
     except (TypeError, ValueError) as exc:
         raise DataError(
             f"{what} is not numeric ({exc}).",

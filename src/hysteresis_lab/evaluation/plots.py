@@ -12,6 +12,12 @@ from matplotlib.figure import Figure  # pyplot-free: no global backend state
 from hysteresis_lab.data.recording import Recording
 
 MODE_STYLES = {"one_step": ("tab:orange", "--"), "free_run": ("tab:red", "-")}
+OTHER_COLORS = ("tab:blue", "tab:green", "tab:purple", "tab:brown", "tab:olive", "tab:cyan")
+
+
+def _style(label: str, position: int) -> tuple[str, str]:
+    """Colour and line style of a curve: fixed for the evaluation modes, cycled otherwise."""
+    return MODE_STYLES.get(label, (OTHER_COLORS[position % len(OTHER_COLORS)], "-"))
 
 
 def _grid(n_panels: int, panel_size: float = 2.6) -> tuple[Figure, np.ndarray]:
@@ -41,8 +47,8 @@ def loops_figure(
         step = max(1, rec.n_samples // max_points)
         u = rec.u[::step, min(channel, rec.nu - 1)]
         ax.plot(u, rec.y[::step, channel], color="black", lw=1.2, label="measured")
-        for mode, y_hat in predictions.get(rec.name, {}).items():
-            color, style = MODE_STYLES.get(mode, ("tab:blue", ":"))
+        for position, (mode, y_hat) in enumerate(predictions.get(rec.name, {}).items()):
+            color, style = _style(mode, position)
             ax.plot(u, np.asarray(y_hat)[::step, channel], color=color, ls=style, lw=0.9,
                     label=mode.replace("_", " "))
         ax.set_title(rec.name, fontsize=9)
@@ -68,8 +74,8 @@ def residuals_figure(
     for ax, rec in zip(axes.flat, recordings, strict=False):
         step = max(1, rec.n_samples // max_points)
         t = rec.t[::step]
-        for mode, y_hat in predictions.get(rec.name, {}).items():
-            color, style = MODE_STYLES.get(mode, ("tab:blue", ":"))
+        for position, (mode, y_hat) in enumerate(predictions.get(rec.name, {}).items()):
+            color, style = _style(mode, position)
             residual = rec.y[::step, channel] - np.asarray(y_hat)[::step, channel]
             ax.plot(t, residual, color=color, ls=style, lw=0.8, label=mode.replace("_", " "))
         ax.axhline(0.0, color="black", lw=0.5)

@@ -1,0 +1,1 @@
+"""Example hysteresis_lab plugin: a GRU NARX network (``model=gru``)."""

@@ -1,0 +1,1 @@
+"""Hydra configs of the GRU plugin (``model/gru.yaml``)."""

@@ -1,0 +1,1 @@
+"""Hydra search-path plugin: config folders registered by hysteresis_lab plugin packages."""

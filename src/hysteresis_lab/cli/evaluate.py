@@ -1,0 +1,83 @@
+"""``hysteresis-lab-evaluate``: score a saved model on test recordings without retraining.
+
+Example::
+
+    hysteresis-lab-evaluate checkpoint=outputs/train/ffnn_default/<run>/model.ckpt \
+        data=csv data.train=run.csv data.test=[new_sine.csv]
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import hydra
+import torch
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig, OmegaConf
+
+from hysteresis_lab.cli._app import config_dir, report_errors
+from hysteresis_lab.errors import ConfigError
+
+log = logging.getLogger(__name__)
+
+
+@report_errors
+def run(cfg: DictConfig) -> dict:
+    """Load the model, score it on the data config's test recordings, write metrics.json."""
+    from hysteresis_lab.data.factory import build_splits
+    from hysteresis_lab.evaluation.evaluate import evaluate_model
+    from hysteresis_lab.evaluation.plots import loops_figure, residuals_figure, save_figure
+    from hysteresis_lab.evaluation.report import metrics_document, write_json
+    from hysteresis_lab.models.io import load_model, model_window
+
+    output_dir = Path(HydraConfig.get().runtime.output_dir)
+    model = load_model(resolve_checkpoint(Path(str(cfg.checkpoint))))
+    splits = build_splits(OmegaConf.to_container(cfg.data, resolve=True))
+    device = cfg.device
+    if device == "auto":
+        device = "cuda" if torch.cuda.is_available() else "cpu"
+    if device not in {"cpu", "cuda"}:
+        raise ConfigError(f"device={device!r} is not one of auto, cpu, cuda. Fix: device=auto.")
+    evaluation = evaluate_model(
+        model, splits.test, model_window(model), n_init=splits.n_init,
+        n_steps=cfg.get("n_step"), device=device,
+    )
+    units = {"u": splits.test[0].u_units, "y": splits.test[0].y_units}
+    document = metrics_document(
+        str(getattr(model, "registry_name", type(model).__name__)), units, evaluation.metrics,
+        train_seconds=0.0, extra={"checkpoint": str(cfg.checkpoint), "data": splits.name},
+    )
+    write_json(document, output_dir / "metrics.json")
+    if cfg.plots:
+        save_figure(loops_figure(splits.test, evaluation.predictions), output_dir / "hysteresis_loops.png")
+        save_figure(residuals_figure(splits.test, evaluation.predictions), output_dir / "residuals.png")
+    log.info("metrics written to %s", output_dir / "metrics.json")
+    return document
+
+
+def resolve_checkpoint(path: Path) -> Path:
+    """Accept a model file or a run folder that holds ``model.ckpt`` / ``model.skops``."""
+    if path.is_dir():
+        for name in ("model.ckpt", "model.skops"):
+            if (path / name).is_file():
+                return path / name
+        raise ConfigError(
+            f"{path} holds no model.ckpt or model.skops. Fix: pass checkpoint=<run folder of "
+            "hysteresis-lab-train> or the model file itself."
+        )
+    return path
+
+
+@hydra.main(config_path=config_dir(), config_name="evaluate")
+def _main(cfg: DictConfig) -> None:
+    run(cfg)
+
+
+def main() -> None:
+    """Console-script entry point."""
+    _main()
+
+
+if __name__ == "__main__":
+    main()

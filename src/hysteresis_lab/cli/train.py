@@ -1,0 +1,60 @@
+"""``hysteresis-lab-train``: train and evaluate one model, or the study's four (``experiment=paper``).
+
+Examples::
+
+    hysteresis-lab-train                                   # FFNN on the simulated positioner
+    hysteresis-lab-train model=lstm data=csv data.train=run.csv data.test=[sine.csv]
+    hysteresis-lab-train experiment=paper                  # Table 2 + Figure 1
+    hysteresis-lab-train -m hparams_search=ffnn            # Bayesian tuning (Optuna)
+
+The return value is the validation MSE (scaled units), the objective of sweeps.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import hydra
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig, OmegaConf
+
+from hysteresis_lab.cli._app import config_dir, report_errors
+from hysteresis_lab.errors import ConfigError
+
+log = logging.getLogger(__name__)
+
+
+@report_errors
+def run(cfg: DictConfig) -> float | None:
+    """Run the task the composed config describes; return the sweep objective."""
+    from hysteresis_lab.pipeline import run_paper, train_and_evaluate
+
+    output_dir = Path(HydraConfig.get().runtime.output_dir)
+    use_tensorboard = bool(cfg.logger.get("enabled", True))
+    if cfg.task == "paper":
+        models = OmegaConf.to_container(cfg.paper.models, resolve=True)
+        run_paper(models, cfg.data, cfg.trainer, output_dir, seed=cfg.seed,
+                  use_tensorboard=use_tensorboard)
+        return None
+    if cfg.task != "train":
+        raise ConfigError(f"unknown task '{cfg.task}'. Fix: use task=train or experiment=paper.")
+    result = train_and_evaluate(
+        cfg.model, cfg.data, cfg.trainer, output_dir, seed=cfg.seed,
+        use_tensorboard=use_tensorboard, n_steps=cfg.get("n_step"), plots=cfg.plots,
+    )
+    return result.val_mse
+
+
+@hydra.main(config_path=config_dir(), config_name="train")
+def _main(cfg: DictConfig) -> float | None:
+    return run(cfg)
+
+
+def main() -> None:
+    """Console-script entry point."""
+    _main()
+
+
+if __name__ == "__main__":
+    main()

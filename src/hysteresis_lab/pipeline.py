@@ -1,0 +1,164 @@
+"""Train-and-evaluate runs: one model (``hysteresis-lab-train``) or the study's four (``experiment=paper``).
+
+Everything a run produces lands in its output folder: checkpoints, ``metrics.json``,
+hysteresis-loop and residual figures, and TensorBoard event files (loss curves, figures,
+final metrics as hparams).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import lightning as L
+import torch
+from lightning.pytorch.loggers import TensorBoardLogger
+from omegaconf import DictConfig, OmegaConf
+
+from hysteresis_lab.data.factory import build_datamodule, build_splits
+from hysteresis_lab.data.splits import DatasetSplits
+from hysteresis_lab.evaluation.evaluate import Evaluation, evaluate_model
+from hysteresis_lab.evaluation.plots import loops_figure, residuals_figure, save_figure
+from hysteresis_lab.evaluation.report import metrics_document, write_json, write_table2
+from hysteresis_lab.models.io import save_model
+from hysteresis_lab.training import build_model, fit, model_layout
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class RunResult:
+    """What one trained model produced: its metrics document and validation MSE."""
+
+    document: dict[str, Any]
+    val_mse: float
+    evaluation: Evaluation
+    model: Any
+
+
+def _container(cfg: Mapping[str, Any] | DictConfig) -> dict[str, Any]:
+    if isinstance(cfg, DictConfig):
+        return OmegaConf.to_container(cfg, resolve=True)  # type: ignore[return-value]
+    return dict(cfg)
+
+
+def evaluation_device(trainer_cfg: Mapping[str, Any]) -> str:
+    """The device free-run simulation uses: the GPU when training may use one and it exists."""
+    accelerator = str(trainer_cfg.get("accelerator", "auto"))
+    if accelerator in {"auto", "gpu", "cuda"} and torch.cuda.is_available():
+        return "cuda"
+    return "cpu"
+
+
+def train_and_evaluate(
+    model_cfg: Mapping[str, Any],
+    data_cfg: Mapping[str, Any],
+    trainer_cfg: Mapping[str, Any],
+    output_dir: Path,
+    seed: int = 0,
+    splits: DatasetSplits | None = None,
+    use_tensorboard: bool = True,
+    n_steps: int | None = None,
+    plots: bool = True,
+) -> RunResult:
+    """Fit the model ``model_cfg`` on ``data_cfg``'s data, score it on every test recording."""
+    model_cfg, data_cfg, trainer_cfg = map(_container, (model_cfg, data_cfg, trainer_cfg))
+    output_dir.mkdir(parents=True, exist_ok=True)
+    L.seed_everything(seed, workers=True, verbose=False)
+    datamodule = build_datamodule(data_cfg, model_layout(model_cfg), seed=seed, splits=splits)
+    model = build_model(model_cfg, datamodule)
+    logger = (
+        TensorBoardLogger(save_dir=str(output_dir), name="tensorboard", version="",
+                          default_hp_metric=False)
+        if use_tensorboard
+        else None
+    )
+    trained = fit(model, datamodule, trainer_cfg, output_dir, logger=logger)
+    model_path = save_model(trained.model, output_dir / "model")
+    log.info("saved %s", model_path)
+
+    data = datamodule.splits
+    evaluation = evaluate_model(
+        trained.model, data.test, datamodule.window, n_init=data.n_init, n_steps=n_steps,
+        device=evaluation_device(trainer_cfg),
+    )
+    units = {"u": data.test[0].u_units, "y": data.test[0].y_units}
+    document = metrics_document(
+        str(model_cfg["name"]), units, evaluation.metrics, trained.train_seconds,
+        extra={"val_mse_scaled": trained.val_mse, "data": data.name, "model_path": str(model_path)},
+    )
+    write_json(document, output_dir / "metrics.json")
+    if plots:
+        _write_figures(data, evaluation, output_dir, str(model_cfg["name"]), logger)
+    if logger is not None:
+        hparams = {f"model/{k}": v for k, v in model_cfg.items() if _scalar(v)}
+        hparams.update({"data": data.name, "seed": seed})
+        final = {f"test_mean/{k}": v for k, v in document["mean"].items()}
+        final["val_mse_scaled"] = trained.val_mse
+        logger.log_hyperparams(hparams, final)
+        logger.finalize("success")
+    log.info(
+        "%s on %s: mean RMSE one-step %.4g %s, free-run %.4g %s (metrics.json in %s)",
+        model_cfg["name"], data.name, document["mean"]["rmse_one_step"], units["y"],
+        document["mean"]["rmse_free_run"], units["y"], output_dir,
+    )
+    return RunResult(document, trained.val_mse, evaluation, trained.model)
+
+
+def run_paper(
+    models: Mapping[str, Mapping[str, Any]],
+    data_cfg: Mapping[str, Any],
+    trainer_cfg: Mapping[str, Any],
+    output_dir: Path,
+    seed: int = 0,
+    use_tensorboard: bool = True,
+) -> dict[str, RunResult]:
+    """The study's experiment: every model on one data set, then Table 2 and Figure 1."""
+    splits = build_splits(_container(data_cfg))
+    results: dict[str, RunResult] = {}
+    for key, model_cfg in models.items():
+        log.info("=== %s ===", key)
+        results[key] = train_and_evaluate(
+            model_cfg, data_cfg, trainer_cfg, output_dir / key, seed=seed, splits=splits,
+            use_tensorboard=use_tensorboard,
+        )
+    documents = {key: result.document for key, result in results.items()}
+    md_path, csv_path = write_table2(documents, output_dir)
+    write_json(documents, output_dir / "paper_results.json")
+    free_run = {
+        rec.name: {key: res.evaluation.predictions[rec.name]["free_run"]
+                   for key, res in results.items()}
+        for rec in splits.test
+    }
+    figure = save_figure(
+        loops_figure(splits.test, free_run, title="Free-run simulation: measured (black) and "
+                     "predicted displacement against voltage"),
+        output_dir / "figure1.png",
+    )
+    log.info("Table 2: %s, %s; Figure 1: %s", md_path, csv_path, figure)
+    log.info("\n%s", md_path.read_text())
+    return results
+
+
+def _write_figures(
+    data: DatasetSplits,
+    evaluation: Evaluation,
+    output_dir: Path,
+    title: str,
+    logger: TensorBoardLogger | None,
+) -> None:
+    figures = {
+        "hysteresis_loops": loops_figure(data.test, evaluation.predictions, title=title),
+        "residuals": residuals_figure(data.test, evaluation.predictions, title=title),
+    }
+    for name, fig in figures.items():
+        save_figure(fig, output_dir / f"{name}.png")
+        if logger is not None:
+            logger.experiment.add_figure(f"test/{name}", fig)
+
+
+def _scalar(value: Any) -> bool:
+    return isinstance(value, int | float | str | bool)

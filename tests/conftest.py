@@ -1,0 +1,22 @@
+"""Shared fixtures: small recordings with known structure."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hysteresis_lab.data.recording import Recording
+
+
+def make_recording(n: int, name: str, nu: int = 1, ny: int = 1, fs: float = 1000.0,
+                   seed: int = 0) -> Recording:
+    """A recording whose samples encode their own index: u = k, y = -k (per channel offsets)."""
+    k = np.arange(n, dtype=float)[:, None]
+    u = k + 1000.0 * np.arange(nu)[None, :]
+    y = -k - 1000.0 * np.arange(ny)[None, :]
+    return Recording(u=u, y=y, fs=fs, name=name)
+
+
+@pytest.fixture
+def index_recordings() -> list[Recording]:
+    return [make_recording(50, "a"), make_recording(30, "b")]

@@ -1,0 +1,101 @@
+"""Recording validation, scaling and the DataModules' split sizes and shapes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from conftest import make_recording
+from hysteresis_lab.data.datamodules import WindowDataModule
+from hysteresis_lab.data.recording import Recording
+from hysteresis_lab.data.scaling import Scaler
+from hysteresis_lab.data.splits import DatasetSplits
+from hysteresis_lab.data.windows import WindowSpec
+from hysteresis_lab.errors import ConfigError, DataError
+
+
+@pytest.mark.parametrize(
+    ("u", "y", "fs", "message"),
+    [
+        (np.r_[0.0, np.nan, 1.0], np.zeros(3), 1.0, "NaN/inf .* sample 1"),
+        (np.r_[0.0, np.inf, 1.0], np.zeros(3), 1.0, "NaN/inf"),
+        (np.zeros(4), np.zeros(3), 1.0, "u has 4 samples but y has 3"),
+        (np.zeros((2, 2, 2)), np.zeros(2), 1.0, "shape"),
+        (np.zeros(0), np.zeros(0), 1.0, "no samples"),
+        (np.zeros(3), np.zeros(3), -5.0, "sampling rate"),
+        (["a", "b"], np.zeros(2), 1.0, "not numeric"),
+    ],
+)
+def test_recording_rejects_bad_input(u, y, fs, message):
+    with pytest.raises(DataError, match=message) as info:
+        Recording(u=u, y=y, fs=fs, name="bad")
+    assert "recording 'bad'" in str(info.value)
+    assert "Fix:" in str(info.value)
+
+
+def test_recording_keeps_callers_array_writable():
+    u = np.zeros(5)
+    Recording(u=u, y=np.zeros(5), fs=1.0)
+    u[0] = 1.0  # would raise if the recording froze the caller's array
+
+
+def test_different_sampling_rates_are_rejected():
+    a = make_recording(50, "a", fs=1000.0)
+    b = make_recording(50, "b", fs=500.0)
+    with pytest.raises(DataError, match="recording 'b'.*500 Hz differs from 1000 Hz of 'a'"):
+        DatasetSplits("mixed", train=[a], test=[b])
+
+
+def test_paper_and_standard_scaling():
+    rec = Recording(u=np.linspace(-100, 100, 11), y=np.linspace(-20, 20, 11) + 3.0, fs=1.0)
+    paper = Scaler.fit([rec], "paper")
+    assert paper.u_scale[0] == 100.0 and paper.y_scale[0] == 20.0 and paper.y_offset[0] == 0.0
+    standard = Scaler.fit([rec], "standard")
+    assert standard.y_offset[0] == pytest.approx(3.0)
+    assert standard.y_scale[0] == pytest.approx(rec.y.std())
+    restored = Scaler.from_dict(standard.to_dict())
+    for name in ("u_offset", "u_scale", "y_offset", "y_scale"):
+        np.testing.assert_allclose(getattr(restored, name), getattr(standard, name))
+    with pytest.raises(ConfigError, match="unknown scaling mode"):
+        Scaler.fit([rec], "minmax")
+
+
+def test_random_90_10_split_of_windows():
+    train = make_recording(1010, "train")
+    splits = DatasetSplits("d", train=[train], test=[make_recording(100, "t")])
+    dm = WindowDataModule(splits, WindowSpec(), layout="flat", val_fraction=0.1, seed=3)
+    dm.setup()
+    n_windows = 1010 - 10
+    assert len(dm.val_windows) == 100 and len(dm.train_windows) == n_windows - 100
+    # disjoint and together all windows
+    together = np.concatenate([dm.train_windows.index, dm.val_windows.index])
+    assert sorted(together.tolist()) == list(range(10, 1010))
+    # random, not the last 10 %: validation targets spread over the recording
+    assert dm.val_windows.index.min() < 300 and dm.val_windows.index.max() > 700
+    x, target = next(iter(dm.train_dataloader()))
+    assert x.shape == (128, 20) and target.shape == (128, 1) and x.dtype == torch.float32
+    # paper scaling: u = k / 100 V, y = -k / 20 um
+    assert torch.allclose(x[:, 9] * 100.0, -target[:, 0] * 20.0 - 1.0)
+
+
+def test_sequence_layout_batches_and_explicit_validation_recordings():
+    splits = DatasetSplits(
+        "d", train=[make_recording(300, "tr", nu=2)], val=[make_recording(60, "va", nu=2)],
+        test=[make_recording(80, "te", nu=2)],
+    )
+    dm = WindowDataModule(splits, WindowSpec(), layout="sequence", batch_size=16)
+    dm.setup()
+    assert len(dm.val_windows) == 50 and len(dm.train_windows) == 290
+    x, target = next(iter(dm.val_dataloader()))
+    assert x.shape == (16, 10, 3) and target.shape == (16, 1)
+    (test_loader,) = dm.test_dataloader()
+    assert len(test_loader.dataset) == 70
+
+
+def test_bad_datamodule_settings():
+    splits = DatasetSplits("d", train=[make_recording(100, "tr")], test=[make_recording(50, "t")])
+    with pytest.raises(ConfigError, match="val_fraction"):
+        WindowDataModule(splits, val_fraction=1.5)
+    with pytest.raises(ConfigError, match="layout"):
+        WindowDataModule(splits, layout="image")
