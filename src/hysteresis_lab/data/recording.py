@@ -159,11 +159,15 @@ def check_compatible(recordings: Sequence[Recording], purpose: str = "this data 
     if not recordings:
         raise DataError(f"{purpose} has no recordings.", fix="supply at least one recording")
     first = recordings[0]
+
+    def where(rec: Recording) -> str:
+        return rec.metadata.get("path") or f"recording '{rec.name}'"
+
     for rec in recordings[1:]:
         if not np.isclose(rec.fs, first.fs, rtol=1e-9):
             raise DataError(
                 f"sampling rate {rec.fs:g} Hz differs from {first.fs:g} Hz of '{first.name}'.",
-                source=f"recording '{rec.name}'",
+                source=where(rec),
                 fix="resample the recordings to one rate before combining them",
             )
         if (rec.nu, rec.ny) != (first.nu, first.ny):

@@ -1,0 +1,307 @@
+"""Read and write recordings: CSV (named columns), NPZ, MAT (v5 via scipy, v7.3 via h5py), HDF5.
+
+Every reader returns a validated `Recording`; every failure is a `DataError` naming the file,
+the problem and the fix.
+"""
+
+from __future__ import annotations
+
+import csv
+import logging
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+import scipy.io
+
+from hysteresis_lab.data.recording import Recording
+from hysteresis_lab.errors import DataError
+
+log = logging.getLogger(__name__)
+
+UNIFORM_TOLERANCE = 1e-3  # relative spread of the sampling interval still called uniform
+
+
+def _names(value: str | Sequence[str]) -> list[str]:
+    return [value] if isinstance(value, str) else list(value)
+
+
+def _check_file(path: Path) -> Path:
+    path = Path(path)
+    if not path.is_file():
+        raise DataError("no such file.", source=str(path),
+                        fix="check the path (data.train / data.test)")
+    if path.stat().st_size == 0:
+        raise DataError("the file is empty.", source=str(path), fix="supply a file with data")
+    return path
+
+
+def sampling_rate(t: np.ndarray, fs: float | None, source: str) -> float:
+    """The sampling rate from a time column (checked for uniformity) and/or a given ``fs``."""
+    if t is None:
+        if fs is None:
+            raise DataError(
+                "there is no time column and no sampling rate.",
+                source=source,
+                fix="add a time column (columns.time) or give the sampling rate (data.fs=...)",
+            )
+        return float(fs)
+    t = np.asarray(t, dtype=float).ravel()
+    if len(t) < 2:
+        raise DataError("fewer than two samples.", source=source, fix="supply a longer recording")
+    dt = np.diff(t)
+    if np.any(dt <= 0):
+        first = int(np.argmax(dt <= 0))
+        raise DataError(
+            f"the time column does not increase at row {first + 1} (t={t[first]:g} -> "
+            f"{t[first + 1]:g}).",
+            source=source,
+            fix="sort the samples by time and remove duplicates",
+        )
+    median = float(np.median(dt))
+    spread = np.abs(dt - median) / median
+    if spread.max() > UNIFORM_TOLERANCE:
+        row = int(np.argmax(spread))
+        raise DataError(
+            f"the time column is not uniformly sampled: step {dt[row]:g} s at row {row + 1} "
+            f"against a median step of {median:g} s.",
+            source=source,
+            fix="resample the recording to a uniform rate before loading",
+        )
+    rate = 1.0 / median
+    if fs is not None and not np.isclose(rate, fs, rtol=1e-3):
+        raise DataError(
+            f"the time column gives fs = {rate:g} Hz but fs = {fs:g} Hz was configured.",
+            source=source,
+            fix="drop the data.fs override or correct it",
+        )
+    return rate
+
+
+def _recording(
+    columns: Mapping[str, np.ndarray],
+    source: Path,
+    time: str | None,
+    inputs: Sequence[str],
+    outputs: Sequence[str],
+    fs: float | None,
+    u_units: str,
+    y_units: str,
+    name: str | None,
+) -> Recording:
+    wanted = ([time] if time else []) + list(inputs) + list(outputs)
+    missing = [c for c in wanted if c not in columns]
+    if missing:
+        raise DataError(
+            f"missing column(s) {missing}; the file has {sorted(columns)}.",
+            source=str(source),
+            fix="name the columns in data.columns (time / inputs / outputs), or set "
+            "data.columns.time=null with data.fs=<Hz> when there is no time column",
+        )
+    lengths = {c: len(np.ravel(columns[c])) for c in wanted}
+    if len(set(lengths.values())) > 1:
+        raise DataError(
+            f"columns have different lengths {lengths}.",
+            source=str(source),
+            fix="store one value per sample in every column",
+        )
+    rate = sampling_rate(columns[time] if time else None, fs, str(source))
+    try:
+        u = np.column_stack([np.asarray(columns[c], dtype=float).ravel() for c in inputs])
+        y = np.column_stack([np.asarray(columns[c], dtype=float).ravel() for c in outputs])
+    except ValueError as exc:
+        raise DataError(f"non-numeric values ({exc}).", source=str(source),
+                        fix="keep only numbers in the data columns") from None
+    try:
+        return Recording(u=u, y=y, fs=rate, name=name or source.stem, u_units=u_units,
+                         y_units=y_units, u_names=tuple(inputs), y_names=tuple(outputs),
+                         metadata={"path": str(source)})
+    except DataError as exc:
+        raise DataError(exc.problem, source=str(source), fix=exc.fix) from None
+
+
+def read_csv(
+    path: str | Path,
+    time: str | None = "t",
+    inputs: str | Sequence[str] = ("u",),
+    outputs: str | Sequence[str] = ("y",),
+    fs: float | None = None,
+    u_units: str = "V",
+    y_units: str = "um",
+    name: str | None = None,
+    delimiter: str = ",",
+) -> Recording:
+    """A CSV file with a header row of column names (``t,u,y`` by default)."""
+    path = _check_file(Path(path))
+    with path.open(newline="") as handle:
+        reader = csv.reader(handle, delimiter=delimiter)
+        header = [h.strip() for h in next(reader, [])]
+        rows = [row for row in reader if any(cell.strip() for cell in row)]
+    if not rows:
+        raise DataError("the file has a header but no data rows.", source=str(path),
+                        fix="supply a file with data")
+    table: dict[str, list[float]] = {h: [] for h in header if h}
+    for number, row in enumerate(rows, start=2):
+        for key, cell in zip(header, row, strict=False):
+            if not key:
+                continue
+            try:
+                table[key].append(float(cell) if cell.strip() else np.nan)
+            except ValueError:
+                raise DataError(
+                    f"non-numeric value {cell!r} in column '{key}', line {number}.",
+                    source=str(path),
+                    fix="keep only numbers below the header row",
+                ) from None
+    columns = {k: np.asarray(v) for k, v in table.items()}
+    return _recording(columns, path, time, _names(inputs), _names(outputs), fs, u_units, y_units,
+                      name)
+
+
+def read_npz(path: str | Path, time: str | None = "t", inputs: str | Sequence[str] = ("u",),
+             outputs: str | Sequence[str] = ("y",), fs: float | None = None,
+             u_units: str = "V", y_units: str = "um", name: str | None = None) -> Recording:
+    """An NPZ archive with one array per column (``t``, ``u``, ``y`` by default)."""
+    path = _check_file(Path(path))
+    try:
+        with np.load(path, allow_pickle=False) as archive:
+            columns = {k: archive[k] for k in archive.files}
+    except (OSError, ValueError) as exc:
+        raise DataError(f"cannot read the NPZ archive ({exc}).", source=str(path),
+                        fix="check that the file is an uncorrupted .npz") from None
+    if "fs" in columns and fs is None and (time is None or time not in columns):
+        fs = float(np.ravel(columns["fs"])[0])
+    columns, inputs, outputs = _expand_matrices(columns, _names(inputs), _names(outputs))
+    return _recording(columns, path, time, inputs, outputs, fs, u_units, y_units, name)
+
+
+def read_mat(path: str | Path, time: str | None = "t", inputs: str | Sequence[str] = ("u",),
+             outputs: str | Sequence[str] = ("y",), fs: float | None = None,
+             u_units: str = "V", y_units: str = "um", name: str | None = None) -> Recording:
+    """A MATLAB file: v4-v7 via scipy.io, v7.3 (HDF5) via h5py."""
+    path = _check_file(Path(path))
+    columns = load_mat_variables(path)
+    columns, inputs, outputs = _expand_matrices(columns, _names(inputs), _names(outputs))
+    return _recording(columns, path, time, inputs, outputs, fs, u_units, y_units, name)
+
+
+def load_mat_variables(path: Path) -> dict[str, np.ndarray]:
+    """All numeric variables of a MAT file (any version) as NumPy arrays."""
+    try:
+        raw = scipy.io.loadmat(path)
+        return {k: np.asarray(v) for k, v in raw.items() if not k.startswith("__")}
+    except NotImplementedError:  # MATLAB v7.3 = HDF5, column-major
+        with h5py.File(path, "r") as handle:
+            return {k: np.asarray(v).T for k, v in handle.items() if isinstance(v, h5py.Dataset)}
+    except (ValueError, OSError) as exc:
+        raise DataError(f"cannot read the MAT file ({exc}).", source=str(path),
+                        fix="check that the file is an uncorrupted MATLAB .mat file") from None
+
+
+def read_hdf5(path: str | Path, time: str | None = "t", inputs: str | Sequence[str] = ("u",),
+              outputs: str | Sequence[str] = ("y",), fs: float | None = None,
+              u_units: str = "V", y_units: str = "um", name: str | None = None) -> Recording:
+    """An HDF5 file; column names are dataset paths (e.g. ``"multisine/u"``)."""
+    path = _check_file(Path(path))
+    wanted = ([time] if time else []) + _names(inputs) + _names(outputs)
+    try:
+        with h5py.File(path, "r") as handle:
+            columns = {k: np.asarray(handle[k]) for k in wanted if k in handle}
+            available = _hdf5_datasets(handle)
+            if fs is None and "fs" in handle.attrs:
+                fs = float(handle.attrs["fs"])
+    except OSError as exc:
+        raise DataError(f"cannot read the HDF5 file ({exc}).", source=str(path),
+                        fix="check that the file is an uncorrupted HDF5 file") from None
+    missing = [k for k in wanted if k not in columns]
+    if missing:
+        raise DataError(f"missing dataset(s) {missing}; the file has {available}.",
+                        source=str(path), fix="name the datasets in data.columns")
+    return _recording(columns, path, time, _names(inputs), _names(outputs), fs, u_units, y_units,
+                      name)
+
+
+def _hdf5_datasets(handle: h5py.File) -> list[str]:
+    names: list[str] = []
+    handle.visititems(lambda n, obj: names.append(n) if isinstance(obj, h5py.Dataset) else None)
+    return names
+
+
+def _expand_matrices(
+    columns: dict[str, np.ndarray], inputs: list[str], outputs: list[str]
+) -> tuple[dict[str, np.ndarray], list[str], list[str]]:
+    """Split a single (N, k) input/output matrix into k named columns (``u`` -> ``u0, u1``)."""
+    columns = dict(columns)
+
+    def expand(names: list[str]) -> list[str]:
+        if len(names) != 1 or names[0] not in columns:
+            return names
+        arr = np.asarray(columns[names[0]])
+        if arr.ndim == 2 and min(arr.shape) > 1:
+            arr = arr if arr.shape[0] >= arr.shape[1] else arr.T
+            new = [f"{names[0]}{i}" for i in range(arr.shape[1])]
+            columns.update({n: arr[:, i] for i, n in enumerate(new)})
+            return new
+        return names
+
+    return columns, expand(inputs), expand(outputs)
+
+
+READERS: dict[str, Callable[..., Recording]] = {
+    ".csv": read_csv, ".txt": read_csv, ".npz": read_npz, ".mat": read_mat,
+    ".h5": read_hdf5, ".hdf5": read_hdf5,
+}
+
+
+def read_recording(path: str | Path, **options: Any) -> Recording:
+    """Read any supported file, choosing the reader by suffix."""
+    path = Path(path)
+    reader = READERS.get(path.suffix.lower())
+    if reader is None:
+        raise DataError(f"unknown file type '{path.suffix}'.", source=str(path),
+                        fix=f"use one of {sorted(READERS)}")
+    return reader(path, **options)
+
+
+# ---------------------------------------------------------------------------------- writers
+def _columns(rec: Recording) -> dict[str, np.ndarray]:
+    columns = {"t": rec.t}
+    columns.update({n: rec.u[:, i] for i, n in enumerate(rec.u_names)})
+    columns.update({n: rec.y[:, i] for i, n in enumerate(rec.y_names)})
+    return columns
+
+
+def write_csv(rec: Recording, path: str | Path) -> Path:
+    """CSV with header ``t,<input names>,<output names>`` (s and the recording's units)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    columns = _columns(rec)
+    np.savetxt(path, np.column_stack(list(columns.values())), delimiter=",",
+               header=",".join(columns), comments="", fmt="%.10g")
+    return path
+
+
+def write_npz(rec: Recording, path: str | Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(path, **_columns(rec))
+    return path
+
+
+def write_mat(rec: Recording, path: str | Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    scipy.io.savemat(path, {k: v[:, None] for k, v in _columns(rec).items()})
+    return path
+
+
+def write_hdf5(rec: Recording, path: str | Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with h5py.File(path, "w") as handle:
+        for key, values in _columns(rec).items():
+            handle.create_dataset(key, data=values)
+        handle.attrs["fs"] = rec.fs
+    return path

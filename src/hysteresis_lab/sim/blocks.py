@@ -1,0 +1,89 @@
+"""The positioner's physical blocks as functions of sampled signals (linear ones via scipy)."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import signal
+
+from hysteresis_lab.sim.bouc_wen import bouc_wen_state
+from hysteresis_lab.sim.config import (
+    Amplifier,
+    Asymmetry,
+    Creep,
+    Drift,
+    Hysteresis,
+    Mode,
+    Noise,
+    Quantisation,
+    RateDependence,
+    Saturation,
+)
+
+
+def first_order_lowpass(x: np.ndarray, fs: float, time_constant_s: float) -> np.ndarray:
+    """Unit-DC-gain first-order low-pass (step-invariant discretisation), starting at rest."""
+    pole = np.exp(-1.0 / (fs * time_constant_s))
+    return signal.lfilter([1.0 - pole], [1.0, -pole], x)
+
+
+def amplifier(v: np.ndarray, fs: float, cfg: Amplifier) -> np.ndarray:
+    return first_order_lowpass(v, fs, 1.0 / (2.0 * np.pi * cfg.cutoff_hz))
+
+
+def saturation(v: np.ndarray, cfg: Saturation) -> np.ndarray:
+    return np.clip(v, -cfg.limit_v, cfg.limit_v)
+
+
+def delay(x: np.ndarray, samples: int) -> np.ndarray:
+    if samples <= 0:
+        return x
+    return np.concatenate([np.zeros(samples), x[:-samples]])[: len(x)]
+
+
+def hysteresis(
+    v: np.ndarray, fs: float, cfg: Hysteresis, rate: RateDependence | None = None
+) -> np.ndarray:
+    """Bouc–Wen displacement ``d v - h`` (µm); ``alpha`` rate-dependent when ``rate`` is on."""
+    alpha = np.full(len(v), cfg.alpha)
+    if rate is not None and rate.enabled:
+        dv_dt = np.abs(np.diff(v, prepend=v[0])) * fs
+        alpha = alpha * (1.0 + rate.gain * dv_dt / rate.rate_ref_v_per_s)
+    h = bouc_wen_state(np.ascontiguousarray(v, dtype=float), cfg.d_um_per_v, alpha, cfg.beta,
+                       cfg.gamma)
+    return cfg.d_um_per_v * v - h
+
+
+def asymmetry(x: np.ndarray, v: np.ndarray, cfg: Asymmetry, stroke_um: float) -> np.ndarray:
+    return x + cfg.coefficient * stroke_um * (v / cfg.v_ref) ** 2
+
+
+def creep(x: np.ndarray, fs: float, cfg: Creep) -> np.ndarray:
+    """``x + w * sum_i lowpass_tau_i(x)``: each decade of time adds about ``w`` of the step."""
+    out = np.array(x, dtype=float)
+    for tau in cfg.time_constants_s:
+        out += cfg.weight_per_decade * first_order_lowpass(x, fs, tau)
+    return out
+
+
+def mode_filter(x: np.ndarray, fs: float, cfg: Mode) -> np.ndarray:
+    """Second-order resonance ``wn^2 / (s^2 + 2 zeta wn s + wn^2)``; bilinear, prewarped at wn."""
+    wn = 2.0 * np.pi * cfg.frequency_hz
+    warped = 2.0 * fs * np.tan(wn / (2.0 * fs))
+    b, a = signal.bilinear([warped**2], [1.0, 2.0 * cfg.damping * warped, warped**2], fs)
+    return signal.lfilter(b, a, x)
+
+
+def drift(n: int, fs: float, cfg: Drift, rng: np.random.Generator) -> np.ndarray:
+    """Ramp plus a slow oscillation of random phase (thermal expansion, sensor drift)."""
+    t = np.arange(n) / fs
+    phase = rng.uniform(0.0, 2.0 * np.pi)
+    wave = np.sin(2.0 * np.pi * t / cfg.period_s + phase) - np.sin(phase)
+    return cfg.rate_um_per_s * t + cfg.amplitude_um * wave
+
+
+def noise(n: int, cfg: Noise, rng: np.random.Generator) -> np.ndarray:
+    return rng.normal(0.0, cfg.rms_um, n)
+
+
+def quantise(y: np.ndarray, cfg: Quantisation) -> np.ndarray:
+    return np.round(y / cfg.step_um) * cfg.step_um

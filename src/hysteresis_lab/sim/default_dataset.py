@@ -1,0 +1,58 @@
+"""The study's protocol on the simulated positioner: multisine development set, twelve sines."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+from omegaconf import DictConfig, OmegaConf
+
+from hysteresis_lab.data.splits import DatasetSplits
+from hysteresis_lab.signals import multisine, sine
+from hysteresis_lab.sim.config import PositionerConfig
+from hysteresis_lab.sim.positioner import simulate_recording
+
+log = logging.getLogger(__name__)
+
+TEST_FREQUENCIES_HZ = (0.1, 1, 10, 50, 100, 150, 200, 250, 300, 400, 450, 500)
+
+
+def sine_name(frequency: float) -> str:
+    return f"sine_{frequency:g}Hz"
+
+
+def make_default_dataset(
+    effects: Mapping[str, Any] | DictConfig | None = None,
+    seed: int = 0,
+    n_train: int = 80_000,
+    fs: float = 20_000.0,
+    test_frequencies: Sequence[float] = TEST_FREQUENCIES_HZ,
+    amplitude: float = 100.0,
+    max_test_samples: int | None = None,
+) -> DatasetSplits:
+    """Multisine (500 lines, 0-500 Hz, ±amplitude, ``n_train`` samples) and sine test sets.
+
+    Each sine lasts two periods, except the 0.1 Hz one (one period, 10 s = 200,000 samples);
+    ``max_test_samples`` truncates them (for quick runs). Every recording starts at rest.
+    """
+    if isinstance(effects, DictConfig):
+        effects = OmegaConf.to_container(effects, resolve=True)  # type: ignore[assignment]
+    config = PositionerConfig.from_dict(effects)
+    seeds = np.random.default_rng(seed).integers(0, 2**31, size=2 + len(test_frequencies))
+    u_train = multisine(n_train, fs=fs, amplitude=amplitude, seed=int(seeds[0]))
+    train = simulate_recording(u_train, fs, config, seed=int(seeds[1]), name="multisine")
+    tests = []
+    for frequency, rec_seed in zip(test_frequencies, seeds[2:], strict=True):
+        periods = 1.0 if frequency < 1.0 else 2.0
+        u = sine(frequency, fs=fs, amplitude=amplitude, n_periods=periods)
+        if max_test_samples:
+            u = u[:max_test_samples]
+        name = sine_name(frequency)
+        tests.append(simulate_recording(u, fs, config, seed=int(rec_seed), name=name))
+    return DatasetSplits(
+        name="default", train=[train], test=tests,
+        metadata={"source": "simulator", "effects": config.to_dict(), "seed": seed},
+    )
+
