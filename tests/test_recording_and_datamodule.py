@@ -43,7 +43,7 @@ def test_recording_keeps_callers_array_writable():
 def test_different_sampling_rates_are_rejected():
     a = make_recording(50, "a", fs=1000.0)
     b = make_recording(50, "b", fs=500.0)
-    with pytest.raises(DataError, match="recording 'b'.*500 Hz differs from 1000 Hz of 'a'"):
+    with pytest.raises(DataError, match="recording 'b'.*500 Hz differs from 1000 Hz of recording 'a'"):
         DatasetSplits("mixed", train=[a], test=[b])
 
 

@@ -166,7 +166,7 @@ def check_compatible(recordings: Sequence[Recording], purpose: str = "this data 
     for rec in recordings[1:]:
         if not np.isclose(rec.fs, first.fs, rtol=1e-9):
             raise DataError(
-                f"sampling rate {rec.fs:g} Hz differs from {first.fs:g} Hz of '{first.name}'.",
+                f"sampling rate {rec.fs:g} Hz differs from {first.fs:g} Hz of {where(first)}.",
                 source=where(rec),
                 fix="resample the recordings to one rate before combining them",
             )

@@ -1,0 +1,1 @@
+"""Model registry (entry points) and the built-in architectures."""

@@ -1,0 +1,133 @@
+"""`NarxModule`: the shared base of the NARX networks (FFNN, LSTM, CNN and plugins).
+
+A subclass sets ``layout`` ("flat" or "sequence") and builds ``self.net`` mapping scaled
+regressors to the scaled next output. The base owns what every architecture shares:
+normalisation (buffers saved with the weights, so a checkpoint maps volts to micrometres on
+its own), the MSE loss, Adam and the learning-rate schedule.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any, ClassVar
+
+import lightning as L
+import torch
+from torch import nn
+
+from hysteresis_lab.data.windows import Layout, WindowSpec, assemble
+from hysteresis_lab.errors import ConfigError
+
+LR_SCHEDULES = ("cosine", "plateau", "none")
+
+
+class NarxModule(L.LightningModule):
+    """``y[k] = f(u[k-nk-nb+1 .. k-nk], y[k-na .. k-1])`` with normalisation inside."""
+
+    layout: ClassVar[Layout] = "flat"
+    registry_name: ClassVar[str] = ""
+
+    def __init__(
+        self,
+        nu: int,
+        ny: int,
+        na: int = 10,
+        nb: int = 10,
+        nk: int = 1,
+        scaler: dict[str, Sequence[float]] | None = None,
+        lr: float = 1e-3,
+        lr_schedule: str = "cosine",
+        weight_decay: float = 0.0,
+        effects: Sequence[str] = (),
+    ) -> None:
+        super().__init__()
+        if nu < 1 or ny < 1:
+            raise ConfigError(f"a model needs nu >= 1 and ny >= 1 (got nu={nu}, ny={ny}).")
+        if lr_schedule not in LR_SCHEDULES:
+            raise ConfigError(
+                f"unknown lr_schedule '{lr_schedule}'. Fix: model.lr_schedule=one of "
+                f"{list(LR_SCHEDULES)}."
+            )
+        if not lr > 0:
+            raise ConfigError(f"learning rate lr={lr} must be positive. Fix: model.lr=1e-3.")
+        if effects:
+            raise ConfigError(
+                f"model.effects={list(effects)}: effect features are not available yet "
+                "(issue #5). Fix: model.effects=[]."
+            )
+        self.window = WindowSpec(na=na, nb=nb, nk=nk)
+        self.save_hyperparameters()
+        self.hparams["model_name"] = type(self).registry_name or type(self).__name__
+        scaler = scaler or {}
+        for key, size in (("u_offset", nu), ("u_scale", nu), ("y_offset", ny), ("y_scale", ny)):
+            default = 0.0 if key.endswith("offset") else 1.0
+            values = torch.as_tensor(scaler.get(key, [default] * size), dtype=torch.float32)
+            self.register_buffer(key, values.reshape(size))
+        self.nu, self.ny = nu, ny
+        self.net: nn.Module = nn.Identity()
+        self.loss_fn = nn.MSELoss()
+
+    # ------------------------------------------------------------------ model
+    @property
+    def n_features(self) -> int:
+        """Width of the regressor (flat) or features per time step (sequence)."""
+        return self.window.n_features(self.nu, self.ny, self.layout)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """Scaled regressors (layout of the class) -> scaled next output (B, ny)."""
+        return self.net(x)
+
+    def scale_inputs(self, u_past: torch.Tensor, y_past: torch.Tensor) -> torch.Tensor:
+        """Physical lags (B, nb, nu), (B, na, ny) -> scaled regressors in this model's layout."""
+        u = (u_past - self.u_offset) / self.u_scale
+        y = (y_past - self.y_offset) / self.y_scale
+        return assemble(u, y, self.layout)
+
+    def unscale_output(self, y_scaled: torch.Tensor) -> torch.Tensor:
+        return y_scaled * self.y_scale + self.y_offset
+
+    def predict_physical(self, u_past: torch.Tensor, y_past: torch.Tensor) -> torch.Tensor:
+        """Physical units in (V, µm lags), physical next output out (B, ny)."""
+        return self.unscale_output(self(self.scale_inputs(u_past, y_past)))
+
+    # ------------------------------------------------------------------ training
+    def _step(self, batch: tuple[torch.Tensor, torch.Tensor], stage: str) -> torch.Tensor:
+        x, target = batch
+        loss = self.loss_fn(self(x), target)
+        self.log(f"{stage}_loss", loss, on_step=False, on_epoch=True, prog_bar=True,
+                 batch_size=x.shape[0])
+        return loss
+
+    def training_step(self, batch: Any, batch_idx: int) -> torch.Tensor:
+        return self._step(batch, "train")
+
+    def validation_step(self, batch: Any, batch_idx: int) -> torch.Tensor:
+        return self._step(batch, "val")
+
+    def configure_optimizers(self) -> Any:
+        optimizer = torch.optim.Adam(self.parameters(), lr=self.hparams.lr,
+                                     weight_decay=self.hparams.weight_decay)
+        schedule = self.hparams.lr_schedule
+        if schedule == "cosine":
+            epochs = max(1, int(self.trainer.max_epochs or 1))
+            scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=epochs,
+                                                                   eta_min=self.hparams.lr * 0.01)
+            return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler,
+                                                             "interval": "epoch"}}
+        if schedule == "plateau":
+            scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(optimizer, factor=0.5,
+                                                                   patience=5)
+            return {"optimizer": optimizer,
+                    "lr_scheduler": {"scheduler": scheduler, "monitor": "val_loss"}}
+        return optimizer
+
+
+def mlp(n_in: int, n_out: int, hidden: int, n_hidden_layers: int) -> nn.Sequential:
+    """``n_hidden_layers`` ReLU layers of width ``hidden``, then a linear output layer."""
+    layers: list[nn.Module] = []
+    width = n_in
+    for _ in range(n_hidden_layers):
+        layers += [nn.Linear(width, hidden), nn.ReLU()]
+        width = hidden
+    layers.append(nn.Linear(width, n_out))
+    return nn.Sequential(*layers)

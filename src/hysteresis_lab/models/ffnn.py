@@ -1,0 +1,23 @@
+"""FFNN (NARX MLP) on the flat regressor; the study's optimum is 4 layers of 100 neurons."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.models.base import NarxModule, mlp
+
+
+class FFNN(NarxModule):
+    """``num_layers`` linear layers in total (ReLU between, linear output)."""
+
+    layout = "flat"
+
+    def __init__(self, nu: int, ny: int, num_layers: int = 4, neurons: int = 100,
+                 **kwargs: Any) -> None:
+        super().__init__(nu=nu, ny=ny, **kwargs)
+        if num_layers < 2 or neurons < 1:
+            raise ConfigError(
+                f"FFNN needs num_layers >= 2 and neurons >= 1 (got {num_layers}, {neurons})."
+            )
+        self.net = mlp(self.n_features, ny, neurons, num_layers - 1)

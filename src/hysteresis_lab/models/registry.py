@@ -1,0 +1,43 @@
+"""The model registry: every architecture, built-in or plugin, is an entry point.
+
+Group ``hysteresis_lab.models``; the entry-point name is what ``model=<name>`` selects.
+"""
+
+from __future__ import annotations
+
+from importlib.metadata import EntryPoint, entry_points
+
+from hysteresis_lab.errors import ConfigError
+
+GROUP = "hysteresis_lab.models"
+
+
+def _entry_points() -> dict[str, EntryPoint]:
+    return {ep.name: ep for ep in entry_points(group=GROUP)}
+
+
+def available_models() -> list[str]:
+    """Names of all registered architectures."""
+    return sorted(_entry_points())
+
+
+def get_model_class(name: str) -> type:
+    """The class registered as ``name``; a clear error for unknown or broken entries."""
+    points = _entry_points()
+    if name not in points:
+        raise ConfigError(
+            f"unknown model '{name}'. Available: {sorted(points)}. Fix: choose one with "
+            "model=<name>, or install a plugin package that registers it under the "
+            f"'{GROUP}' entry-point group."
+        )
+    point = points[name]
+    try:
+        cls = point.load()
+    except Exception as exc:  # a plugin's import error must not look like ours
+        package = point.dist.name if point.dist else point.value
+        raise ConfigError(
+            f"model '{name}' is registered by '{package}' ({point.value}) but fails to import: "
+            f"{type(exc).__name__}: {exc}. Fix: repair or reinstall that package."
+        ) from exc
+    cls.registry_name = name
+    return cls
