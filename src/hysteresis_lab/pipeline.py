@@ -63,6 +63,8 @@ def train_and_evaluate(
     use_tensorboard: bool = True,
     n_steps: int | None = None,
     plots: bool = True,
+    evaluate: bool = True,
+    callbacks: list[Any] | None = None,
 ) -> RunResult:
     """Fit the model ``model_cfg`` on ``data_cfg``'s data, score it on every test recording."""
     model_cfg, data_cfg, trainer_cfg = map(_container, (model_cfg, data_cfg, trainer_cfg))
@@ -76,11 +78,15 @@ def train_and_evaluate(
         if use_tensorboard
         else None
     )
-    trained = fit(model, datamodule, trainer_cfg, output_dir, logger=logger)
+    trained = fit(model, datamodule, trainer_cfg, output_dir, logger=logger, callbacks=callbacks)
     model_path = save_model(trained.model, output_dir / "model")
     log.info("saved %s", model_path)
-
     data = datamodule.splits
+    if not evaluate:
+        document = {"model": str(model_cfg["name"]), "data": data.name,
+                    "val_mse_scaled": trained.val_mse, "train_seconds": trained.train_seconds}
+        write_json(document, output_dir / "metrics.json")
+        return RunResult(document, trained.val_mse, Evaluation(), trained.model)
     evaluation = evaluate_model(
         trained.model, data.test, datamodule.window, n_init=data.n_init, n_steps=n_steps,
         device=evaluation_device(trainer_cfg),

@@ -29,19 +29,37 @@ log = logging.getLogger(__name__)
 def run(cfg: DictConfig) -> float | None:
     """Run the task the composed config describes; return the sweep objective."""
     from hysteresis_lab.pipeline import run_paper, train_and_evaluate
+    from hysteresis_lab.tuning.pruning import trial_callback
 
     output_dir = Path(HydraConfig.get().runtime.output_dir)
     use_tensorboard = bool(cfg.logger.get("enabled", True))
     if cfg.task == "paper":
         models = OmegaConf.to_container(cfg.paper.models, resolve=True)
-        run_paper(models, cfg.data, cfg.trainer, output_dir, seed=cfg.seed,
-                  use_tensorboard=use_tensorboard)
+        run_paper(
+            models,
+            cfg.data,
+            cfg.trainer,
+            output_dir,
+            seed=cfg.seed,
+            use_tensorboard=use_tensorboard,
+        )
         return None
     if cfg.task != "train":
         raise ConfigError(f"unknown task '{cfg.task}'. Fix: use task=train or experiment=paper.")
+    pruning = trial_callback(
+        OmegaConf.to_container(cfg.sweep_trial) if "sweep_trial" in cfg else None
+    )
     result = train_and_evaluate(
-        cfg.model, cfg.data, cfg.trainer, output_dir, seed=cfg.seed,
-        use_tensorboard=use_tensorboard, n_steps=cfg.get("n_step"), plots=cfg.plots,
+        cfg.model,
+        cfg.data,
+        cfg.trainer,
+        output_dir,
+        seed=cfg.seed,
+        use_tensorboard=use_tensorboard,
+        n_steps=cfg.get("n_step"),
+        plots=cfg.plots,
+        evaluate=cfg.get("evaluate", True),
+        callbacks=[pruning] if pruning else None,
     )
     return result.val_mse
 

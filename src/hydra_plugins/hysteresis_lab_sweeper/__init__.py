@@ -1,0 +1,1 @@
+"""Hydra sweeper ``hydra/sweeper=hysteresis_lab``: resumable, distributed Optuna studies."""

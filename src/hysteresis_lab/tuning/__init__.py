@@ -1,0 +1,1 @@
+"""Bayesian hyperparameter tuning: a resumable, distributable Optuna study behind Hydra multirun."""

@@ -1,0 +1,57 @@
+"""Prune hopeless trials: report the validation loss after every epoch to the shared study."""
+
+from __future__ import annotations
+
+import math
+import os
+
+import lightning as L
+import optuna
+
+from hysteresis_lab.tuning.choices import make_pruner
+from hysteresis_lab.tuning.storage import STORAGE_ENV
+
+
+class PruningCallback(L.Callback):
+    """Report ``val_loss`` per epoch; raise `optuna.TrialPruned` when the pruner says so.
+
+    A NaN validation loss prunes the trial at once (the study goes on with the next).
+    """
+
+    def __init__(self, trial: optuna.trial.Trial, monitor: str = "val_loss") -> None:
+        self.trial, self.monitor = trial, monitor
+
+    def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if trainer.sanity_checking:
+            return
+        value = trainer.callback_metrics.get(self.monitor)
+        if value is None:
+            return
+        value = float(value)
+        if not math.isfinite(value):
+            raise optuna.TrialPruned(
+                f"{self.monitor} became {value} at epoch {trainer.current_epoch}"
+            )
+        self.trial.report(value, step=trainer.current_epoch)
+        if self.trial.should_prune():
+            raise optuna.TrialPruned(
+                f"pruned at epoch {trainer.current_epoch} ({self.monitor}={value:.3e})"
+            )
+
+
+def trial_callback(sweep_trial: dict | None) -> PruningCallback | None:
+    """The pruning callback of the sweep trial this job runs (``sweep_trial`` config node)."""
+    url = os.environ.get(STORAGE_ENV)
+    if not sweep_trial or sweep_trial.get("number") is None or not url:
+        return None
+    pruner = make_pruner(
+        sweep_trial.get("pruner", "median"),
+        n_warmup_steps=int(sweep_trial.get("warmup_epochs", 10)),
+    )
+    study = optuna.load_study(study_name=sweep_trial["study"], storage=url, pruner=pruner)
+    trial_number = int(sweep_trial["number"])
+    trial_id = study._storage.get_trial_id_from_study_id_trial_number(  # noqa: SLF001
+        study._study_id,
+        trial_number,  # noqa: SLF001
+    )
+    return PruningCallback(optuna.trial.Trial(study, trial_id))

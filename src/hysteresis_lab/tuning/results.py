@@ -1,0 +1,117 @@
+"""What a finished sweep leaves behind: best config, trials table, history and importance plots."""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from pathlib import Path
+from typing import Any
+
+import optuna
+import yaml
+from matplotlib.figure import Figure
+from optuna.trial import TrialState
+
+from hysteresis_lab.tuning.bookkeeping import counted
+
+log = logging.getLogger(__name__)
+
+
+def first_best_trial(study: optuna.Study) -> int | None:
+    """Number of the trial at which the final best value was first reached."""
+    complete = [
+        t
+        for t in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
+        if counted(t) and t.value is not None and math.isfinite(t.value)
+    ]
+    if not complete:
+        return None
+    best = min(t.value for t in complete)
+    return min(t.number for t in complete if t.value <= best)
+
+
+def best_config(study: optuna.Study, model_name: str, fixed: dict[str, Any]) -> dict[str, Any]:
+    """A ``# @package _global_`` experiment config with the best trial's overrides."""
+    params = dict(study.best_trial.params)
+    model = {k.removeprefix("model."): v for k, v in params.items() if k.startswith("model.")}
+    other = {k: v for k, v in params.items() if not k.startswith("model.")}
+    config: dict[str, Any] = {"defaults": [{"override /model": model_name}], "model": model}
+    for dotted, value in {**fixed, **other}.items():
+        node = config
+        *parents, leaf = dotted.split(".")
+        for key in parents:
+            node = node.setdefault(key, {})
+        node[leaf] = value
+    return config
+
+
+def write_results(
+    study: optuna.Study,
+    model_name: str,
+    fixed: dict[str, Any],
+    directory: Path,
+    experiment_dir: Path,
+) -> dict[str, Any]:
+    """Write trials.csv, best_<study>.yaml, history and importance PNGs, summary.json."""
+    directory.mkdir(parents=True, exist_ok=True)
+    trials = study.trials_dataframe()
+    trials.to_csv(directory / "trials.csv", index=False)
+    summary: dict[str, Any] = {"study": study.study_name, "n_trials": len(trials)}
+    try:
+        best = study.best_trial
+    except ValueError:
+        log.warning("no completed trial yet: nothing to report as best")
+        (directory / "summary.json").write_text(json.dumps(summary, indent=2))
+        return summary
+    experiment_dir.mkdir(parents=True, exist_ok=True)
+    config_name = f"best_{study.study_name}"
+    config_path = experiment_dir / f"{config_name}.yaml"
+    header = (
+        f"# @package _global_\n# Best of Optuna study '{study.study_name}' "
+        f"(trial {best.number}, validation MSE {best.value:.4e}).\n"
+    )
+    config_path.write_text(
+        header + yaml.safe_dump(best_config(study, model_name, fixed), sort_keys=False)
+    )
+    summary.update(
+        {
+            "best_value": best.value,
+            "best_params": best.params,
+            "best_trial": best.number,
+            "first_reached_at_trial": first_best_trial(study),
+            "best_config": str(config_path),
+            "use_it": f"hysteresis-lab-train experiment={config_name}",
+        }
+    )
+    _plot(study, directory)
+    (directory / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
+    log.info(
+        "best validation MSE %.4e at trial %d (first reached at trial %s); train it with: %s",
+        best.value,
+        best.number,
+        summary["first_reached_at_trial"],
+        summary["use_it"],
+    )
+    return summary
+
+
+def _plot(study: optuna.Study, directory: Path) -> None:
+    import matplotlib.pyplot as plt
+    from optuna.visualization import matplotlib as ovm
+
+    plots = {
+        "optimization_history.png": ovm.plot_optimization_history,
+        "param_importances.png": ovm.plot_param_importances,
+    }
+    for name, plot in plots.items():
+        try:
+            axes = plot(study)
+        except (ValueError, RuntimeError) as exc:  # e.g. importances need >= 2 trials
+            log.warning("could not draw %s: %s", name, exc)
+            continue
+        figure: Figure = axes.get_figure()
+        figure.set_size_inches(7, 4.5)
+        figure.tight_layout()
+        figure.savefig(directory / name, dpi=110)
+        plt.close(figure)
