@@ -43,7 +43,9 @@ def test_recording_keeps_callers_array_writable():
 def test_different_sampling_rates_are_rejected():
     a = make_recording(50, "a", fs=1000.0)
     b = make_recording(50, "b", fs=500.0)
-    with pytest.raises(DataError, match="recording 'b'.*500 Hz differs from 1000 Hz of recording 'a'"):
+    with pytest.raises(
+        DataError, match="recording 'b'.*500 Hz differs from 1000 Hz of recording 'a'"
+    ):
         DatasetSplits("mixed", train=[a], test=[b])
 
 
@@ -81,7 +83,9 @@ def test_random_90_10_split_of_windows():
 
 def test_sequence_layout_batches_and_explicit_validation_recordings():
     splits = DatasetSplits(
-        "d", train=[make_recording(300, "tr", nu=2)], val=[make_recording(60, "va", nu=2)],
+        "d",
+        train=[make_recording(300, "tr", nu=2)],
+        val=[make_recording(60, "va", nu=2)],
         test=[make_recording(80, "te", nu=2)],
     )
     dm = WindowDataModule(splits, WindowSpec(), layout="sequence", batch_size=16)

@@ -54,8 +54,9 @@ def test_flat_and_sequence_layouts_hold_the_same_numbers():
     np.testing.assert_array_equal(seq[:, -1, :2], windows.u_past[:, -1, :])
     np.testing.assert_array_equal(seq[:, -1, 2:], windows.y_past[:, -1, :])
     np.testing.assert_array_equal(seq[:, :2, 2:], 0.0)
-    torch_seq = assemble(torch.from_numpy(windows.u_past), torch.from_numpy(windows.y_past),
-                         "sequence")
+    torch_seq = assemble(
+        torch.from_numpy(windows.u_past), torch.from_numpy(windows.y_past), "sequence"
+    )
     np.testing.assert_array_equal(torch_seq.numpy(), seq)
 
 

@@ -1,4 +1,4 @@
-"""Train-and-evaluate runs: one model (``hysteresis-lab-train``) or the study's four (``experiment=paper``).
+"""Train-and-evaluate runs: one model, or the study's four (``experiment=paper``).
 
 Everything a run produces lands in its output folder: checkpoints, ``metrics.json``,
 hysteresis-loop and residual figures, and TensorBoard event files (loss curves, figures,
@@ -73,8 +73,9 @@ def train_and_evaluate(
     datamodule = build_datamodule(data_cfg, model_layout(model_cfg), seed=seed, splits=splits)
     model = build_model(model_cfg, datamodule)
     logger = (
-        TensorBoardLogger(save_dir=str(output_dir), name="tensorboard", version="",
-                          default_hp_metric=False)
+        TensorBoardLogger(
+            save_dir=str(output_dir), name="tensorboard", version="", default_hp_metric=False
+        )
         if use_tensorboard
         else None
     )
@@ -83,17 +84,28 @@ def train_and_evaluate(
     log.info("saved %s", model_path)
     data = datamodule.splits
     if not evaluate:
-        document = {"model": str(model_cfg["name"]), "data": data.name,
-                    "val_mse_scaled": trained.val_mse, "train_seconds": trained.train_seconds}
+        document = {
+            "model": str(model_cfg["name"]),
+            "data": data.name,
+            "val_mse_scaled": trained.val_mse,
+            "train_seconds": trained.train_seconds,
+        }
         write_json(document, output_dir / "metrics.json")
         return RunResult(document, trained.val_mse, Evaluation(), trained.model)
     evaluation = evaluate_model(
-        trained.model, data.test, datamodule.window, n_init=data.n_init, n_steps=n_steps,
+        trained.model,
+        data.test,
+        datamodule.window,
+        n_init=data.n_init,
+        n_steps=n_steps,
         device=evaluation_device(trainer_cfg),
     )
     units = {"u": data.test[0].u_units, "y": data.test[0].y_units}
     document = metrics_document(
-        str(model_cfg["name"]), units, evaluation.metrics, trained.train_seconds,
+        str(model_cfg["name"]),
+        units,
+        evaluation.metrics,
+        trained.train_seconds,
         extra={"val_mse_scaled": trained.val_mse, "data": data.name, "model_path": str(model_path)},
     )
     write_json(document, output_dir / "metrics.json")
@@ -108,8 +120,13 @@ def train_and_evaluate(
         logger.finalize("success")
     log.info(
         "%s on %s: mean RMSE one-step %.4g %s, free-run %.4g %s (metrics.json in %s)",
-        model_cfg["name"], data.name, document["mean"]["rmse_one_step"], units["y"],
-        document["mean"]["rmse_free_run"], units["y"], output_dir,
+        model_cfg["name"],
+        data.name,
+        document["mean"]["rmse_one_step"],
+        units["y"],
+        document["mean"]["rmse_free_run"],
+        units["y"],
+        output_dir,
     )
     return RunResult(document, trained.val_mse, evaluation, trained.model)
 
@@ -128,20 +145,30 @@ def run_paper(
     for key, model_cfg in models.items():
         log.info("=== %s ===", key)
         results[key] = train_and_evaluate(
-            model_cfg, data_cfg, trainer_cfg, output_dir / key, seed=seed, splits=splits,
+            model_cfg,
+            data_cfg,
+            trainer_cfg,
+            output_dir / key,
+            seed=seed,
+            splits=splits,
             use_tensorboard=use_tensorboard,
         )
     documents = {key: result.document for key, result in results.items()}
     md_path, csv_path = write_table2(documents, output_dir)
     write_json(documents, output_dir / "paper_results.json")
     free_run = {
-        rec.name: {key: res.evaluation.predictions[rec.name]["free_run"]
-                   for key, res in results.items()}
+        rec.name: {
+            key: res.evaluation.predictions[rec.name]["free_run"] for key, res in results.items()
+        }
         for rec in splits.test
     }
     figure = save_figure(
-        loops_figure(splits.test, free_run, title="Free-run simulation: measured (black) and "
-                     "predicted displacement against voltage"),
+        loops_figure(
+            splits.test,
+            free_run,
+            title="Free-run simulation: measured (black) and "
+            "predicted displacement against voltage",
+        ),
         output_dir / "figure1.png",
     )
     log.info("Table 2: %s, %s; Figure 1: %s", md_path, csv_path, figure)

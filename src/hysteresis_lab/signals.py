@@ -13,6 +13,12 @@ def _positive(**values: float) -> None:
             raise ConfigError(f"signal {name}={value!r} must be a positive number.")
 
 
+def _integer(**values: float) -> None:
+    for name, value in values.items():
+        if float(value) != int(value):
+            raise ConfigError(f"signal {name}={value!r} must be a whole number.")
+
+
 def multisine(
     n_samples: int,
     fs: float = 20_000.0,
@@ -28,8 +34,10 @@ def multisine(
     """
     _positive(n_samples=n_samples, fs=fs, n_components=n_components, f_max=f_max,
               amplitude=amplitude)
+    _integer(n_samples=n_samples, n_components=n_components)
     if f_max >= fs / 2:
         raise ConfigError(f"multisine f_max={f_max} Hz must lie below fs/2 = {fs / 2} Hz.")
+    n_components = int(n_components)
     rng = np.random.default_rng(seed)
     phases = rng.uniform(0.0, 2.0 * np.pi, n_components)
     freqs = np.arange(1, n_components + 1) * (f_max / n_components)
@@ -63,5 +71,6 @@ def sine(
         _positive(n_periods=n_periods)
         n_samples = int(round(n_periods * fs / frequency))
     _positive(n_samples=n_samples)
+    _integer(n_samples=n_samples)
     t = np.arange(int(n_samples)) / fs
     return amplitude * np.sin(2.0 * np.pi * frequency * t + phase)

@@ -1,4 +1,4 @@
-"""Build a registered model for a DataModule and fit it (Lightning for nets, scikit-learn for SVM)."""
+"""Build a registered model for a DataModule and fit it (Lightning nets, scikit-learn SVM)."""
 
 from __future__ import annotations
 
@@ -48,7 +48,8 @@ def build_model(model_cfg: Mapping[str, Any], datamodule: WindowDataModule) -> A
     if unknown:
         raise ConfigError(
             f"model '{name}' has no parameter(s) {unknown}. Valid: {sorted(accepted)}. "
-            f"Fix: remove the override or correct its spelling (e.g. model.{sorted(accepted)[0]}=...)."
+            f"Fix: remove the override or correct its spelling (e.g. "
+            f"model.{sorted(accepted)[0]}=...)."
         )
     window = datamodule.window
     return cls(
@@ -105,7 +106,9 @@ def fit(
         model.load_state_dict(state)
     score = checkpoint.best_model_score
     val_mse = float(score) if score is not None else float("nan")
-    log.info("best validation MSE %.4e (scaled) after %.1f s; checkpoint %s", val_mse, seconds, best)
+    log.info(
+        "best validation MSE %.4e (scaled) after %.1f s; checkpoint %s", val_mse, seconds, best
+    )
     return TrainResult(model.eval(), val_mse, seconds, Path(best) if best else None)
 
 

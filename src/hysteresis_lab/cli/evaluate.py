@@ -25,11 +25,12 @@ log = logging.getLogger(__name__)
 @report_errors
 def run(cfg: DictConfig) -> dict:
     """Load the model, score it on the data config's test recordings, write metrics.json."""
+    from hysteresis_lab.models.io import load_model, model_window
+
     from hysteresis_lab.data.factory import build_splits
     from hysteresis_lab.evaluation.evaluate import evaluate_model
     from hysteresis_lab.evaluation.plots import loops_figure, residuals_figure, save_figure
     from hysteresis_lab.evaluation.report import metrics_document, write_json
-    from hysteresis_lab.models.io import load_model, model_window
 
     output_dir = Path(HydraConfig.get().runtime.output_dir)
     model = load_model(resolve_checkpoint(Path(str(cfg.checkpoint))))
@@ -40,18 +41,29 @@ def run(cfg: DictConfig) -> dict:
     if device not in {"cpu", "cuda"}:
         raise ConfigError(f"device={device!r} is not one of auto, cpu, cuda. Fix: device=auto.")
     evaluation = evaluate_model(
-        model, splits.test, model_window(model), n_init=splits.n_init,
-        n_steps=cfg.get("n_step"), device=device,
+        model,
+        splits.test,
+        model_window(model),
+        n_init=splits.n_init,
+        n_steps=cfg.get("n_step"),
+        device=device,
     )
     units = {"u": splits.test[0].u_units, "y": splits.test[0].y_units}
     document = metrics_document(
-        str(getattr(model, "registry_name", type(model).__name__)), units, evaluation.metrics,
-        train_seconds=0.0, extra={"checkpoint": str(cfg.checkpoint), "data": splits.name},
+        str(getattr(model, "registry_name", type(model).__name__)),
+        units,
+        evaluation.metrics,
+        train_seconds=0.0,
+        extra={"checkpoint": str(cfg.checkpoint), "data": splits.name},
     )
     write_json(document, output_dir / "metrics.json")
     if cfg.plots:
-        save_figure(loops_figure(splits.test, evaluation.predictions), output_dir / "hysteresis_loops.png")
-        save_figure(residuals_figure(splits.test, evaluation.predictions), output_dir / "residuals.png")
+        save_figure(
+            loops_figure(splits.test, evaluation.predictions), output_dir / "hysteresis_loops.png"
+        )
+        save_figure(
+            residuals_figure(splits.test, evaluation.predictions), output_dir / "residuals.png"
+        )
     log.info("metrics written to %s", output_dir / "metrics.json")
     return document
 

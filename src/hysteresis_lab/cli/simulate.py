@@ -29,19 +29,32 @@ def run(cfg: DictConfig) -> Path:
 
     sig = cfg.signal
     if sig.kind == "multisine":
-        u = multisine(sig.n_samples, fs=cfg.fs, n_components=sig.n_components, f_max=sig.f_max,
-                      amplitude=sig.amplitude, seed=sig.seed)
+        u = multisine(
+            sig.n_samples,
+            fs=cfg.fs,
+            n_components=sig.n_components,
+            f_max=sig.f_max,
+            amplitude=sig.amplitude,
+            seed=sig.seed,
+        )
         name = "multisine"
     elif sig.kind == "sine":
         u = sine(sig.frequency, fs=cfg.fs, amplitude=sig.amplitude, n_periods=sig.n_periods)
+        # sin starts at 0 V: the positioner starts at rest
         name = f"sine_{sig.frequency:g}Hz"
     else:
         raise ConfigError(f"unknown signal.kind '{sig.kind}'. Fix: signal.kind=multisine or sine.")
     effects = OmegaConf.to_container(cfg.effects, resolve=True)
     recording = simulate_recording(u, cfg.fs, effects, seed=cfg.seed, name=name)
-    path = write_csv(recording, Path(str(cfg.output)))
-    log.info("wrote %d samples (%s; effects: %s) to %s", recording.n_samples, name,
-             ", ".join(recording.metadata["effects"]), path)
+    output = cfg.get("output") or f"outputs/simulated/{name}.csv"
+    path = write_csv(recording, Path(str(output)))
+    log.info(
+        "wrote %d samples (%s; effects: %s) to %s",
+        recording.n_samples,
+        name,
+        ", ".join(recording.metadata["effects"]),
+        path,
+    )
     return path
 
 

@@ -1,4 +1,4 @@
-"""``hysteresis-lab-train``: train and evaluate one model, or the study's four (``experiment=paper``).
+"""``hysteresis-lab-train``: train and evaluate one model, or the study's four.
 
 Examples::
 

@@ -74,7 +74,8 @@ class Recording:
             if bad.any():
                 row, col = np.argwhere(bad)[0]
                 raise DataError(
-                    f"{what} contains {int(bad.sum())} NaN/inf value(s), the first at sample {row}, "
+                    f"{what} contains {int(bad.sum())} NaN/inf value(s), the first at sample "
+                    f"{row}, "
                     f"channel {col}.",
                     source=source,
                     fix="remove or interpolate the missing samples before loading",
@@ -172,7 +173,8 @@ def check_compatible(recordings: Sequence[Recording], purpose: str = "this data 
             )
         if (rec.nu, rec.ny) != (first.nu, first.ny):
             raise DataError(
-                f"has nu={rec.nu}, ny={rec.ny} but '{first.name}' has nu={first.nu}, ny={first.ny}.",
+                f"has nu={rec.nu}, ny={rec.ny} but '{first.name}' has nu={first.nu}, "
+                f"ny={first.ny}.",
                 source=f"recording '{rec.name}'",
                 fix="use recordings with the same input and output channels",
             )

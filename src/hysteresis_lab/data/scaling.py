@@ -1,4 +1,4 @@
-"""Affine scaling of inputs and outputs: the study's constants (100 V, 20 um) or fitted statistics."""
+"""Affine scaling of inputs and outputs: the study's constants (100 V, 20 um) or statistics."""
 
 from __future__ import annotations
 
@@ -44,7 +44,9 @@ class Scaler:
                     f"scaling constants must be positive (u_scale={u_scale}, y_scale={y_scale}). "
                     "Fix: set data.scaling.u_scale / y_scale to positive numbers."
                 )
-            return cls(np.zeros(nu), np.full(nu, float(u_scale)), np.zeros(ny), np.full(ny, float(y_scale)))
+            return cls(
+                np.zeros(nu), np.full(nu, float(u_scale)), np.zeros(ny), np.full(ny, float(y_scale))
+            )
         if mode == "standard":
             u = np.concatenate([r.u for r in recordings])
             y = np.concatenate([r.y for r in recordings])
@@ -52,7 +54,8 @@ class Scaler:
         if mode == "none":
             return cls(np.zeros(nu), np.ones(nu), np.zeros(ny), np.ones(ny))
         raise ConfigError(
-            f"unknown scaling mode '{mode}'. Fix: set data.scaling.mode to one of {list(SCALING_MODES)}."
+            f"unknown scaling mode '{mode}'. Fix: set data.scaling.mode to one of "
+            f"{list(SCALING_MODES)}."
         )
 
     def to_dict(self) -> dict[str, list[float]]:

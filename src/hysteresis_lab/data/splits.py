@@ -1,4 +1,4 @@
-"""`DatasetSplits`: the estimation/validation/test recordings of one data set and how to score it."""
+"""`DatasetSplits`: the estimation/validation/test recordings of a data set, how to score it."""
 
 from __future__ import annotations
 

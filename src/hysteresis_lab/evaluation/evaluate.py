@@ -7,11 +7,11 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from hysteresis_lab.evaluation.metrics import score
+from hysteresis_lab.evaluation.predict import free_run, n_step, one_step
 
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.windows import WindowSpec
-from hysteresis_lab.evaluation.metrics import score
-from hysteresis_lab.evaluation.predict import free_run, n_step, one_step
 
 log = logging.getLogger(__name__)
 
@@ -54,7 +54,12 @@ def evaluate_model(
         result.metrics[rec.name] = metrics
         log.info(
             "%-14s one-step RMSE %.4g %s (R² %.4f) | free-run RMSE %.4g %s (R² %.4f)",
-            rec.name, metrics["rmse_one_step"], rec.y_units, metrics["r2_one_step"],
-            metrics["rmse_free_run"], rec.y_units, metrics["r2_free_run"],
+            rec.name,
+            metrics["rmse_one_step"],
+            rec.y_units,
+            metrics["r2_one_step"],
+            metrics["rmse_free_run"],
+            rec.y_units,
+            metrics["r2_free_run"],
         )
     return result

@@ -49,8 +49,14 @@ def loops_figure(
         ax.plot(u, rec.y[::step, channel], color="black", lw=1.2, label="measured")
         for position, (mode, y_hat) in enumerate(predictions.get(rec.name, {}).items()):
             color, style = _style(mode, position)
-            ax.plot(u, np.asarray(y_hat)[::step, channel], color=color, ls=style, lw=0.9,
-                    label=mode.replace("_", " "))
+            ax.plot(
+                u,
+                np.asarray(y_hat)[::step, channel],
+                color=color,
+                ls=style,
+                lw=0.9,
+                label=mode.replace("_", " "),
+            )
         ax.set_title(rec.name, fontsize=9)
         ax.set_xlabel(f"u [{rec.u_units}]", fontsize=8)
         ax.set_ylabel(f"y [{rec.y_units}]", fontsize=8)

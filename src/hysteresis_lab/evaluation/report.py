@@ -82,8 +82,14 @@ def write_table2(results: Mapping[str, Mapping[str, Any]], directory: Path) -> t
             for test, metrics in rows:
                 for mode in MODES:
                     writer.writerow(
-                        [model, test, mode, metrics.get(f"r2_{mode}"), metrics.get(f"rmse_{mode}"),
-                         unit]
+                        [
+                            model,
+                            test,
+                            mode,
+                            metrics.get(f"r2_{mode}"),
+                            metrics.get(f"rmse_{mode}"),
+                            unit,
+                        ]
                     )
     return md_path, csv_path
 

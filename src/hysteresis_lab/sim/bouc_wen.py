@@ -38,18 +38,19 @@ def _advance(h: float, x: float, s: float, a: float, beta: float, gamma: float) 
 def bouc_wen_state(
     v: np.ndarray, d: float, alpha: np.ndarray, beta: float, gamma: float
 ) -> np.ndarray:
-    """Hysteretic state ``h`` for input ``v`` (starting at rest, h = 0).
+    """Hysteretic state ``h`` (µm) for input ``v`` (V), starting at rest (v = 0, h = 0).
 
     ``alpha`` is per sample (a constant array for rate-independent hysteresis).
     """
     n = v.shape[0]
     h_out = np.empty(n)
     h = 0.0
-    h_out[0] = 0.0
-    for k in range(1, n):
-        dv = v[k] - v[k - 1]
+    v_prev = 0.0
+    for k in range(n):
+        dv = v[k] - v_prev
         if dv != 0.0:
             s = 1.0 if dv > 0.0 else -1.0
             h = _advance(h, abs(dv), s, alpha[k] * d, beta, gamma)
         h_out[k] = h
+        v_prev = v[k]
     return h_out

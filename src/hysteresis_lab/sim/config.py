@@ -13,6 +13,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from typing import Any
 
+from omegaconf import DictConfig, OmegaConf
+
 from hysteresis_lab.errors import ConfigError
 
 
@@ -84,7 +86,7 @@ class Creep:
     """Creep: first-order elements (time constants 0.1–100 s) in parallel with the direct path.
 
     A log-like step response of about ``weight_per_decade`` per decade of time (PI catalogue:
-    ~1–2 % per decade; Jung & Gweon 2000; Croft, McAllister & Devasia 2001).
+    ~1–2 % per decade; Jung & Gweon 2000; Croft, Shed & Devasia 2001).
     """
 
     enabled: bool = True
@@ -161,8 +163,13 @@ class PositionerConfig:
     quantisation: Quantisation = field(default_factory=Quantisation)
 
     @classmethod
-    def from_dict(cls, values: Mapping[str, Any] | None) -> PositionerConfig:
-        """Build from a nested mapping (e.g. ``data.effects``); unknown keys are errors."""
+    def from_dict(cls, values: Mapping[str, Any] | DictConfig | None) -> PositionerConfig:
+        """Build from a nested mapping (e.g. ``data.effects``); unknown keys are errors.
+
+        Blocks and parameters left out keep their defaults.
+        """
+        if isinstance(values, DictConfig):
+            values = OmegaConf.to_container(values, resolve=True)  # type: ignore[assignment]
         config = cls()
         for block_name, block_values in (values or {}).items():
             if block_name not in _names(config):
@@ -182,7 +189,10 @@ class PositionerConfig:
                     f"effect block '{block_name}' has no parameter(s) {sorted(unknown)}. "
                     f"Valid: {sorted(_names(block))}."
                 )
-            setattr(config, block_name, dataclasses.replace(block, **dict(block_values)))
+            updates = dict(block_values)
+            if "time_constants_s" in updates:
+                updates["time_constants_s"] = [float(t) for t in updates["time_constants_s"]]
+            setattr(config, block_name, dataclasses.replace(block, **updates))
         config.validate()
         return config
 
@@ -208,6 +218,33 @@ class PositionerConfig:
                 raise ConfigError(f"{name}.samples must be >= 0.")
         if self.creep.enabled and any(t <= 0 for t in self.creep.time_constants_s):
             raise ConfigError("creep.time_constants_s must all be positive.")
+        positive = {
+            "amplifier.cutoff_hz": (self.amplifier, self.amplifier.cutoff_hz),
+            "saturation.limit_v": (self.saturation, self.saturation.limit_v),
+            "hysteresis.d_um_per_v": (self.hysteresis, self.hysteresis.d_um_per_v),
+            "rate_dependence.rate_ref_v_per_s": (
+                self.rate_dependence, self.rate_dependence.rate_ref_v_per_s),
+            "asymmetry.v_ref": (self.asymmetry, self.asymmetry.v_ref),
+            "drift.period_s": (self.drift, self.drift.period_s),
+            "quantisation.step_um": (self.quantisation, self.quantisation.step_um),
+        }
+        for name, (block, value) in positive.items():
+            if block.enabled and not value > 0:
+                raise ConfigError(f"{name}={value!r} must be positive.")
+        if self.noise.enabled and self.noise.rms_um < 0:
+            raise ConfigError(f"noise.rms_um={self.noise.rms_um!r} must be >= 0.")
+        if self.mode2.enabled and not 0.0 <= self.mode2.weight <= 1.0:
+            raise ConfigError(f"mode2.weight={self.mode2.weight!r} must lie in [0, 1].")
+
+    def validate_rate(self, fs: float) -> None:
+        """Reject resonances the sampling rate ``fs`` (Hz) cannot represent."""
+        for name in ("mode1", "mode2"):
+            mode = getattr(self, name)
+            if mode.enabled and mode.frequency_hz >= fs / 2:
+                raise ConfigError(
+                    f"{name}.frequency_hz={mode.frequency_hz} must lie below fs/2 = {fs / 2} Hz. "
+                    "Fix: lower the mode frequency or raise the sampling rate."
+                )
 
 
 def _names(obj: Any) -> set[str]:

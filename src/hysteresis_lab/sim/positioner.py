@@ -36,6 +36,7 @@ class Positioner:
                 fix="pass one input channel as a 1-D array without NaN",
             )
         c = self.config
+        c.validate_rate(fs)
         rng = np.random.default_rng(seed)
         v = blocks.amplifier(u, fs, c.amplifier) if c.amplifier.enabled else u
         if c.saturation.enabled:

@@ -1,0 +1,163 @@
+"""Bayesian tuning through Hydra multirun: resume, SIGKILL, two workers on PostgreSQL, errors."""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+from pathlib import Path
+
+import optuna
+import pytest
+from optuna.trial import TrialState
+
+from helpers import data_overrides, popen_app, run_app, small_dataset
+from hysteresis_lab.tuning.bookkeeping import DISCARDED, PID, counted
+
+
+@pytest.fixture(scope="module")
+def csv_data(tmp_path_factory) -> list[str]:
+    directory = tmp_path_factory.mktemp("tuning_data")
+    return data_overrides(*small_dataset(directory, n_train=1500))
+
+
+def sweep_args(results: Path, n_trials: int, *extra: str) -> list[str]:
+    return [
+        "-m", "hparams_search=ffnn", f"hydra.sweeper.results_dir={results}",
+        f"hydra.sweeper.n_trials={n_trials}", "hydra.sweeper.n_startup_trials=2",
+        "trainer.max_epochs=2", "trainer.enable_progress_bar=false",
+        f"hydra.sweep.dir={results}/runs", "hydra.sweeper.params.model.neurons=range(8,33)",
+        *extra,
+    ]
+
+
+def load(results: Path, name: str = "ffnn_csv") -> optuna.Study:
+    return optuna.load_study(study_name=name, storage=f"sqlite:///{results}/{name}.db")
+
+
+def counted_trials(study: optuna.Study) -> list[optuna.trial.FrozenTrial]:
+    return [t for t in study.get_trials() if counted(t)]
+
+
+def test_sweep_writes_results_and_resumes_without_repeating(tmp_path, csv_data):
+    results = tmp_path / "optuna"
+    first = run_app("train", *csv_data, *sweep_args(results, 3))
+    assert first.returncode == 0, first.stderr[-3000:]
+    study = load(results)
+    done = counted_trials(study)
+    assert [t.state for t in done] == [TrialState.COMPLETE] * 3
+    out = results / "ffnn_csv"
+    for name in ("trials.csv", "optimization_history.png", "param_importances.png",
+                 "summary.json"):
+        assert (out / name).stat().st_size > 0, name
+    first_params = [t.params for t in done]
+    best_config = results / "best" / "experiment" / "best_ffnn_csv.yaml"
+    assert "override /model: ffnn" in best_config.read_text()
+
+    again = run_app("train", *csv_data, *sweep_args(results, 5))
+    assert again.returncode == 0, again.stderr[-3000:]
+    study = load(results)
+    done = counted_trials(study)
+    assert len(done) == 5
+    assert [t.params for t in done[:3]] == first_params
+    keys = [tuple(sorted(t.params.items())) for t in done]
+    assert len(set(keys)) == len(keys), "a resumed sweep repeated a trial's parameters"
+
+    # the best config trains straight away
+    best = run_app("train", *csv_data, "experiment=best_ffnn_csv", "trainer.max_epochs=1",
+                   "evaluate=false", "logger=none", f"hydra.searchpath=[file://{results}/best]",
+                   f"hydra.run.dir={tmp_path}/best_run")
+    assert best.returncode == 0, best.stderr[-3000:]
+
+
+def test_sigkill_mid_trial_loses_no_completed_trial(tmp_path, csv_data):
+    results = tmp_path / "optuna"
+    args = [*csv_data, *sweep_args(results, 3, "trainer.max_epochs=40")]
+    worker = popen_app("train", *args)
+    db = results / "ffnn_csv.db"
+    deadline = time.time() + 300
+    killed_during = None
+    while time.time() < deadline:
+        time.sleep(0.5)
+        if not db.exists():
+            continue
+        trials = load(results).get_trials()
+        complete = [t for t in trials if t.state == TrialState.COMPLETE]
+        running = [t for t in trials if t.state == TrialState.RUNNING]
+        if complete and running:
+            os.killpg(worker.pid, signal.SIGKILL)
+            killed_during = running[0].number
+            kept = {t.number: (t.params, t.value) for t in complete}
+            break
+    worker.wait()
+    assert killed_during is not None, "the sweep never reached a second trial"
+
+    resumed = run_app("train", *args)
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    study = load(results)
+    by_number = {t.number: t for t in study.get_trials()}
+    for number, (params, value) in kept.items():
+        assert by_number[number].state == TrialState.COMPLETE
+        assert (by_number[number].params, by_number[number].value) == (params, value)
+    assert by_number[killed_during].user_attrs.get(DISCARDED) == "worker died"
+    done = counted_trials(study)
+    assert len(done) == 3 and all(t.state == TrialState.COMPLETE for t in done)
+
+
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ("hydra.sweeper.params.model.lr=tag(log, interval(1e-3, 1e-4))", "low"),
+        ("hydra.sweeper.sampler=bayes", "unknown sampler 'bayes'"),
+        ("+hydra.sweeper.params.model.neuronz=range(1,3)", "model.neuronz"),
+        ("hydra.sweeper.storage=postgresql://nobody@127.0.0.1:9/none", "cannot open the Optuna"),
+    ],
+)
+def test_bad_sweep_settings_fail_before_training(tmp_path, csv_data, override, message):
+    results = tmp_path / "optuna"
+    proc = run_app("train", *csv_data, *sweep_args(results, 2), override)
+    assert proc.returncode != 0
+    assert message in proc.stderr + proc.stdout
+    assert not (results / "ffnn_csv.db").exists() or not load(results).get_trials()
+
+
+def test_nan_trial_fails_and_the_study_goes_on(tmp_path, csv_data):
+    results = tmp_path / "optuna"
+    proc = run_app("train", *csv_data, *sweep_args(
+        results, 2, "hydra.sweeper.params.model.lr=tag(log, interval(1e8, 1e9))",
+        "trainer.max_epochs=3"))
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    states = [t.state for t in counted_trials(load(results))]
+    assert len(states) == 2
+    assert all(s in (TrialState.FAIL, TrialState.PRUNED) for s in states)
+
+
+@pytest.fixture(scope="module")
+def postgres_url(tmp_path_factory):
+    pgserver = pytest.importorskip("pgserver")
+    server = pgserver.get_server(tmp_path_factory.mktemp("pgdata"), cleanup_mode="stop")
+    yield server.get_uri()
+    server.cleanup()
+
+
+def test_two_workers_share_one_postgres_study(tmp_path, csv_data, postgres_url):
+    env = {"HYSTERESIS_LAB_OPTUNA_STORAGE": postgres_url}
+    n_trials = 6
+    workers = [
+        popen_app("train", *csv_data, *sweep_args(tmp_path / f"w{i}", n_trials,
+                                                  "trainer.max_epochs=4"), env=env)
+        for i in range(2)
+    ]
+    outputs = [w.communicate(timeout=600)[0] for w in workers]
+    assert all(w.returncode == 0 for w in workers), outputs[0][-2000:] + outputs[1][-2000:]
+    study = optuna.load_study(study_name="ffnn_csv", storage=postgres_url)
+    done = counted_trials(study)
+    assert len(done) == n_trials
+    assert all(t.state == TrialState.COMPLETE for t in done)
+    assert len({t.user_attrs[PID] for t in done}) == 2, "one worker did all the trials"
+    assert len({t.number for t in done}) == n_trials
+    # the storage URL (credentials) is neither logged nor saved in any config or output
+    assert postgres_url not in "".join(outputs)
+    for path in tmp_path.rglob("*"):
+        if path.is_file() and path.suffix in {".yaml", ".log", ".json", ".csv"}:
+            assert postgres_url not in path.read_text(errors="ignore"), path
