@@ -1,0 +1,1 @@
+"""Residual analysis and the diagnose -> augment -> refit loop."""

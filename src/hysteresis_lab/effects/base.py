@@ -1,0 +1,37 @@
+"""`Effect`: what a physical effect adds to a model and how residual evidence for it is scored."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class FeatureContext:
+    """Facts an operator may depend on, fixed when the model is built (saved with it)."""
+
+    fs: float
+    u_amplitude: np.ndarray  # (nu,) max |u| of the training input, sets operator thresholds
+    duration_s: float  # of the training recording, bounds the slowest time constant
+
+
+class Effect:
+    """A physical effect: input operators computed from ``u`` (N x nu) -> (N x k).
+
+    ``features`` is what a model that declares the effect receives as extra input channels;
+    ``evidence`` is the set of candidate signals the diagnosis regresses the residual on
+    (by default the same operators). ``predictable`` is False for effects that do not depend
+    on the input (drift): a model can fit them one step ahead but not in free run.
+    """
+
+    name: ClassVar[str] = ""
+    description: ClassVar[str] = ""
+    predictable: ClassVar[bool] = True
+
+    def features(self, u: np.ndarray, ctx: FeatureContext) -> np.ndarray:
+        raise NotImplementedError
+
+    def evidence(self, u: np.ndarray, ctx: FeatureContext) -> np.ndarray:
+        return self.features(u, ctx)

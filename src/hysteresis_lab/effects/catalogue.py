@@ -1,0 +1,131 @@
+"""The built-in effects. Each is small: its operators and a line on the physics it stands for."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hysteresis_lab.effects.base import Effect, FeatureContext
+from hysteresis_lab.effects.operators import (
+    dead_zone,
+    lowpass_bank,
+    play_operators,
+    rate,
+    resonator_bank,
+)
+
+
+def _per_input(u: np.ndarray, make) -> np.ndarray:
+    return np.column_stack([make(u[:, i], i) for i in range(u.shape[1])])
+
+
+class Hysteresis(Effect):
+    """Rate-independent hysteresis memory: Prandtl–Ishlinskii play operators (8 thresholds)."""
+
+    name = "hysteresis"
+    description = "hysteresis memory (Prandtl-Ishlinskii play operators)"
+    fractions = np.array([0.02, 0.05, 0.1, 0.2, 0.3, 0.45, 0.6, 0.8])
+
+    def features(self, u: np.ndarray, ctx: FeatureContext) -> np.ndarray:
+        return _per_input(
+            u,
+            lambda x, i: play_operators(
+                np.ascontiguousarray(x), self.fractions * ctx.u_amplitude[i]
+            ),
+        )
+
+
+class Creep(Effect):
+    """Creep: slow first-order filter bank of the input (time constants 0.01 s ... 100 s)."""
+
+    name = "creep"
+    description = "creep (slow first-order filter bank, 0.01-100 s)"
+    time_constants_s = np.array([0.01, 0.1, 1.0, 10.0, 100.0])
+
+    def features(self, u: np.ndarray, ctx: FeatureContext) -> np.ndarray:
+        taus = self.time_constants_s[self.time_constants_s >= 20.0 / ctx.fs]
+        return _per_input(u, lambda x, i: lowpass_bank(x, ctx.fs, taus))
+
+
+class Resonance(Effect):
+    """Unmodelled structural dynamics: resonant filters of the input on a log frequency grid."""
+
+    name = "resonance"
+    description = "resonance / unmodelled dynamics (band-pass filters of the input)"
+
+    def features(self, u: np.ndarray, ctx: FeatureContext) -> np.ndarray:
+        grid = np.geomspace(0.01 * ctx.fs, 0.4 * ctx.fs, 12)
+        return _per_input(u, lambda x, i: resonator_bank(x, ctx.fs, grid))
+
+
+class RateDependence(Effect):
+    """Rate-dependent behaviour: input rate and its magnitude-weighted input."""
+
+    name = "rate"
+    description = "rate dependence (input-rate features)"
+
+    def features(self, u: np.ndarray, ctx: FeatureContext) -> np.ndarray:
+        def make(x: np.ndarray, i: int) -> np.ndarray:
+            r = rate(x, ctx.fs) / (2 * np.pi * 100.0 * max(ctx.u_amplitude[i], 1e-12))
+            return np.column_stack([r, np.abs(r) * x / max(ctx.u_amplitude[i], 1e-12)])
+
+        return _per_input(u, make)
+
+
+class Drift(Effect):
+    """Drift / offset: a slow trend that does not depend on the input (time ramps)."""
+
+    name = "drift"
+    description = "drift / offset (slow trend, independent of the input)"
+    predictable = False
+
+    def features(self, u: np.ndarray, ctx: FeatureContext) -> np.ndarray:
+        t = np.arange(len(u)) / ctx.fs
+        scale = max(ctx.duration_s, 1e-9)
+        return np.column_stack([t / scale, (t / scale) ** 2])
+
+
+class Saturation(Effect):
+    """Saturation: the input clipped at 70-95 % of its range and the clipped-off excess."""
+
+    name = "saturation"
+    description = "saturation (clipped-input features)"
+    fractions = np.array([0.7, 0.8, 0.9, 0.95])
+
+    def features(self, u: np.ndarray, ctx: FeatureContext) -> np.ndarray:
+        def make(x: np.ndarray, i: int) -> np.ndarray:
+            limits = self.fractions * ctx.u_amplitude[i]
+            return np.column_stack([x - np.clip(x, -c, c) for c in limits])
+
+        return _per_input(u, make)
+
+
+class DeadZone(Effect):
+    """Dead zone: the input with a band around zero removed (2-20 % of its range)."""
+
+    name = "dead_zone"
+    description = "dead zone (input with a band around zero removed)"
+    fractions = np.array([0.02, 0.05, 0.1, 0.2])
+
+    def features(self, u: np.ndarray, ctx: FeatureContext) -> np.ndarray:
+        return _per_input(
+            u,
+            lambda x, i: np.column_stack(
+                [dead_zone(x, f * ctx.u_amplitude[i]) for f in self.fractions]
+            ),
+        )
+
+
+class Backlash(Effect):
+    """Backlash: single wide play operators (gear/clamp play, 5-15 % of the range)."""
+
+    name = "backlash"
+    description = "backlash (wide play operators)"
+    fractions = np.array([0.05, 0.1, 0.15])
+
+    def features(self, u: np.ndarray, ctx: FeatureContext) -> np.ndarray:
+        return _per_input(
+            u,
+            lambda x, i: play_operators(
+                np.ascontiguousarray(x), self.fractions * ctx.u_amplitude[i]
+            ),
+        )

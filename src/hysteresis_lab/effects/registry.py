@@ -1,0 +1,24 @@
+"""Effect registry: entry-point group ``hysteresis_lab.effects`` (built-ins register there too)."""
+
+from __future__ import annotations
+
+from importlib.metadata import entry_points
+
+from hysteresis_lab.effects.base import Effect
+from hysteresis_lab.errors import ConfigError
+
+GROUP = "hysteresis_lab.effects"
+
+
+def available_effects() -> list[str]:
+    return sorted(ep.name for ep in entry_points(group=GROUP))
+
+
+def get_effect(name: str) -> Effect:
+    points = {ep.name: ep for ep in entry_points(group=GROUP)}
+    if name not in points:
+        raise ConfigError(
+            f"unknown effect '{name}'. Available: {sorted(points)}. Fix: model.effects=[...] "
+            f"with those names, or install a package registering '{GROUP}' entry points."
+        )
+    return points[name].load()()
