@@ -20,6 +20,8 @@ from omegaconf import DictConfig, OmegaConf
 
 from hysteresis_lab.data.factory import build_datamodule, build_splits
 from hysteresis_lab.data.splits import DatasetSplits
+from hysteresis_lab.data.windows import WindowSpec
+from hysteresis_lab.effects.augment import augment_splits, context_to_dict
 from hysteresis_lab.evaluation.evaluate import Evaluation, evaluate_model
 from hysteresis_lab.evaluation.plots import loops_figure, residuals_figure, save_figure
 from hysteresis_lab.evaluation.report import metrics_document, write_json, write_table2
@@ -37,6 +39,7 @@ class RunResult:
     val_mse: float
     evaluation: Evaluation
     model: Any
+    window: WindowSpec
 
 
 def _container(cfg: Mapping[str, Any] | DictConfig) -> dict[str, Any]:
@@ -70,8 +73,11 @@ def train_and_evaluate(
     model_cfg, data_cfg, trainer_cfg = map(_container, (model_cfg, data_cfg, trainer_cfg))
     output_dir.mkdir(parents=True, exist_ok=True)
     L.seed_everything(seed, workers=True, verbose=False)
-    datamodule = build_datamodule(data_cfg, model_layout(model_cfg), seed=seed, splits=splits)
-    model = build_model(model_cfg, datamodule)
+    effects = list(model_cfg.get("effects") or [])
+    data, context = augment_splits(splits or build_splits(data_cfg), effects)
+    datamodule = build_datamodule(data_cfg, model_layout(model_cfg), seed=seed, splits=data)
+    extra = {"feature_context": context_to_dict(context)} if effects else {}
+    model = build_model(model_cfg, datamodule, **extra)
     logger = (
         TensorBoardLogger(
             save_dir=str(output_dir), name="tensorboard", version="", default_hp_metric=False
@@ -82,7 +88,6 @@ def train_and_evaluate(
     trained = fit(model, datamodule, trainer_cfg, output_dir, logger=logger, callbacks=callbacks)
     model_path = save_model(trained.model, output_dir / "model")
     log.info("saved %s", model_path)
-    data = datamodule.splits
     if not evaluate:
         document = {
             "model": str(model_cfg["name"]),
@@ -91,7 +96,7 @@ def train_and_evaluate(
             "train_seconds": trained.train_seconds,
         }
         write_json(document, output_dir / "metrics.json")
-        return RunResult(document, trained.val_mse, Evaluation(), trained.model)
+        return RunResult(document, trained.val_mse, Evaluation(), trained.model, datamodule.window)
     evaluation = evaluate_model(
         trained.model,
         data.test,
@@ -128,7 +133,7 @@ def train_and_evaluate(
         units["y"],
         output_dir,
     )
-    return RunResult(document, trained.val_mse, evaluation, trained.model)
+    return RunResult(document, trained.val_mse, evaluation, trained.model, datamodule.window)
 
 
 def run_paper(

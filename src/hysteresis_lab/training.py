@@ -38,8 +38,11 @@ def model_layout(model_cfg: Mapping[str, Any]) -> str:
     return get_model_class(_model_name(model_cfg)).layout
 
 
-def build_model(model_cfg: Mapping[str, Any], datamodule: WindowDataModule) -> Any:
-    """Instantiate the registered model ``model_cfg['name']`` for the DataModule's data."""
+def build_model(model_cfg: Mapping[str, Any], datamodule: WindowDataModule, **extra: Any) -> Any:
+    """Instantiate the registered model ``model_cfg['name']`` for the DataModule's data.
+
+    ``extra`` passes values the pipeline derives (e.g. the effects' ``feature_context``).
+    """
     name = _model_name(model_cfg)
     cls = get_model_class(name)
     params = {k: v for k, v in model_cfg.items() if k != "name"}
@@ -60,6 +63,7 @@ def build_model(model_cfg: Mapping[str, Any], datamodule: WindowDataModule) -> A
         nk=window.nk,
         scaler=datamodule.scaler.to_dict(),
         **params,
+        **extra,
     )
 
 
@@ -130,4 +134,4 @@ def _accepted_parameters(cls: type) -> set[str]:
         names |= {p.name for p in params if p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)}
         if not any(p.kind == p.VAR_KEYWORD for p in params):
             break
-    return names - {"self", "nu", "ny", "na", "nb", "nk", "scaler"}
+    return names - {"self", "nu", "ny", "na", "nb", "nk", "scaler", "feature_context"}

@@ -65,6 +65,9 @@ class WindowDataModule(L.LightningDataModule):
         self.seed = seed
         self.num_workers = num_workers
         self.scaler = Scaler.fit(splits.train, scaling, u_scale=u_scale, y_scale=y_scale)
+        n_base = splits.metadata.get("n_base_inputs")
+        if n_base is not None:  # effect operators appended to the measured inputs
+            self.scaler = self.scaler.standardise_inputs_from(int(n_base), splits.train)
         self.train_windows: Windows | None = None
         self.val_windows: Windows | None = None
         self._tensors: dict[str, TensorDataset] = {}

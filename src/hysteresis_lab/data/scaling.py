@@ -58,6 +58,15 @@ class Scaler:
             f"{list(SCALING_MODES)}."
         )
 
+    def standardise_inputs_from(self, first: int, recordings: Sequence[Recording]) -> Scaler:
+        """Inputs ``first..`` (effect operators, any units) scaled by their mean and std."""
+        if first >= len(self.u_scale):
+            return self
+        u = np.concatenate([r.u[:, first:] for r in recordings])
+        u_offset, u_scale = self.u_offset.copy(), self.u_scale.copy()
+        u_offset[first:], u_scale[first:] = u.mean(0), _safe_std(u)
+        return Scaler(u_offset, u_scale, self.y_offset, self.y_scale)
+
     def to_dict(self) -> dict[str, list[float]]:
         return {k: np.asarray(v, dtype=float).tolist() for k, v in self.__dict__.items()}
 

@@ -1,0 +1,181 @@
+"""The closed loop: fit -> residuals -> diagnose -> add the top significant effect -> refit.
+
+Each round trains the model with the effects declared so far, scores it on the test
+recordings in both modes, analyses the free-run residuals and ranks the effects the model
+does not declare yet (`hysteresis_lab.analysis.diagnosis`). The top significant one is added
+and the next round refits, until nothing significant remains or ``max_rounds`` is reached.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hysteresis_lab.analysis.diagnosis import diagnose
+from hysteresis_lab.analysis.report import diagnostics_figure, residual_analysis
+from hysteresis_lab.data.splits import DatasetSplits
+from hysteresis_lab.effects.augment import feature_context
+from hysteresis_lab.evaluation.plots import loops_figure, save_figure
+from hysteresis_lab.evaluation.report import write_json
+from hysteresis_lab.pipeline import RunResult, train_and_evaluate
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class LoopSettings:
+    """``loop.*`` config: rounds and the significance rule of the diagnosis."""
+
+    max_rounds: int = 3
+    min_score: float = 0.05
+    alpha: float = 0.05
+    n_shifts: int = 39
+
+
+def run_loop(
+    model_cfg: Mapping[str, Any],
+    data_cfg: Mapping[str, Any],
+    trainer_cfg: Mapping[str, Any],
+    splits: DatasetSplits,
+    output_dir: Path,
+    settings: LoopSettings,
+    seed: int = 0,
+    use_tensorboard: bool = True,
+) -> dict[str, Any]:
+    """Run the loop; write ``loop_report.json``, ``loop_report.md`` and figures."""
+    effects = list(model_cfg.get("effects") or [])
+    context = feature_context(splits.train)
+    rounds: list[dict[str, Any]] = []
+    results: list[RunResult] = []
+    for number in range(settings.max_rounds + 1):
+        log.info("=== loop round %d: effects %s ===", number, effects or "none")
+        round_dir = output_dir / f"round_{number}"
+        result = train_and_evaluate(
+            {**model_cfg, "effects": list(effects)},
+            data_cfg,
+            trainer_cfg,
+            round_dir,
+            seed=seed,
+            splits=splits,
+            use_tensorboard=use_tensorboard,
+        )
+        results.append(result)
+        n_skip = max(result.window.first_target, splits.n_init)
+        residuals = []
+        for rec in splits.test:
+            e = rec.y - result.evaluation.predictions[rec.name]["free_run"]
+            e[:n_skip] = np.nan
+            residuals.append(e)
+        diagnosis = diagnose(
+            splits.test,
+            residuals,
+            context,
+            declared=effects,
+            min_score=settings.min_score,
+            alpha=settings.alpha,
+            n_shifts=settings.n_shifts,
+            seed=seed,
+        )
+        analysis = residual_analysis(splits.test, result.evaluation.predictions, n_skip)
+        write_json(analysis, round_dir / "residual_analysis.json")
+        save_figure(
+            diagnostics_figure(splits.test, result.evaluation.predictions, n_skip),
+            round_dir / "residual_diagnostics.png",
+        )
+        tests = {
+            name: {k: m[k] for k in ("rmse_free_run", "rmse_one_step", "r2_free_run")}
+            for name, m in result.document["tests"].items()
+        }
+        entry: dict[str, Any] = {
+            "effects": list(effects),
+            "tests": tests,
+            "mean_rmse_free_run": result.document["mean"]["rmse_free_run"],
+            "mean_rmse_one_step": result.document["mean"]["rmse_one_step"],
+            "diagnosis": [d.to_dict() for d in diagnosis],
+            "added": None,
+        }
+        rounds.append(entry)
+        top = next((d for d in diagnosis if d.significant), None)
+        if top is None:
+            entry["note"] = "no significant missing effect"
+            break
+        if not top.predictable:
+            entry["note"] = (
+                f"top effect '{top.effect}' does not depend on the input: it cannot be "
+                "predicted in free run, so it is reported, not added"
+            )
+            break
+        if number == settings.max_rounds:
+            entry["note"] = f"loop.max_rounds={settings.max_rounds} reached; next: {top.effect}"
+            break
+        entry["added"] = top.effect
+        effects.append(top.effect)
+    report = {
+        "units": {"y": splits.test[0].y_units},
+        "data": splits.name,
+        "model": str(model_cfg.get("name")),
+        "rounds": rounds,
+    }
+    write_json(report, output_dir / "loop_report.json")
+    (output_dir / "loop_report.md").write_text(loop_markdown(report))
+    before, after = results[0], results[-1]
+    predictions = {
+        rec.name: {
+            "before": before.evaluation.predictions[rec.name]["free_run"],
+            "after": after.evaluation.predictions[rec.name]["free_run"],
+        }
+        for rec in splits.test
+    }
+    save_figure(
+        loops_figure(
+            splits.test,
+            predictions,
+            title=f"free run before ({rounds[0]['effects'] or 'no effects'}) and "
+            f"after ({rounds[-1]['effects']})",
+        ),
+        output_dir / "loops_before_after.png",
+    )
+    log.info("\n%s", loop_markdown(report))
+    return report
+
+
+def loop_markdown(report: dict[str, Any]) -> str:
+    """Readable report: per round the effects, errors per test and the ranked diagnosis."""
+    unit = report["units"]["y"]
+    rounds = report["rounds"]
+    tests = list(rounds[0]["tests"])
+    lines = [
+        f"# Residual loop: {report['model']} on {report['data']}",
+        "",
+        f"Free-run RMSE [{unit}] per test recording and round (effects declared):",
+        "",
+    ]
+    header = ["test"] + [f"round {i}: {r['effects'] or '[]'}" for i, r in enumerate(rounds)]
+    lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for name in tests:
+        cells = [name] + [f"{r['tests'][name]['rmse_free_run']:.4g}" for r in rounds]
+        lines.append("| " + " | ".join(cells) + " |")
+    lines.append(
+        "| **mean** | " + " | ".join(f"{r['mean_rmse_free_run']:.4g}" for r in rounds) + " |"
+    )
+    if len(rounds) > 1:
+        first, last = rounds[0]["mean_rmse_free_run"], rounds[-1]["mean_rmse_free_run"]
+        lines += [
+            "",
+            f"Mean free-run RMSE {first:.4g} -> {last:.4g} {unit} "
+            f"({100 * (last - first) / first:+.1f} %).",
+        ]
+    for i, r in enumerate(rounds):
+        lines += ["", f"## Round {i}: diagnosis", ""]
+        lines += [
+            f"- {'**' if d['significant'] else ''}{d['effect']}"
+            f"{'**' if d['significant'] else ''}: score {d['score']:.3f}, p {d['p_value']:.3f}"
+            for d in r["diagnosis"]
+        ]
+        lines.append(f"- added: {r['added']}" + (f" ({r['note']})" if r.get("note") else ""))
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,61 @@
+"""``hysteresis-lab-loop``: the closed residual loop (see `hysteresis_lab.analysis.loop`).
+
+Example::
+
+    hysteresis-lab-loop model=ffnn data=csv data.train=run.csv data.test=[s1.csv,s2.csv]
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import hydra
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig, OmegaConf
+
+from hysteresis_lab.cli._app import config_dir, report_errors
+
+log = logging.getLogger(__name__)
+
+
+@report_errors
+def run(cfg: DictConfig) -> dict:
+    """Build the data, run the loop, return the report."""
+    from hysteresis_lab.analysis.loop import LoopSettings, run_loop
+    from hysteresis_lab.data.factory import build_splits
+    from hysteresis_lab.errors import ConfigError
+
+    settings = OmegaConf.to_container(cfg.loop, resolve=True)
+    unknown = set(settings) - set(LoopSettings.__dataclass_fields__)
+    if unknown:
+        raise ConfigError(
+            f"unknown loop setting(s) {sorted(unknown)}. Valid: "
+            f"{sorted(LoopSettings.__dataclass_fields__)}."
+        )
+    output_dir = Path(HydraConfig.get().runtime.output_dir)
+    data_cfg = OmegaConf.to_container(cfg.data, resolve=True)
+    return run_loop(
+        OmegaConf.to_container(cfg.model, resolve=True),
+        data_cfg,
+        OmegaConf.to_container(cfg.trainer, resolve=True),
+        build_splits(data_cfg),
+        output_dir,
+        LoopSettings(**settings),
+        seed=cfg.seed,
+        use_tensorboard=bool(cfg.logger.enabled),
+    )
+
+
+@hydra.main(config_path=config_dir(), config_name="loop")
+def _main(cfg: DictConfig) -> None:
+    run(cfg)
+
+
+def main() -> None:
+    """Console-script entry point."""
+    _main()
+
+
+if __name__ == "__main__":
+    main()
