@@ -34,7 +34,11 @@ def run(cfg: DictConfig) -> dict:
 
     output_dir = Path(HydraConfig.get().runtime.output_dir)
     model = load_model(resolve_checkpoint(Path(str(cfg.checkpoint))))
-    splits = build_splits(OmegaConf.to_container(cfg.data, resolve=True))
+    data_cfg = OmegaConf.to_container(cfg.data, resolve=True)
+    splits_cfg = data_cfg.get("splits") or {}
+    if "train" in splits_cfg and not splits_cfg["train"] and data_cfg.get("test"):
+        splits_cfg["train"] = data_cfg["test"][0]  # nothing is fitted; a stand-in for validation
+    splits = build_splits(data_cfg)
     device = cfg.device
     if device == "auto":
         device = "cuda" if torch.cuda.is_available() else "cpu"
