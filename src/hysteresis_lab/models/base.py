@@ -16,6 +16,7 @@ import torch
 from torch import nn
 
 from hysteresis_lab.data.windows import Layout, WindowSpec, assemble
+from hysteresis_lab.effects.registry import get_effect
 from hysteresis_lab.errors import ConfigError
 
 LR_SCHEDULES = ("cosine", "plateau", "none")
@@ -39,6 +40,7 @@ class NarxModule(L.LightningModule):
         lr_schedule: str = "cosine",
         weight_decay: float = 0.0,
         effects: Sequence[str] = (),
+        feature_context: dict[str, Any] | None = None,
     ) -> None:
         super().__init__()
         if nu < 1 or ny < 1:
@@ -50,10 +52,12 @@ class NarxModule(L.LightningModule):
             )
         if not lr > 0:
             raise ConfigError(f"learning rate lr={lr} must be positive. Fix: model.lr=1e-3.")
-        if effects:
+        for name in effects:
+            get_effect(name)  # unknown names fail here, listing the catalogue
+        if effects and feature_context is None:
             raise ConfigError(
-                f"model.effects={list(effects)}: effect features are not available yet "
-                "(issue #5). Fix: model.effects=[]."
+                "a model with effects needs the feature_context of its training data. Fix: build "
+                "it through hysteresis_lab.pipeline (hysteresis-lab-train), which supplies it."
             )
         self.window = WindowSpec(na=na, nb=nb, nk=nk)
         self.save_hyperparameters()

@@ -1,0 +1,121 @@
+"""Save and load trained models safely: torch ``weights_only`` checkpoints and skops for the SVM."""
+
+from __future__ import annotations
+
+import logging
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from hysteresis_lab.data.windows import WindowSpec
+from hysteresis_lab.errors import DataError
+from hysteresis_lab.models.registry import get_model_class
+
+log = logging.getLogger(__name__)
+
+FORMAT = 1
+SAFE_PREFIXES = ("sklearn.", "numpy.", "scipy.", "builtins.")
+
+
+def _plain(value: Any) -> Any:
+    """Hyperparameters as plain Python containers (loadable with ``weights_only=True``)."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    return value
+
+
+def save_model(model: Any, path: Path) -> Path:
+    """Write ``model`` next to ``path``: ``.ckpt`` for networks, ``.skops`` for the SVM."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    name = getattr(model, "registry_name", "") or type(model).__name__
+    if isinstance(model, torch.nn.Module):
+        target = path.with_suffix(".ckpt")
+        hparams = _plain(dict(model.hparams))
+        torch.save(
+            {
+                "format": FORMAT,
+                "model_name": name,
+                "hyper_parameters": hparams,
+                "state_dict": model.state_dict(),
+            },
+            target,
+        )
+        return target
+    import skops.io
+
+    target = path.with_suffix(".skops")
+    skops.io.dump(model, target)
+    return target
+
+
+def load_model(path: Path | str) -> Any:
+    """Load a model written by `save_model` (networks with ``weights_only=True``)."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(
+            "no checkpoint at this path.",
+            source=str(path),
+            fix="pass the model.ckpt / model.skops written by hysteresis-lab-train",
+        )
+    if path.suffix == ".skops":
+        return _load_skops(path)
+    try:
+        checkpoint = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # truncated, not a torch file, or unsafe content
+        raise DataError(
+            f"the checkpoint is corrupt or not a hysteresis_lab model ({type(exc).__name__}).",
+            source=str(path),
+            fix="retrain the model (hysteresis-lab-train) or copy the file again",
+        ) from None
+    if not isinstance(checkpoint, dict) or "model_name" not in checkpoint:
+        raise DataError(
+            "the file is a torch file but not a hysteresis_lab model checkpoint.",
+            source=str(path),
+            fix="pass the model.ckpt written by hysteresis-lab-train",
+        )
+    hparams = dict(checkpoint["hyper_parameters"])
+    hparams.pop("model_name", None)
+    model = get_model_class(checkpoint["model_name"])(**hparams)
+    try:
+        model.load_state_dict(checkpoint["state_dict"])
+    except RuntimeError as exc:
+        raise DataError(
+            f"weights do not fit the architecture: {str(exc).splitlines()[0]}",
+            source=str(path),
+            fix="retrain the model",
+        ) from None
+    return model.eval()
+
+
+def _load_skops(path: Path) -> Any:
+    import skops.io
+
+    try:
+        untrusted = skops.io.get_untrusted_types(file=path)
+    except (zipfile.BadZipFile, OSError, ValueError, KeyError) as exc:
+        raise DataError(
+            f"the SVM file is corrupt ({type(exc).__name__}).",
+            source=str(path),
+            fix="retrain the model or copy the file again",
+        ) from None
+    ours = ("hysteresis_lab.",)
+    unsafe = [t for t in untrusted if not t.startswith(SAFE_PREFIXES + ours)]
+    if unsafe:
+        raise DataError(
+            f"the file holds types that are not known to be safe: {unsafe}.",
+            source=str(path),
+            fix="only load model files you created yourself",
+        )
+    return skops.io.load(path, trusted=untrusted)
+
+
+def model_window(model: Any) -> WindowSpec:
+    """The regressor lags a loaded model expects."""
+    return model.window

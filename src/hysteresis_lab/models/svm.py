@@ -1,0 +1,184 @@
+"""SVM baseline (scikit-learn) on the flat NARX regressor.
+
+Exact kernel SVR costs O(n²) memory and O(n²)-O(n³) time in the number of windows (63,000
+in the study's protocol), so two sound approximations are offered:
+
+* ``strategy="nystroem"`` (default): a Nyström approximation of the kernel
+  (``n_components`` landmark windows) followed by a linear epsilon-SVR (`LinearSVR`); this
+  keeps every training window and costs O(n · n_components).
+* ``strategy="subsample"``: exact `SVR` with the chosen kernel on ``max_samples`` random
+  windows.
+
+The linear kernel always uses `LinearSVR` on all windows. Normalisation lives inside the
+model (the same scaler as the networks). Saved with skops, never with pickle.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from typing import Any, ClassVar
+
+import numpy as np
+from sklearn.kernel_approximation import Nystroem
+from sklearn.svm import SVR, LinearSVR
+
+from hysteresis_lab.data.scaling import Scaler
+from hysteresis_lab.data.windows import WindowSpec, assemble
+from hysteresis_lab.errors import ConfigError
+
+log = logging.getLogger(__name__)
+
+KERNELS = ("linear", "poly", "rbf", "sigmoid")
+STRATEGIES = ("nystroem", "subsample")
+
+
+class SVMModel:
+    """Epsilon-SVR per output channel, with the scaler and lag structure of the data."""
+
+    layout: ClassVar[str] = "flat"
+    registry_name: ClassVar[str] = "svm"
+
+    def __init__(
+        self,
+        nu: int,
+        ny: int,
+        na: int = 10,
+        nb: int = 10,
+        nk: int = 1,
+        scaler: dict[str, Sequence[float]] | None = None,
+        kernel: str = "rbf",
+        C: float = 10.0,
+        degree: int = 3,
+        gamma: float = 0.1,
+        coef0: float = 0.0,
+        epsilon: float = 0.001,
+        strategy: str = "nystroem",
+        n_components: int = 1000,
+        max_samples: int = 5000,
+        seed: int = 0,
+        effects: Sequence[str] = (),
+        feature_context: dict[str, Any] | None = None,
+    ) -> None:
+        if kernel not in KERNELS:
+            raise ConfigError(
+                f"unknown SVM kernel '{kernel}'. Fix: model.kernel=one of {list(KERNELS)}."
+            )
+        if strategy not in STRATEGIES:
+            raise ConfigError(
+                f"unknown SVM strategy '{strategy}'. Fix: model.strategy=one of {list(STRATEGIES)}."
+            )
+        if C <= 0 or gamma <= 0 or degree < 1:
+            raise ConfigError(
+                f"SVM needs C > 0, gamma > 0, degree >= 1 (got {C}, {gamma}, {degree})."
+            )
+        self.hparams: dict[str, Any] = {
+            "nu": nu,
+            "ny": ny,
+            "na": na,
+            "nb": nb,
+            "nk": nk,
+            "kernel": kernel,
+            "C": C,
+            "degree": degree,
+            "gamma": gamma,
+            "coef0": coef0,
+            "epsilon": epsilon,
+            "strategy": strategy,
+            "n_components": n_components,
+            "max_samples": max_samples,
+            "seed": seed,
+            "effects": list(effects),
+            "feature_context": feature_context,
+            "model_name": "svm",
+            "scaler": scaler,
+        }
+        self.nu, self.ny = nu, ny
+        self.window = WindowSpec(na=na, nb=nb, nk=nk)
+        self.scaler = (
+            Scaler.from_dict(scaler)
+            if scaler
+            else Scaler(np.zeros(nu), np.ones(nu), np.zeros(ny), np.ones(ny))
+        )
+        self.feature_map: Nystroem | None = None
+        self.estimators: list[Any] = []
+
+    # ------------------------------------------------------------------ fitting
+    def fit(self, x: np.ndarray, target: np.ndarray) -> SVMModel:
+        """Fit on scaled flat regressors ``x`` (M, n) and scaled targets (M, ny)."""
+        h = self.hparams
+        rng = np.random.default_rng(h["seed"])
+        if h["kernel"] == "linear" or h["strategy"] == "nystroem":
+            if h["kernel"] != "linear":
+                self.feature_map = Nystroem(
+                    kernel=h["kernel"],
+                    gamma=h["gamma"],
+                    degree=h["degree"],
+                    coef0=h["coef0"],
+                    n_components=min(h["n_components"], len(x)),
+                    random_state=h["seed"],
+                ).fit(x)
+            features = self._features(x)
+            self.estimators = [
+                LinearSVR(
+                    C=h["C"],
+                    epsilon=h["epsilon"],
+                    dual="auto",
+                    max_iter=5000,
+                    random_state=h["seed"],
+                ).fit(features, target[:, j])
+                for j in range(target.shape[1])
+            ]
+        else:
+            rows = rng.choice(len(x), size=min(h["max_samples"], len(x)), replace=False)
+            self.estimators = [
+                SVR(
+                    kernel=h["kernel"],
+                    C=h["C"],
+                    epsilon=h["epsilon"],
+                    gamma=h["gamma"],
+                    degree=h["degree"],
+                    coef0=h["coef0"],
+                ).fit(x[rows], target[rows, j])
+                for j in range(target.shape[1])
+            ]
+        log.info("SVM (%s kernel, %s) fitted on %d windows", h["kernel"], h["strategy"], len(x))
+        return self
+
+    def _features(self, x: np.ndarray) -> np.ndarray:
+        return self.feature_map.transform(x) if self.feature_map is not None else x
+
+    # ------------------------------------------------------------------ prediction
+    def predict_scaled(self, x: np.ndarray) -> np.ndarray:
+        features = self._features(np.asarray(x, dtype=np.float64))
+        return np.column_stack([est.predict(features) for est in self.estimators])
+
+    def predict_physical(self, u_past: np.ndarray, y_past: np.ndarray) -> np.ndarray:
+        """Physical lags (B, nb, nu), (B, na, ny) -> physical next output (B, ny)."""
+        s = self.scaler
+        x = assemble((u_past - s.u_offset) / s.u_scale, (y_past - s.y_offset) / s.y_scale, "flat")
+        return self.predict_scaled(x) * s.y_scale + s.y_offset
+
+    def fast_predictor(self) -> Any:
+        """A NumPy function scaled x (B, n) -> scaled y (B, ny) with the Nyström and linear
+        weights folded together, so one step costs a single kernel evaluation."""
+        if self.feature_map is None or not all(isinstance(e, LinearSVR) for e in self.estimators):
+            return self.predict_scaled
+        fm = self.feature_map
+        weights = fm.normalization_.T @ np.column_stack([e.coef_ for e in self.estimators])
+        bias = np.array([float(np.ravel(e.intercept_)[0]) for e in self.estimators])
+        comps = fm.components_
+        comp_sq = np.sum(comps**2, axis=1)
+        gamma, degree, coef0, kernel = fm.gamma, fm.degree, fm.coef0, fm.kernel
+
+        def predict(x: np.ndarray) -> np.ndarray:
+            dot = x @ comps.T
+            if kernel == "rbf":
+                k = np.exp(-gamma * (np.sum(x**2, axis=1)[:, None] + comp_sq - 2.0 * dot))
+            elif kernel == "poly":
+                k = (gamma * dot + coef0) ** degree
+            else:  # sigmoid
+                k = np.tanh(gamma * dot + coef0)
+            return k @ weights + bias
+
+        return predict
