@@ -69,8 +69,12 @@ def _main(cfg: DictConfig) -> float | None:
     return run(cfg)
 
 
+BEST_CONFIGS = Path("outputs/optuna/best")  # on the search path: experiment=best_<study>
+
+
 def main() -> None:
     """Console-script entry point."""
+    (BEST_CONFIGS / "experiment").mkdir(parents=True, exist_ok=True)
     _main()
 
 

@@ -14,6 +14,9 @@ from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.data.windows import Layout, WindowSpec
 from hysteresis_lab.errors import ConfigError, HysteresisLabError
 
+# data.splits._target_ may name any loader in this package (Hydra 1.5 requires a whitelist).
+WHITELIST = ("hysteresis_lab.*",)
+
 
 def _as_dict(cfg: Mapping[str, Any] | DictConfig) -> dict[str, Any]:
     if isinstance(cfg, DictConfig):
@@ -31,7 +34,7 @@ def build_splits(data_cfg: Mapping[str, Any] | DictConfig) -> DatasetSplits:
             "config such as data=default, data=csv or data=fsm, or add a splits node."
         )
     try:
-        splits = instantiate(splits_cfg, _convert_="all")
+        splits = instantiate(splits_cfg, _convert_="all", _execution_whitelist_=WHITELIST)
     except InstantiationException as exc:
         cause = exc.__cause__
         if isinstance(cause, HysteresisLabError):
