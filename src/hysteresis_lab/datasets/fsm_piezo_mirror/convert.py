@@ -24,7 +24,9 @@ def convert(source: Path, target: Path) -> list[Path]:
     for amplitude in AMPLITUDES_MV:
         arrays = {}
         for split in ("train", "test"):
-            arrays[f"u_{split}"] = np.load(source / f"u_{amplitude}mV_{split}.npy").astype(np.float32)
+            arrays[f"u_{split}"] = np.load(source / f"u_{amplitude}mV_{split}.npy").astype(
+                np.float32
+            )
             y = np.load(source / f"y_{amplitude}mV_{split}.npy") * 1e6  # m -> um
             arrays[f"y_{split}"] = y.astype(np.float32)
         path = target / f"fsm_{amplitude}mV.npz"

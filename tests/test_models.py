@@ -1,0 +1,201 @@
+"""Architectures, registry, training, save/load and export."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from hysteresis_lab.data.datamodules import WindowDataModule
+from hysteresis_lab.data.recording import Recording
+from hysteresis_lab.data.splits import DatasetSplits
+from hysteresis_lab.errors import ConfigError, DataError
+from hysteresis_lab.evaluation.predict import free_run, one_step
+from hysteresis_lab.models.io import load_model, save_model
+from hysteresis_lab.models.registry import available_models, get_model_class
+from hysteresis_lab.training import build_model, fit
+
+
+def narx_data(n: int = 1500, nu: int = 1, ny: int = 1, seed: int = 0) -> DatasetSplits:
+    """A stable nonlinear ARX system with hysteresis-like memory (play operator)."""
+    rng = np.random.default_rng(seed)
+
+    def simulate(u: np.ndarray, name: str) -> Recording:
+        y = np.zeros((len(u), ny))
+        play = 0.0
+        for k in range(2, len(u)):
+            play = max(u[k - 1, 0] - 0.2, min(u[k - 1, 0] + 0.2, play))
+            y[k] = 0.6 * y[k - 1] - 0.1 * y[k - 2] + 0.5 * play + 0.2 * np.tanh(u[k - 1].sum())
+        return Recording(u=u, y=y, fs=100.0, name=name)
+
+    train = simulate(rng.uniform(-1, 1, (n, nu)), "train")
+    t = np.arange(400) / 100.0
+    test = [simulate(np.tile(np.sin(2 * np.pi * f * t)[:, None], (1, nu)), f"sine{f}")
+            for f in (1.0, 3.0)]
+    return DatasetSplits("narx", train=[train], test=test)
+
+
+def datamodule_for(name: str, splits: DatasetSplits) -> WindowDataModule:
+    layout = get_model_class(name).layout
+    return WindowDataModule(splits, layout=layout, scaling="standard", batch_size=64)
+
+
+CONFIGS = {
+    "ffnn": {"name": "ffnn", "num_layers": 3, "neurons": 32},
+    "lstm": {"name": "lstm", "num_layers": 2, "lstm_layers": 1, "units": 16, "lr": 5e-3},
+    "cnn": {"name": "cnn", "num_layers": 3, "conv_layers": 2, "units": 24, "kernel_size": 3,
+            "lr": 3e-3},
+    "svm": {"name": "svm", "kernel": "rbf", "C": 10.0, "gamma": 0.05, "n_components": 200},
+}
+TRAINER = {"max_epochs": 4, "accelerator": "cpu", "enable_progress_bar": False,
+           "enable_model_summary": False}
+
+
+@pytest.fixture(scope="module")
+def splits() -> DatasetSplits:
+    return narx_data()
+
+
+@pytest.fixture(scope="module")
+def trained(splits, tmp_path_factory) -> dict:
+    models = {}
+    for name, cfg in CONFIGS.items():
+        dm = datamodule_for(name, splits)
+        model = build_model(cfg, dm)
+        result = fit(model, dm, TRAINER, tmp_path_factory.mktemp(name))
+        models[name] = (result.model, dm)
+    return models
+
+
+def test_builtin_models_register_through_entry_points():
+    assert {"ffnn", "lstm", "cnn", "svm"} <= set(available_models())
+    with pytest.raises(ConfigError, match=r"unknown model 'gpt'.*'cnn', 'ffnn'"):
+        get_model_class("gpt")
+
+
+def test_unknown_model_parameter_lists_valid_ones(splits):
+    with pytest.raises(ConfigError, match="neuronz.*Valid:.*neurons"):
+        build_model({"name": "ffnn", "neuronz": 3}, datamodule_for("ffnn", splits))
+
+
+@pytest.mark.parametrize("name", ["ffnn", "lstm", "cnn", "svm"])
+def test_training_lowers_the_loss(name, splits, trained):
+    dm = datamodule_for(name, splits)
+    dm.setup()
+    x, target = dm.scale_windows(dm.val_windows)
+    untrained = build_model(CONFIGS[name], dm)
+    model = trained[name][0]
+
+    def mse(m) -> float:
+        if isinstance(m, torch.nn.Module):
+            with torch.no_grad():
+                return float(torch.mean((m(torch.from_numpy(x)) - torch.from_numpy(target)) ** 2))
+        return float(np.mean((m.predict_scaled(x) - target) ** 2))
+
+    before = mse(untrained) if name != "svm" else float(np.mean(target**2))
+    assert mse(model) < 0.7 * before
+
+
+def test_study_architectures_have_the_published_structure():
+    ffnn = get_model_class("ffnn")(nu=1, ny=1)  # the study's optimum: 4 layers x 100
+    linears = [m for m in ffnn.net if isinstance(m, torch.nn.Linear)]
+    assert [m.out_features for m in linears] == [100, 100, 100, 1]
+    assert linears[0].in_features == 20
+    lstm = get_model_class("lstm")(nu=1, ny=1)
+    assert lstm.net.lstm.num_layers == 2 and lstm.net.lstm.hidden_size == 66
+    cnn = get_model_class("cnn")(nu=1, ny=1)
+    convs = [m for m in cnn.net.conv if isinstance(m, torch.nn.Conv1d)]
+    assert len(convs) == 2 and convs[0].kernel_size == (5,) and convs[0].out_channels == 83
+    assert cnn(torch.zeros(3, 10, 2)).shape == (3, 1)
+
+
+@pytest.mark.parametrize("name", ["ffnn", "lstm", "cnn", "svm"])
+def test_free_run_feeds_back_its_own_predictions(name, splits, trained):
+    model, dm = trained[name]
+    rec = splits.test[0]
+    ft = dm.window.first_target
+    corrupted_y = rec.y.copy()
+    corrupted_y[ft:] += 100.0  # measured outputs after the initial window must not matter
+    corrupted = Recording(u=rec.u, y=corrupted_y, fs=rec.fs, name=rec.name)
+    clean_free, bad_free = free_run(model, [rec], dm.window)[0], free_run(model, [corrupted],
+                                                                          dm.window)[0]
+    np.testing.assert_allclose(clean_free[ft:], bad_free[ft:], rtol=0, atol=1e-9)
+    clean_one, bad_one = one_step(model, [rec], dm.window)[0], one_step(model, [corrupted],
+                                                                        dm.window)[0]
+    assert np.abs(clean_one - bad_one)[ft:].max() > 0.1  # one-step does read the measurement
+
+
+@pytest.mark.parametrize("name", ["ffnn", "lstm", "svm"])
+def test_batched_free_run_matches_a_naive_loop(name, splits, trained):
+    model, dm = trained[name]
+    recs = [splits.test[0].slice(0, 150, name="short"), splits.test[1]]
+    batched = free_run(model, recs, dm.window)
+    w = dm.window
+    for rec, fast in zip(recs, batched, strict=True):
+        y = rec.y.copy()
+        for k in range(w.first_target, rec.n_samples):
+            u_past = rec.u[k - w.nk - w.nb + 1 : k - w.nk + 1][None]
+            y_past = y[k - w.na : k][None]
+            if isinstance(model, torch.nn.Module):
+                with torch.no_grad():
+                    y[k] = model.predict_physical(torch.tensor(u_past, dtype=torch.float32),
+                                                  torch.tensor(y_past, dtype=torch.float32))[0]
+            else:
+                y[k] = model.predict_physical(u_past, y_past)[0]
+        np.testing.assert_allclose(fast, y, atol=2e-4)
+
+
+@pytest.mark.parametrize("name", ["ffnn", "lstm", "cnn", "svm"])
+def test_save_and_load_round_trip(name, splits, trained, tmp_path):
+    model, dm = trained[name]
+    path = save_model(model, tmp_path / "model")
+    loaded = load_model(path)
+    np.testing.assert_allclose(one_step(loaded, splits.test, dm.window)[1],
+                               one_step(model, splits.test, dm.window)[1], atol=1e-6)
+
+
+def test_missing_and_corrupt_checkpoints(tmp_path):
+    with pytest.raises(DataError, match="no checkpoint"):
+        load_model(tmp_path / "absent.ckpt")
+    bad = tmp_path / "bad.ckpt"
+    bad.write_bytes(b"\x00garbage" * 50)
+    with pytest.raises(DataError, match="corrupt"):
+        load_model(bad)
+    bad_svm = tmp_path / "bad.skops"
+    bad_svm.write_bytes(b"not a zip")
+    with pytest.raises(DataError, match="corrupt"):
+        load_model(bad_svm)
+
+
+def test_data_with_other_channels_than_the_model(trained):
+    model, dm = trained["ffnn"]
+    two_inputs = Recording(u=np.zeros((100, 2)), y=np.zeros(100), fs=100.0, name="mimo")
+    with pytest.raises(DataError, match="2 input.*expects 1"):
+        free_run(model, [two_inputs], dm.window)
+
+
+def test_mimo_model_trains_and_simulates(tmp_path):
+    splits = narx_data(n=800, nu=2, ny=1)
+    dm = datamodule_for("lstm", splits)
+    model = build_model(CONFIGS["lstm"], dm)
+    result = fit(model, dm, {**TRAINER, "max_epochs": 1}, tmp_path)
+    (y,) = free_run(result.model, splits.test[:1], dm.window)
+    assert y.shape == splits.test[0].y.shape and np.all(np.isfinite(y))
+
+
+def test_onnx_export_matches_pytorch(trained, tmp_path):
+    ort = pytest.importorskip("onnxruntime")
+    from hysteresis_lab.models.export import export_onnx
+
+    for name in ("ffnn", "lstm", "cnn"):
+        model, dm = trained[name]
+        path = export_onnx(model, tmp_path / f"{name}.onnx")
+        rng = np.random.default_rng(1)
+        u = rng.normal(size=(7, dm.window.nb, 1)).astype(np.float32)
+        y = rng.normal(size=(7, dm.window.na, 1)).astype(np.float32)
+        onnx_out = ort.InferenceSession(str(path)).run(None, {"u_past": u, "y_past": y})[0]
+        with torch.no_grad():
+            torch_out = model.predict_physical(torch.from_numpy(u), torch.from_numpy(y)).numpy()
+        np.testing.assert_allclose(onnx_out, torch_out, atol=1e-4)
+    with pytest.raises(ConfigError, match="skops"):
+        export_onnx(trained["svm"][0], tmp_path / "svm.onnx")
