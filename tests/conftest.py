@@ -8,8 +8,9 @@ import pytest
 from hysteresis_lab.data.recording import Recording
 
 
-def make_recording(n: int, name: str, nu: int = 1, ny: int = 1, fs: float = 1000.0,
-                   seed: int = 0) -> Recording:
+def make_recording(
+    n: int, name: str, nu: int = 1, ny: int = 1, fs: float = 1000.0, seed: int = 0
+) -> Recording:
     """A recording whose samples encode their own index: u = k, y = -k (per channel offsets)."""
     k = np.arange(n, dtype=float)[:, None]
     u = k + 1000.0 * np.arange(nu)[None, :]

@@ -15,15 +15,23 @@ REPO = Path(__file__).resolve().parents[1]
 FAST_EFFECTS = {"creep": {"enabled": False}}
 
 
-def small_dataset(directory: Path, n_train: int = 3000, fs: float = 2000.0,
-                  effects: dict | None = None) -> tuple[Path, list[Path]]:
+def small_dataset(
+    directory: Path, n_train: int = 3000, fs: float = 2000.0, effects: dict | None = None
+) -> tuple[Path, list[Path]]:
     """A multisine training CSV and two sine test CSVs (t,u,y), simulated at ``fs``."""
     effects = effects if effects is not None else FAST_EFFECTS
     cfg = {**effects, "mode1": {"frequency_hz": 300.0}}
-    train = simulate_recording(multisine(n_train, fs=fs, n_components=50, f_max=50.0, seed=1), fs,
-                               cfg, seed=1, name="train")
-    tests = [simulate_recording(sine(f, fs=fs, n_periods=2), fs, cfg, seed=2, name=f"sine_{f:g}")
-             for f in (5.0, 20.0)]
+    train = simulate_recording(
+        multisine(n_train, fs=fs, n_components=50, f_max=50.0, seed=1),
+        fs,
+        cfg,
+        seed=1,
+        name="train",
+    )
+    tests = [
+        simulate_recording(sine(f, fs=fs, n_periods=2), fs, cfg, seed=2, name=f"sine_{f:g}")
+        for f in (5.0, 20.0)
+    ]
     train_path = write_csv(train, directory / "train.csv")
     test_paths = [write_csv(rec, directory / f"{rec.name}.csv") for rec in tests]
     return train_path, test_paths
@@ -33,20 +41,33 @@ def data_overrides(train: Path, tests: list[Path]) -> list[str]:
     return ["data=csv", f"data.train={train}", f"data.test=[{','.join(map(str, tests))}]"]
 
 
-def run_app(module: str, *overrides: str, cwd: Path | None = None, env: dict | None = None,
-            timeout: float = 600) -> subprocess.CompletedProcess:
+def run_app(
+    module: str,
+    *overrides: str,
+    cwd: Path | None = None,
+    env: dict | None = None,
+    timeout: float = 600,
+) -> subprocess.CompletedProcess:
     """Run ``python -m hysteresis_lab.cli.<module> <overrides>``; capture its output."""
     return subprocess.run(
         [sys.executable, "-m", f"hysteresis_lab.cli.{module}", *overrides],
-        cwd=cwd or REPO, capture_output=True, text=True, timeout=timeout,
+        cwd=cwd or REPO,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
         env={**os.environ, "HYDRA_FULL_ERROR": "0", **(env or {})},
     )
 
 
-def popen_app(module: str, *overrides: str, cwd: Path | None = None,
-              env: dict | None = None) -> subprocess.Popen:
+def popen_app(
+    module: str, *overrides: str, cwd: Path | None = None, env: dict | None = None
+) -> subprocess.Popen:
     return subprocess.Popen(
         [sys.executable, "-m", f"hysteresis_lab.cli.{module}", *overrides],
-        cwd=cwd or REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-        env={**os.environ, **(env or {})}, start_new_session=True,
+        cwd=cwd or REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env={**os.environ, **(env or {})},
+        start_new_session=True,
     )

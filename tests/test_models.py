@@ -30,8 +30,10 @@ def narx_data(n: int = 1500, nu: int = 1, ny: int = 1, seed: int = 0) -> Dataset
 
     train = simulate(rng.uniform(-1, 1, (n, nu)), "train")
     t = np.arange(400) / 100.0
-    test = [simulate(np.tile(np.sin(2 * np.pi * f * t)[:, None], (1, nu)), f"sine{f}")
-            for f in (1.0, 3.0)]
+    test = [
+        simulate(np.tile(np.sin(2 * np.pi * f * t)[:, None], (1, nu)), f"sine{f}")
+        for f in (1.0, 3.0)
+    ]
     return DatasetSplits("narx", train=[train], test=test)
 
 
@@ -43,12 +45,22 @@ def datamodule_for(name: str, splits: DatasetSplits) -> WindowDataModule:
 CONFIGS = {
     "ffnn": {"name": "ffnn", "num_layers": 3, "neurons": 32},
     "lstm": {"name": "lstm", "num_layers": 2, "lstm_layers": 1, "units": 16, "lr": 5e-3},
-    "cnn": {"name": "cnn", "num_layers": 3, "conv_layers": 2, "units": 24, "kernel_size": 3,
-            "lr": 3e-3},
+    "cnn": {
+        "name": "cnn",
+        "num_layers": 3,
+        "conv_layers": 2,
+        "units": 24,
+        "kernel_size": 3,
+        "lr": 3e-3,
+    },
     "svm": {"name": "svm", "kernel": "rbf", "C": 10.0, "gamma": 0.05, "n_components": 200},
 }
-TRAINER = {"max_epochs": 4, "accelerator": "cpu", "enable_progress_bar": False,
-           "enable_model_summary": False}
+TRAINER = {
+    "max_epochs": 4,
+    "accelerator": "cpu",
+    "enable_progress_bar": False,
+    "enable_model_summary": False,
+}
 
 
 @pytest.fixture(scope="module")
@@ -117,11 +129,15 @@ def test_free_run_feeds_back_its_own_predictions(name, splits, trained):
     corrupted_y = rec.y.copy()
     corrupted_y[ft:] += 100.0  # measured outputs after the initial window must not matter
     corrupted = Recording(u=rec.u, y=corrupted_y, fs=rec.fs, name=rec.name)
-    clean_free, bad_free = free_run(model, [rec], dm.window)[0], free_run(model, [corrupted],
-                                                                          dm.window)[0]
+    clean_free, bad_free = (
+        free_run(model, [rec], dm.window)[0],
+        free_run(model, [corrupted], dm.window)[0],
+    )
     np.testing.assert_allclose(clean_free[ft:], bad_free[ft:], rtol=0, atol=1e-9)
-    clean_one, bad_one = one_step(model, [rec], dm.window)[0], one_step(model, [corrupted],
-                                                                        dm.window)[0]
+    clean_one, bad_one = (
+        one_step(model, [rec], dm.window)[0],
+        one_step(model, [corrupted], dm.window)[0],
+    )
     assert np.abs(clean_one - bad_one)[ft:].max() > 0.1  # one-step does read the measurement
 
 
@@ -138,8 +154,10 @@ def test_batched_free_run_matches_a_naive_loop(name, splits, trained):
             y_past = y[k - w.na : k][None]
             if isinstance(model, torch.nn.Module):
                 with torch.no_grad():
-                    y[k] = model.predict_physical(torch.tensor(u_past, dtype=torch.float32),
-                                                  torch.tensor(y_past, dtype=torch.float32))[0]
+                    y[k] = model.predict_physical(
+                        torch.tensor(u_past, dtype=torch.float32),
+                        torch.tensor(y_past, dtype=torch.float32),
+                    )[0]
             else:
                 y[k] = model.predict_physical(u_past, y_past)[0]
         np.testing.assert_allclose(fast, y, atol=2e-4)
@@ -150,8 +168,11 @@ def test_save_and_load_round_trip(name, splits, trained, tmp_path):
     model, dm = trained[name]
     path = save_model(model, tmp_path / "model")
     loaded = load_model(path)
-    np.testing.assert_allclose(one_step(loaded, splits.test, dm.window)[1],
-                               one_step(model, splits.test, dm.window)[1], atol=1e-6)
+    np.testing.assert_allclose(
+        one_step(loaded, splits.test, dm.window)[1],
+        one_step(model, splits.test, dm.window)[1],
+        atol=1e-6,
+    )
 
 
 def test_missing_and_corrupt_checkpoints(tmp_path):

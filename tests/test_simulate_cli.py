@@ -12,14 +12,22 @@ import numpy as np
 def simulate(tmp_path: Path, *overrides: str) -> subprocess.CompletedProcess:
     return subprocess.run(
         [sys.executable, "-m", "hysteresis_lab.cli.simulate", *overrides],
-        cwd=tmp_path, capture_output=True, text=True, timeout=120,
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
     )
 
 
 def test_cli_writes_a_sine_csv(tmp_path):
     out = tmp_path / "x.csv"
-    result = simulate(tmp_path, "signal.kind=sine", "signal.frequency=10",
-                      "effects.creep.enabled=false", f"output={out}")
+    result = simulate(
+        tmp_path,
+        "signal.kind=sine",
+        "signal.frequency=10",
+        "effects.creep.enabled=false",
+        f"output={out}",
+    )
     assert result.returncode == 0, result.stderr
     assert str(out) in result.stdout + result.stderr  # the path is logged
     assert out.read_text().splitlines()[0] == "t,u,y"
@@ -32,11 +40,13 @@ def test_cli_writes_a_sine_csv(tmp_path):
 
 
 def test_cli_default_output_path_and_multisine(tmp_path):
-    result = simulate(tmp_path, "signal.n_samples=2000", "signal.n_components=50",
-                      "signal.f_max=50")
+    result = simulate(
+        tmp_path, "signal.n_samples=2000", "signal.n_components=50", "signal.f_max=50"
+    )
     assert result.returncode == 0, result.stderr
-    data = np.loadtxt(tmp_path / "outputs" / "simulated" / "multisine.csv", delimiter=",",
-                      skiprows=1)
+    data = np.loadtxt(
+        tmp_path / "outputs" / "simulated" / "multisine.csv", delimiter=",", skiprows=1
+    )
     assert data.shape == (2000, 3)
 
 

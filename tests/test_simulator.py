@@ -59,8 +59,7 @@ def test_stroke_and_loop_width_at_full_amplitude():
 
 def test_linear_when_hysteresis_is_off():
     u = sine(1.0, fs=FS, amplitude=100.0, n_periods=3.0)
-    y = Positioner(effects(creep={"enabled": False}, hysteresis={"enabled": False})).simulate(
-        u, FS)
+    y = Positioner(effects(creep={"enabled": False}, hysteresis={"enabled": False})).simulate(u, FS)
     ascending, descending, _ = loop_of_third_period(u, y, FS, 1.0)
     assert np.max(np.abs(descending - ascending)) < 0.1  # only the dynamics' phase lag
 
@@ -82,8 +81,7 @@ def test_bouc_wen_update_matches_fine_euler_integration():
 
 
 def test_rate_dependence_widens_fast_loops():
-    base = effects(creep={"enabled": False}, mode1={"enabled": False},
-                   amplifier={"enabled": False})
+    base = effects(creep={"enabled": False}, mode1={"enabled": False}, amplifier={"enabled": False})
     u = sine(100.0, fs=FS, amplitude=100.0, n_periods=3.0)
     widths = []
     for on in (False, True):
@@ -107,8 +105,7 @@ def test_asymmetry_shifts_the_loop():
 def test_saturation_clips_the_amplifier_output():
     u = sine(1.0, fs=FS, amplitude=100.0, n_periods=2.0)
     base = effects(creep={"enabled": False}, amplifier={"enabled": False})
-    clipped = Positioner({**base, "saturation": {"enabled": True, "limit_v": 50.0}}).simulate(
-        u, FS)
+    clipped = Positioner({**base, "saturation": {"enabled": True, "limit_v": 50.0}}).simulate(u, FS)
     reference = Positioner(base).simulate(np.clip(u, -50.0, 50.0), FS)
     np.testing.assert_allclose(clipped, reference)
     full = Positioner(base).simulate(u, FS)
@@ -143,14 +140,15 @@ def test_drift_is_slow_and_input_independent():
     assert np.max(np.abs(np.diff(y))) < 1e-4  # slow: no jumps between samples
     y_other = Positioner(config).simulate(np.full(int(30 * FS), 20.0), FS, seed=4)
     drift_other = y_other - y_other[int(FS)] - (y - y[int(FS)])
-    assert np.max(np.abs(drift_other[int(FS):])) < 1e-9
+    assert np.max(np.abs(drift_other[int(FS) :])) < 1e-9
 
 
 # ---------------------------------------------------------------- dynamics
 def test_resonance_at_configured_mode1_frequency():
     for f_n in (900.0, 700.0):
-        config = effects(hysteresis={"enabled": False}, creep={"enabled": False},
-                         mode1={"frequency_hz": f_n})
+        config = effects(
+            hysteresis={"enabled": False}, creep={"enabled": False}, mode1={"frequency_hz": f_n}
+        )
         freqs, gain = peak_frequency(config)
         assert freqs[np.argmax(gain)] == pytest.approx(f_n, rel=0.03)
         d = 0.23
@@ -232,8 +230,7 @@ def test_yaml_round_trips_and_omegaconf_is_accepted():
 
 
 def test_simulate_recording_records_the_effects():
-    rec = simulate_recording(np.zeros(100), FS, {"creep": {"enabled": False}}, seed=3,
-                             name="zeros")
+    rec = simulate_recording(np.zeros(100), FS, {"creep": {"enabled": False}}, seed=3, name="zeros")
     assert rec.name == "zeros" and rec.u.shape == (100, 1) and rec.y.shape == (100, 1)
     assert rec.y_units == "um" and rec.u_units == "V"
     assert "creep" not in rec.metadata["effects"]
@@ -263,8 +260,9 @@ def test_default_dataset_shapes_names_and_determinism():
 
 
 def test_default_dataset_accepts_effects_overrides():
-    effects_cfg = OmegaConf.create({"noise": {"enabled": False},
-                                    "quantisation": {"enabled": False}})
+    effects_cfg = OmegaConf.create(
+        {"noise": {"enabled": False}, "quantisation": {"enabled": False}}
+    )
     data = make_default_dataset(effects=effects_cfg, n_train=20_000)
     assert data.train[0].n_samples == 20_000
     assert "noise" not in data.train[0].metadata["effects"]

@@ -23,10 +23,15 @@ def csv_data(tmp_path_factory) -> list[str]:
 
 def sweep_args(results: Path, n_trials: int, *extra: str) -> list[str]:
     return [
-        "-m", "hparams_search=ffnn", f"hydra.sweeper.results_dir={results}",
-        f"hydra.sweeper.n_trials={n_trials}", "hydra.sweeper.n_startup_trials=2",
-        "trainer.max_epochs=2", "trainer.enable_progress_bar=false",
-        f"hydra.sweep.dir={results}/runs", "hydra.sweeper.params.model.neurons=range(8,33)",
+        "-m",
+        "hparams_search=ffnn",
+        f"hydra.sweeper.results_dir={results}",
+        f"hydra.sweeper.n_trials={n_trials}",
+        "hydra.sweeper.n_startup_trials=2",
+        "trainer.max_epochs=2",
+        "trainer.enable_progress_bar=false",
+        f"hydra.sweep.dir={results}/runs",
+        "hydra.sweeper.params.model.neurons=range(8,33)",
         *extra,
     ]
 
@@ -47,8 +52,7 @@ def test_sweep_writes_results_and_resumes_without_repeating(tmp_path, csv_data):
     done = counted_trials(study)
     assert [t.state for t in done] == [TrialState.COMPLETE] * 3
     out = results / "ffnn_csv"
-    for name in ("trials.csv", "optimization_history.png", "param_importances.png",
-                 "summary.json"):
+    for name in ("trials.csv", "optimization_history.png", "param_importances.png", "summary.json"):
         assert (out / name).stat().st_size > 0, name
     first_params = [t.params for t in done]
     best_config = results / "best" / "experiment" / "best_ffnn_csv.yaml"
@@ -64,9 +68,16 @@ def test_sweep_writes_results_and_resumes_without_repeating(tmp_path, csv_data):
     assert len(set(keys)) == len(keys), "a resumed sweep repeated a trial's parameters"
 
     # the best config trains straight away
-    best = run_app("train", *csv_data, "experiment=best_ffnn_csv", "trainer.max_epochs=1",
-                   "evaluate=false", "logger=none", f"hydra.searchpath=[file://{results}/best]",
-                   f"hydra.run.dir={tmp_path}/best_run")
+    best = run_app(
+        "train",
+        *csv_data,
+        "experiment=best_ffnn_csv",
+        "trainer.max_epochs=1",
+        "evaluate=false",
+        "logger=none",
+        f"hydra.searchpath=[file://{results}/best]",
+        f"hydra.run.dir={tmp_path}/best_run",
+    )
     assert best.returncode == 0, best.stderr[-3000:]
 
 
@@ -123,9 +134,16 @@ def test_bad_sweep_settings_fail_before_training(tmp_path, csv_data, override, m
 
 def test_nan_trial_fails_and_the_study_goes_on(tmp_path, csv_data):
     results = tmp_path / "optuna"
-    proc = run_app("train", *csv_data, *sweep_args(
-        results, 2, "hydra.sweeper.params.model.lr=tag(log, interval(1e8, 1e9))",
-        "trainer.max_epochs=3"))
+    proc = run_app(
+        "train",
+        *csv_data,
+        *sweep_args(
+            results,
+            2,
+            "hydra.sweeper.params.model.lr=tag(log, interval(1e8, 1e9))",
+            "trainer.max_epochs=3",
+        ),
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     states = [t.state for t in counted_trials(load(results))]
     assert len(states) == 2
@@ -144,8 +162,12 @@ def test_two_workers_share_one_postgres_study(tmp_path, csv_data, postgres_url):
     env = {"HYSTERESIS_LAB_OPTUNA_STORAGE": postgres_url}
     n_trials = 6
     workers = [
-        popen_app("train", *csv_data, *sweep_args(tmp_path / f"w{i}", n_trials,
-                                                  "trainer.max_epochs=4"), env=env)
+        popen_app(
+            "train",
+            *csv_data,
+            *sweep_args(tmp_path / f"w{i}", n_trials, "trainer.max_epochs=4"),
+            env=env,
+        )
         for i in range(2)
     ]
     outputs = [w.communicate(timeout=600)[0] for w in workers]

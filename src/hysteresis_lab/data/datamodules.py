@@ -8,7 +8,13 @@ from typing import Any
 import lightning as L
 import numpy as np
 import torch
-from torch.utils.data import DataLoader, TensorDataset
+from torch.utils.data import (
+    BatchSampler,
+    DataLoader,
+    RandomSampler,
+    SequentialSampler,
+    TensorDataset,
+)
 
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.scaling import Scaler
@@ -104,8 +110,13 @@ class WindowDataModule(L.LightningDataModule):
         self._tensors = {"train": self._to_tensors(train), "val": self._to_tensors(val)}
         log.info(
             "%s: %d training and %d validation windows (na=%d, nb=%d, nk=%d, layout=%s)",
-            self.splits.name, len(train), len(val), self.window.na, self.window.nb,
-            self.window.nk, self.layout,
+            self.splits.name,
+            len(train),
+            len(val),
+            self.window.na,
+            self.window.nb,
+            self.window.nk,
+            self.layout,
         )
 
     def train_dataloader(self) -> DataLoader:
@@ -137,14 +148,20 @@ class WindowDataModule(L.LightningDataModule):
         return TensorDataset(torch.from_numpy(x), torch.from_numpy(target))
 
     def _loader(self, split: str, shuffle: bool, **kwargs: Any) -> DataLoader:
+        """Whole batches by one tensor index each (no per-sample fetch and collate)."""
         if split not in self._tensors:
             self.setup()
+        dataset = self._tensors[split]
+        order = (
+            RandomSampler(dataset, generator=kwargs.get("generator"))
+            if shuffle
+            else SequentialSampler(dataset)
+        )
         return DataLoader(
-            self._tensors[split],
-            batch_size=self.batch_size,
-            shuffle=shuffle,
+            dataset,
+            sampler=BatchSampler(order, batch_size=self.batch_size, drop_last=False),
+            batch_size=None,
             num_workers=self.num_workers,
-            **kwargs,
         )
 
 

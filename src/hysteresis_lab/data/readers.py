@@ -31,8 +31,9 @@ def _names(value: str | Sequence[str]) -> list[str]:
 def _check_file(path: Path) -> Path:
     path = Path(path)
     if not path.is_file():
-        raise DataError("no such file.", source=str(path),
-                        fix="check the path (data.train / data.test)")
+        raise DataError(
+            "no such file.", source=str(path), fix="check the path (data.train / data.test)"
+        )
     if path.stat().st_size == 0:
         raise DataError("the file is empty.", source=str(path), fix="supply a file with data")
     return path
@@ -112,12 +113,23 @@ def _recording(
         u = np.column_stack([np.asarray(columns[c], dtype=float).ravel() for c in inputs])
         y = np.column_stack([np.asarray(columns[c], dtype=float).ravel() for c in outputs])
     except ValueError as exc:
-        raise DataError(f"non-numeric values ({exc}).", source=str(source),
-                        fix="keep only numbers in the data columns") from None
+        raise DataError(
+            f"non-numeric values ({exc}).",
+            source=str(source),
+            fix="keep only numbers in the data columns",
+        ) from None
     try:
-        return Recording(u=u, y=y, fs=rate, name=name or source.stem, u_units=u_units,
-                         y_units=y_units, u_names=tuple(inputs), y_names=tuple(outputs),
-                         metadata={"path": str(source)})
+        return Recording(
+            u=u,
+            y=y,
+            fs=rate,
+            name=name or source.stem,
+            u_units=u_units,
+            y_units=y_units,
+            u_names=tuple(inputs),
+            y_names=tuple(outputs),
+            metadata={"path": str(source)},
+        )
     except DataError as exc:
         raise DataError(exc.problem, source=str(source), fix=exc.fix) from None
 
@@ -140,8 +152,11 @@ def read_csv(
         header = [h.strip() for h in next(reader, [])]
         rows = [row for row in reader if any(cell.strip() for cell in row)]
     if not rows:
-        raise DataError("the file has a header but no data rows.", source=str(path),
-                        fix="supply a file with data")
+        raise DataError(
+            "the file has a header but no data rows.",
+            source=str(path),
+            fix="supply a file with data",
+        )
     table: dict[str, list[float]] = {h: [] for h in header if h}
     for number, row in enumerate(rows, start=2):
         for key, cell in zip(header, row, strict=False):
@@ -156,30 +171,48 @@ def read_csv(
                     fix="keep only numbers below the header row",
                 ) from None
     columns = {k: np.asarray(v) for k, v in table.items()}
-    return _recording(columns, path, time, _names(inputs), _names(outputs), fs, u_units, y_units,
-                      name)
+    return _recording(
+        columns, path, time, _names(inputs), _names(outputs), fs, u_units, y_units, name
+    )
 
 
-def read_npz(path: str | Path, time: str | None = "t", inputs: str | Sequence[str] = ("u",),
-             outputs: str | Sequence[str] = ("y",), fs: float | None = None,
-             u_units: str = "V", y_units: str = "um", name: str | None = None) -> Recording:
+def read_npz(
+    path: str | Path,
+    time: str | None = "t",
+    inputs: str | Sequence[str] = ("u",),
+    outputs: str | Sequence[str] = ("y",),
+    fs: float | None = None,
+    u_units: str = "V",
+    y_units: str = "um",
+    name: str | None = None,
+) -> Recording:
     """An NPZ archive with one array per column (``t``, ``u``, ``y`` by default)."""
     path = _check_file(Path(path))
     try:
         with np.load(path, allow_pickle=False) as archive:
             columns = {k: archive[k] for k in archive.files}
     except (OSError, ValueError) as exc:
-        raise DataError(f"cannot read the NPZ archive ({exc}).", source=str(path),
-                        fix="check that the file is an uncorrupted .npz") from None
+        raise DataError(
+            f"cannot read the NPZ archive ({exc}).",
+            source=str(path),
+            fix="check that the file is an uncorrupted .npz",
+        ) from None
     if "fs" in columns and fs is None and (time is None or time not in columns):
         fs = float(np.ravel(columns["fs"])[0])
     columns, inputs, outputs = _expand_matrices(columns, _names(inputs), _names(outputs))
     return _recording(columns, path, time, inputs, outputs, fs, u_units, y_units, name)
 
 
-def read_mat(path: str | Path, time: str | None = "t", inputs: str | Sequence[str] = ("u",),
-             outputs: str | Sequence[str] = ("y",), fs: float | None = None,
-             u_units: str = "V", y_units: str = "um", name: str | None = None) -> Recording:
+def read_mat(
+    path: str | Path,
+    time: str | None = "t",
+    inputs: str | Sequence[str] = ("u",),
+    outputs: str | Sequence[str] = ("y",),
+    fs: float | None = None,
+    u_units: str = "V",
+    y_units: str = "um",
+    name: str | None = None,
+) -> Recording:
     """A MATLAB file: v4-v7 via scipy.io, v7.3 (HDF5) via h5py."""
     path = _check_file(Path(path))
     columns = load_mat_variables(path)
@@ -189,20 +222,30 @@ def read_mat(path: str | Path, time: str | None = "t", inputs: str | Sequence[st
 
 def load_mat_variables(path: Path) -> dict[str, np.ndarray]:
     """All numeric variables of a MAT file (any version) as NumPy arrays."""
-    try:
-        raw = scipy.io.loadmat(path)
-        return {k: np.asarray(v) for k, v in raw.items() if not k.startswith("__")}
-    except NotImplementedError:  # MATLAB v7.3 = HDF5, column-major
+    if h5py.is_hdf5(path):  # MATLAB v7.3 = HDF5, column-major
         with h5py.File(path, "r") as handle:
             return {k: np.asarray(v).T for k, v in handle.items() if isinstance(v, h5py.Dataset)}
-    except (ValueError, OSError) as exc:
-        raise DataError(f"cannot read the MAT file ({exc}).", source=str(path),
-                        fix="check that the file is an uncorrupted MATLAB .mat file") from None
+    try:
+        raw = scipy.io.loadmat(path)
+    except (ValueError, OSError, NotImplementedError) as exc:
+        raise DataError(
+            f"cannot read the MAT file ({exc}).",
+            source=str(path),
+            fix="check that the file is an uncorrupted MATLAB .mat file",
+        ) from None
+    return {k: np.asarray(v) for k, v in raw.items() if not k.startswith("__")}
 
 
-def read_hdf5(path: str | Path, time: str | None = "t", inputs: str | Sequence[str] = ("u",),
-              outputs: str | Sequence[str] = ("y",), fs: float | None = None,
-              u_units: str = "V", y_units: str = "um", name: str | None = None) -> Recording:
+def read_hdf5(
+    path: str | Path,
+    time: str | None = "t",
+    inputs: str | Sequence[str] = ("u",),
+    outputs: str | Sequence[str] = ("y",),
+    fs: float | None = None,
+    u_units: str = "V",
+    y_units: str = "um",
+    name: str | None = None,
+) -> Recording:
     """An HDF5 file; column names are dataset paths (e.g. ``"multisine/u"``)."""
     path = _check_file(Path(path))
     wanted = ([time] if time else []) + _names(inputs) + _names(outputs)
@@ -213,14 +256,21 @@ def read_hdf5(path: str | Path, time: str | None = "t", inputs: str | Sequence[s
             if fs is None and "fs" in handle.attrs:
                 fs = float(handle.attrs["fs"])
     except OSError as exc:
-        raise DataError(f"cannot read the HDF5 file ({exc}).", source=str(path),
-                        fix="check that the file is an uncorrupted HDF5 file") from None
+        raise DataError(
+            f"cannot read the HDF5 file ({exc}).",
+            source=str(path),
+            fix="check that the file is an uncorrupted HDF5 file",
+        ) from None
     missing = [k for k in wanted if k not in columns]
     if missing:
-        raise DataError(f"missing dataset(s) {missing}; the file has {available}.",
-                        source=str(path), fix="name the datasets in data.columns")
-    return _recording(columns, path, time, _names(inputs), _names(outputs), fs, u_units, y_units,
-                      name)
+        raise DataError(
+            f"missing dataset(s) {missing}; the file has {available}.",
+            source=str(path),
+            fix="name the datasets in data.columns",
+        )
+    return _recording(
+        columns, path, time, _names(inputs), _names(outputs), fs, u_units, y_units, name
+    )
 
 
 def _hdf5_datasets(handle: h5py.File) -> list[str]:
@@ -250,8 +300,12 @@ def _expand_matrices(
 
 
 READERS: dict[str, Callable[..., Recording]] = {
-    ".csv": read_csv, ".txt": read_csv, ".npz": read_npz, ".mat": read_mat,
-    ".h5": read_hdf5, ".hdf5": read_hdf5,
+    ".csv": read_csv,
+    ".txt": read_csv,
+    ".npz": read_npz,
+    ".mat": read_mat,
+    ".h5": read_hdf5,
+    ".hdf5": read_hdf5,
 }
 
 
@@ -260,8 +314,11 @@ def read_recording(path: str | Path, **options: Any) -> Recording:
     path = Path(path)
     reader = READERS.get(path.suffix.lower())
     if reader is None:
-        raise DataError(f"unknown file type '{path.suffix}'.", source=str(path),
-                        fix=f"use one of {sorted(READERS)}")
+        raise DataError(
+            f"unknown file type '{path.suffix}'.",
+            source=str(path),
+            fix=f"use one of {sorted(READERS)}",
+        )
     return reader(path, **options)
 
 
@@ -278,8 +335,14 @@ def write_csv(rec: Recording, path: str | Path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     columns = _columns(rec)
-    np.savetxt(path, np.column_stack(list(columns.values())), delimiter=",",
-               header=",".join(columns), comments="", fmt="%.10g")
+    np.savetxt(
+        path,
+        np.column_stack(list(columns.values())),
+        delimiter=",",
+        header=",".join(columns),
+        comments="",
+        fmt="%.10g",
+    )
     return path
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 from hysteresis_lab.data.readers import read_recording
@@ -16,7 +17,7 @@ DEFAULT_COLUMNS = {"time": "t", "inputs": ["u"], "outputs": ["y"]}
 def _paths(value: str | Sequence[str] | None) -> list[str]:
     if value is None:
         return []
-    return [value] if isinstance(value, str) else [str(v) for v in value]
+    return [str(value)] if isinstance(value, str | Path) else [str(v) for v in value]
 
 
 def load_user_files(
@@ -40,15 +41,30 @@ def load_user_files(
     cols = {**DEFAULT_COLUMNS, **dict(columns or {})}
     unknown = set(cols) - set(DEFAULT_COLUMNS)
     if unknown:
-        raise DataError(f"unknown key(s) {sorted(unknown)} in data.columns.",
-                        source=f"data '{name}'", fix="use time, inputs and outputs")
+        raise DataError(
+            f"unknown key(s) {sorted(unknown)} in data.columns.",
+            source=f"data '{name}'",
+            fix="use time, inputs and outputs",
+        )
 
     def read(paths: list[str]) -> list[Recording]:
         return [
-            read_recording(p, time=cols["time"], inputs=cols["inputs"], outputs=cols["outputs"],
-                           fs=fs, u_units=u_units, y_units=y_units)
+            read_recording(
+                p,
+                time=cols["time"],
+                inputs=cols["inputs"],
+                outputs=cols["outputs"],
+                fs=fs,
+                u_units=u_units,
+                y_units=y_units,
+            )
             for p in paths
         ]
 
-    return DatasetSplits(name=name, train=read(_paths(train)), test=read(_paths(test)),
-                         val=read(_paths(val)), n_init=n_init)
+    return DatasetSplits(
+        name=name,
+        train=read(_paths(train)),
+        test=read(_paths(test)),
+        val=read(_paths(val)),
+        n_init=n_init,
+    )
