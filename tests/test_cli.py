@@ -1,0 +1,123 @@
+"""The command-line apps end to end on small simulated data (real files, real TensorBoard logs)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+from helpers import REPO, data_overrides, run_app, small_dataset
+
+QUIET = ["trainer.enable_progress_bar=false", "trainer.enable_model_summary=false"]
+
+
+@pytest.fixture(scope="module")
+def csv_data(tmp_path_factory) -> tuple[Path, list[Path]]:
+    return small_dataset(tmp_path_factory.mktemp("cli_data"))
+
+
+@pytest.fixture(scope="module")
+def trained_run(csv_data, tmp_path_factory) -> Path:
+    run_dir = tmp_path_factory.mktemp("train_run")
+    proc = run_app("train", *data_overrides(*csv_data), "model=ffnn", "trainer.max_epochs=3",
+                   "n_step=20", f"hydra.run.dir={run_dir}", *QUIET)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return run_dir
+
+
+def test_train_writes_metrics_checkpoint_figures_and_tensorboard(trained_run):
+    metrics = json.loads((trained_run / "metrics.json").read_text())
+    assert metrics["model"] == "ffnn" and metrics["units"] == {"u": "V", "y": "um"}
+    assert set(metrics["tests"]) == {"sine_5", "sine_20"}
+    for test in metrics["tests"].values():
+        assert {"rmse_one_step", "r2_one_step", "rmse_free_run", "r2_free_run",
+                "rmse_20_step"} <= set(test)
+        assert test["rmse_one_step"] <= test["rmse_free_run"] + 1e-9 or test["r2_one_step"] > 0.9
+    assert {"rmse_one_step", "rmse_free_run", "r2_one_step", "r2_free_run"} <= set(metrics["mean"])
+    assert metrics["train_seconds"] > 0
+    assert (trained_run / "model.ckpt").is_file()
+    assert list((trained_run / "checkpoints").glob("best-*.ckpt"))
+    assert (trained_run / "hysteresis_loops.png").stat().st_size > 10_000
+    events = EventAccumulator(str(trained_run / "tensorboard")).Reload()
+    scalars = set(events.Tags()["scalars"])
+    assert {"train_loss", "val_loss"} <= scalars
+    assert len(events.Scalars("val_loss")) == 3
+    assert any("hysteresis_loops" in tag for tag in events.Tags()["images"])
+
+
+def test_evaluate_reproduces_the_training_metrics(trained_run, csv_data, tmp_path):
+    proc = run_app("evaluate", f"checkpoint={trained_run}", *data_overrides(*csv_data),
+                   f"hydra.run.dir={tmp_path}")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    fresh = json.loads((tmp_path / "metrics.json").read_text())["tests"]
+    saved = json.loads((trained_run / "metrics.json").read_text())["tests"]
+    for name in saved:
+        assert fresh[name]["rmse_free_run"] == pytest.approx(saved[name]["rmse_free_run"], rel=1e-6)
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        (["model=transformer"], "Could not find 'model/transformer'"),
+        (["model.name=transformer"], "unknown model 'transformer'. Available:"),
+        (["+model.neuronz=5"], "has no parameter(s) ['neuronz']"),
+        (["data.train=/nonexistent/file.csv"], "no such file"),
+        (["data.window.na=-1"], "window na=-1 is invalid"),
+    ],
+)
+def test_bad_input_gives_a_clear_error(csv_data, tmp_path, overrides, message):
+    proc = run_app("train", *data_overrides(*csv_data), *overrides, "trainer.max_epochs=1",
+                   f"hydra.run.dir={tmp_path}", *QUIET)
+    assert proc.returncode != 0
+    output = proc.stderr + proc.stdout
+    assert message in output
+    assert "Traceback" not in output
+
+
+def test_evaluate_errors(trained_run, csv_data, tmp_path):
+    missing = run_app("evaluate", f"checkpoint={tmp_path}/nothing.ckpt",
+                      *data_overrides(*csv_data), f"hydra.run.dir={tmp_path}")
+    assert missing.returncode == 2 and "no checkpoint" in missing.stdout + missing.stderr
+    # a two-input recording for a one-input model
+    mimo = tmp_path / "mimo.csv"
+    mimo.write_text("t,u,v,y\n" + "".join(f"{k / 2000},{k},{k},{k}\n" for k in range(100)))
+    wrong = run_app("evaluate", f"checkpoint={trained_run}", "data=csv", f"data.test=[{mimo}]",
+                    "data.columns.inputs=[u,v]", f"hydra.run.dir={tmp_path}/w")
+    output = wrong.stdout + wrong.stderr
+    assert wrong.returncode == 2 and "2 input(s)" in output and "expects 1" in output
+
+
+def test_paper_experiment_writes_table2_and_figure1(tmp_path):
+    proc = run_app(
+        "train", "experiment=paper", "trainer.max_epochs=1", "logger=none",
+        "+data.splits.n_train=4000", "+data.splits.test_frequencies=[1,50,500]",
+        "+data.splits.max_test_samples=1500", "paper.models.svm.n_components=100",
+        f"hydra.run.dir={tmp_path}", *QUIET, timeout=900,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    results = json.loads((tmp_path / "paper_results.json").read_text())
+    assert set(results) == {"ffnn", "lstm", "cnn", "svm"}
+    assert set(results["lstm"]["tests"]) == {"sine_1Hz", "sine_50Hz", "sine_500Hz"}
+    table = (tmp_path / "table2.md").read_text()
+    assert "One-step-ahead prediction" in table and "Free-run simulation" in table
+    assert "svm RMSE [um]" in table and "**mean**" in table
+    rows = (tmp_path / "table2.csv").read_text().splitlines()
+    assert len(rows) == 1 + 4 * (3 + 2) * 2  # header + models x (tests + mean, std) x modes
+    assert (tmp_path / "figure1.png").stat().st_size > 20_000
+
+
+def test_plugin_registers_an_architecture_and_its_config(csv_data, tmp_path):
+    plugin = REPO / "plugins" / "hysteresis_lab_gru"
+    install = subprocess.run(
+        [sys.executable, "-m", "pip", "install", "--no-deps", "--no-build-isolation", "-e",
+         str(plugin)], capture_output=True, text=True, timeout=600)
+    assert install.returncode == 0, install.stderr[-2000:]
+    proc = run_app("train", *data_overrides(*csv_data), "model=gru", "model.units=16",
+                   "model.lr=0.005", "trainer.max_epochs=6", f"hydra.run.dir={tmp_path}", *QUIET)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["model"] == "gru" and metrics["mean"]["r2_one_step"] > 0.5
