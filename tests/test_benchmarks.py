@@ -40,7 +40,7 @@ def test_piezo_p885():
     n = data.train[0].n_samples + data.test[0].n_samples
     assert n == 8027 and data.train[0].n_samples == round(0.7 * 8027)
     u = data.train[0].u
-    assert 0.0 <= u.min() and u.max() <= 3.7
+    assert u.min() >= 0.0 and u.max() <= 3.7
     y = np.concatenate([data.train[0].y, data.test[0].y])
     assert abs(y.mean()) < 1e-9 and 15 < np.ptp(y) < 60  # about +-25 um
 

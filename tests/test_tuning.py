@@ -31,7 +31,7 @@ def sweep_args(results: Path, n_trials: int, *extra: str) -> list[str]:
         "trainer.max_epochs=2",
         "trainer.enable_progress_bar=false",
         f"hydra.sweep.dir={results}/runs",
-        "hydra.sweeper.params.model.neurons=range(8,33)",
+        "model.neurons=range(8,33)",
         *extra,
     ]
 
@@ -92,7 +92,10 @@ def test_sigkill_mid_trial_loses_no_completed_trial(tmp_path, csv_data):
         time.sleep(0.5)
         if not db.exists():
             continue
-        trials = load(results).get_trials()
+        try:
+            trials = load(results).get_trials()
+        except KeyError:  # the database exists before the study in it
+            continue
         complete = [t for t in trials if t.state == TrialState.COMPLETE]
         running = [t for t in trials if t.state == TrialState.RUNNING]
         if complete and running:
@@ -118,9 +121,9 @@ def test_sigkill_mid_trial_loses_no_completed_trial(tmp_path, csv_data):
 @pytest.mark.parametrize(
     ("override", "message"),
     [
-        ("hydra.sweeper.params.model.lr=tag(log, interval(1e-3, 1e-4))", "low"),
+        ("model.lr=tag(log, interval(1e-3, 1e-4))", "low"),
         ("hydra.sweeper.sampler=bayes", "unknown sampler 'bayes'"),
-        ("+hydra.sweeper.params.model.neuronz=range(1,3)", "model.neuronz"),
+        ("+model.neuronz=range(1,3)", "neuronz"),
         ("hydra.sweeper.storage=postgresql://nobody@127.0.0.1:9/none", "cannot open the Optuna"),
     ],
 )
@@ -140,7 +143,7 @@ def test_nan_trial_fails_and_the_study_goes_on(tmp_path, csv_data):
         *sweep_args(
             results,
             2,
-            "hydra.sweeper.params.model.lr=tag(log, interval(1e8, 1e9))",
+            "model.lr=tag(log, interval(1e8, 1e9))",
             "trainer.max_epochs=3",
         ),
     )

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import logging
+import sys
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -58,6 +60,7 @@ class HysteresisLabSweeper(Sweeper):
         )
 
     def sweep(self, arguments: list[str]) -> Any:
+        from hysteresis_lab.errors import HysteresisLabError
         from hysteresis_lab.tuning.sweep import run_sweep
 
         def launch(batch: list[list[str]]) -> Any:
@@ -66,4 +69,8 @@ class HysteresisLabSweeper(Sweeper):
             return returns
 
         assert self.config is not None
-        return run_sweep(self.settings, self.config, arguments, launch)
+        try:
+            return run_sweep(self.settings, self.config, arguments, launch)
+        except HysteresisLabError as exc:  # one clear line, no traceback
+            logging.getLogger("hysteresis_lab").error("%s", exc)
+            sys.exit(2)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import json
 import logging
 import math
@@ -31,13 +32,13 @@ def first_best_trial(study: optuna.Study) -> int | None:
     return min(t.number for t in complete if t.value <= best)
 
 
-def best_config(study: optuna.Study, model_name: str, fixed: dict[str, Any]) -> dict[str, Any]:
-    """A ``# @package _global_`` experiment config with the best trial's overrides."""
+def best_config(study: optuna.Study, model_name: str) -> dict[str, Any]:
+    """A ``# @package _global_`` experiment config with the best trial's tuned values."""
     params = dict(study.best_trial.params)
     model = {k.removeprefix("model."): v for k, v in params.items() if k.startswith("model.")}
     other = {k: v for k, v in params.items() if not k.startswith("model.")}
     config: dict[str, Any] = {"defaults": [{"override /model": model_name}], "model": model}
-    for dotted, value in {**fixed, **other}.items():
+    for dotted, value in other.items():
         node = config
         *parents, leaf = dotted.split(".")
         for key in parents:
@@ -55,9 +56,13 @@ def write_results(
 ) -> dict[str, Any]:
     """Write trials.csv, best_<study>.yaml, history and importance PNGs, summary.json."""
     directory.mkdir(parents=True, exist_ok=True)
-    trials = study.trials_dataframe()
-    trials.to_csv(directory / "trials.csv", index=False)
-    summary: dict[str, Any] = {"study": study.study_name, "n_trials": len(trials)}
+    trials = study.get_trials(deepcopy=False)
+    write_trials_csv(trials, directory / "trials.csv")
+    summary: dict[str, Any] = {
+        "study": study.study_name,
+        "n_trials": sum(counted(t) for t in trials),
+        "states": {s.name: sum(t.state == s and counted(t) for t in trials) for s in TrialState},
+    }
     try:
         best = study.best_trial
     except ValueError:
@@ -71,9 +76,7 @@ def write_results(
         f"# @package _global_\n# Best of Optuna study '{study.study_name}' "
         f"(trial {best.number}, validation MSE {best.value:.4e}).\n"
     )
-    config_path.write_text(
-        header + yaml.safe_dump(best_config(study, model_name, fixed), sort_keys=False)
-    )
+    config_path.write_text(header + yaml.safe_dump(best_config(study, model_name), sort_keys=False))
     summary.update(
         {
             "best_value": best.value,
@@ -94,6 +97,40 @@ def write_results(
         summary["use_it"],
     )
     return summary
+
+
+def write_trials_csv(trials: list[optuna.trial.FrozenTrial], path: Path) -> Path:
+    """One row per trial: number, state, value, parameters, timing, worker, discarded."""
+    names = sorted({name for t in trials for name in t.params})
+    with path.open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(
+            [
+                "number",
+                "state",
+                "value",
+                *names,
+                "seconds",
+                "worker_host",
+                "worker_pid",
+                "discarded",
+            ]
+        )
+        for t in trials:
+            seconds = t.duration.total_seconds() if t.duration else ""
+            writer.writerow(
+                [
+                    t.number,
+                    t.state.name,
+                    "" if t.value is None else t.value,
+                    *[t.params.get(n, "") for n in names],
+                    seconds,
+                    t.user_attrs.get("worker_host", ""),
+                    t.user_attrs.get("worker_pid", ""),
+                    t.user_attrs.get("discarded", ""),
+                ]
+            )
+    return path
 
 
 def _plot(study: optuna.Study, directory: Path) -> None:

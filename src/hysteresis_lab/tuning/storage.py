@@ -8,11 +8,12 @@ variable ``HYSTERESIS_LAB_OPTUNA_STORAGE``, which the sweeper reads and no file 
 from __future__ import annotations
 
 import os
+import time
 from pathlib import Path
 
 import optuna
 from sqlalchemy.engine import make_url
-from sqlalchemy.exc import ArgumentError
+from sqlalchemy.exc import ArgumentError, IntegrityError
 
 from hysteresis_lab.errors import ConfigError
 
@@ -51,15 +52,23 @@ def _has_password(url: str) -> bool:
 
 def open_storage(url: str) -> optuna.storages.BaseStorage:
     """Connect, failing with a clear error (before any training) when the URL is unusable."""
-    try:
-        return optuna.storages.RDBStorage(url, engine_kwargs=_engine_kwargs(url))
-    except Exception as exc:  # SQLAlchemy / driver errors have many types
-        raise ConfigError(
-            f"cannot open the Optuna storage {redact(url)}: {type(exc).__name__}: "
-            f"{str(exc).splitlines()[0] if str(exc) else ''}. Fix: check the URL, that the "
-            "database server is running and reachable, and that its driver is installed "
-            "(psycopg2-binary for PostgreSQL)."
-        ) from None
+    for attempt in range(5):
+        try:
+            return optuna.storages.RDBStorage(url, engine_kwargs=_engine_kwargs(url))
+        except IntegrityError:  # another worker is creating the schema right now
+            time.sleep(0.5 * (attempt + 1))
+        except Exception as exc:  # SQLAlchemy / driver errors have many types
+            raise _unusable(url, exc) from None
+    return optuna.storages.RDBStorage(url, engine_kwargs=_engine_kwargs(url))
+
+
+def _unusable(url: str, exc: Exception) -> ConfigError:
+    return ConfigError(
+        f"cannot open the Optuna storage {redact(url)}: {type(exc).__name__}: "
+        f"{str(exc).splitlines()[0] if str(exc) else ''}. Fix: check the URL, that the "
+        "database server is running and reachable, and that its driver is installed "
+        "(psycopg[binary] for PostgreSQL: pip install hysteresis-lab[distributed])."
+    )
 
 
 def _engine_kwargs(url: str) -> dict:

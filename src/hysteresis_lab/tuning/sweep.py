@@ -66,7 +66,7 @@ def parse_search_space(
         space, fixed, _ = create_params_from_overrides(lines)
     except (OverrideParseException, ValueError, AssertionError) as exc:
         raise ConfigError(f"invalid search space in hydra.sweeper.params: {exc}") from None
-    for name in [*space, *fixed]:
+    for name in space:
         if OmegaConf.select(config, name, default="__missing__") == "__missing__":
             raise ConfigError(
                 f"search-space parameter '{name}' is not in the config. Fix: correct the name "
@@ -94,7 +94,9 @@ def run_sweep(
 ) -> dict[str, Any]:
     """Run trials until the study holds ``n_trials`` counted ones; write the results."""
     params = OmegaConf.to_container(config.hydra.sweeper.params or {}, resolve=False)
-    space, fixed = parse_search_space(dict(params), config)
+    # command-line sweeps (model.neurons=range(25,101)) extend or replace the config's space
+    params = {**params, **dict(a.split("=", 1) for a in arguments if "=" in a)}
+    space, fixed = parse_search_space(params, config)
     if not space:
         raise ConfigError("the search space is empty. Fix: choose hparams_search=<model>.")
     make_sampler(settings.sampler, 0)  # validate names before touching the storage
@@ -121,7 +123,7 @@ def run_sweep(
         settings.pruner,
         settings.n_trials,
     )
-    fixed_overrides = [f"{k}={v}" for k, v in fixed.items()] + list(arguments)
+    fixed_overrides = [f"{k}={v}" for k, v in fixed.items()]
     while True:
         bookkeeping.discard_stale(study, settings.grace_s)
         finished, running = bookkeeping.progress(study)
