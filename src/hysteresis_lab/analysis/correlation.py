@@ -43,16 +43,20 @@ class CorrelationTest:
         return float(np.mean(np.abs(v) > self.bound))
 
     @property
+    def max_abs(self) -> float:
+        return float(np.max(np.abs(self.values[1:] if self.skip_lag0 else self.values)))
+
+    @property
     def passed(self) -> bool:
-        # at 95 % confidence about 5 % of lags fall outside by chance
-        return self.fraction_outside <= 0.1
+        """About 5 % of lags fall outside a 95 % bound by chance; none should be far outside."""
+        return self.fraction_outside <= 0.1 and self.max_abs <= 2.0 * self.bound
 
     def to_dict(self) -> dict:
         return {
             "bound": self.bound,
             "fraction_outside": self.fraction_outside,
             "passed": self.passed,
-            "max_abs": float(np.max(np.abs(self.values[1:] if self.skip_lag0 else self.values))),
+            "max_abs": self.max_abs,
         }
 
 

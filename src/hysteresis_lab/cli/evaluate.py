@@ -26,6 +26,7 @@ log = logging.getLogger(__name__)
 def run(cfg: DictConfig) -> dict:
     """Load the model, score it on the data config's test recordings, write metrics.json."""
     from hysteresis_lab.data.factory import build_splits
+    from hysteresis_lab.effects.augment import for_model
     from hysteresis_lab.evaluation.evaluate import evaluate_model
     from hysteresis_lab.evaluation.plots import loops_figure, residuals_figure, save_figure
     from hysteresis_lab.evaluation.report import metrics_document, write_json
@@ -45,7 +46,7 @@ def run(cfg: DictConfig) -> dict:
         raise ConfigError(f"device={device!r} is not one of auto, cpu, cuda. Fix: device=auto.")
     evaluation = evaluate_model(
         model,
-        splits.test,
+        for_model(model, splits.test),
         model_window(model),
         n_init=splits.n_init,
         n_steps=cfg.get("n_step"),

@@ -88,3 +88,12 @@ def augment_splits(
         test=each(splits.test),
         metadata=metadata,
     ), ctx
+
+
+def for_model(model: Any, recordings: Sequence[Recording]) -> list[Recording]:
+    """Recordings with the extra input channels that a loaded ``model``'s effects need."""
+    effects = list(model.hparams.get("effects") or [])
+    if not effects:
+        return list(recordings)
+    ctx = context_from_dict(model.hparams["feature_context"])
+    return [augment(r, effects, ctx) for r in recordings]

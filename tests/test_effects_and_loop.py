@@ -1,0 +1,114 @@
+"""Effect catalogue, augmented models, residual diagnosis and the closed loop."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from helpers import data_overrides, run_app, small_dataset
+from hysteresis_lab.analysis.correlation import correlation_tests
+from hysteresis_lab.analysis.diagnosis import diagnose
+from hysteresis_lab.data.recording import Recording
+from hysteresis_lab.effects.augment import augment, feature_context
+from hysteresis_lab.effects.base import FeatureContext
+from hysteresis_lab.effects.operators import lowpass_bank, play_operators
+from hysteresis_lab.effects.registry import available_effects, get_effect
+from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.signals import sine
+
+FS = 2000.0
+CATALOGUE = {"hysteresis", "creep", "resonance", "rate", "drift", "saturation", "dead_zone",
+             "backlash"}
+
+
+def sines() -> list[Recording]:
+    return [Recording(u=sine(f, fs=FS, n_periods=3), y=np.zeros(int(3 * FS / f)), fs=FS,
+                      name=f"s{f:g}") for f in (0.5, 2.0, 8.0)]
+
+
+def test_catalogue_registers_through_entry_points():
+    assert CATALOGUE <= set(available_effects())
+    with pytest.raises(ConfigError, match="unknown effect 'creap'"):
+        get_effect("creap")
+
+
+def test_play_operator_is_a_backlash():
+    u = np.array([0.0, 1.0, 2.0, 1.5, 1.0, 0.0, -1.0])
+    out = play_operators(u, np.array([0.5]))[:, 0]
+    np.testing.assert_allclose(out, [0.0, 0.5, 1.5, 1.5, 1.5, 0.5, -0.5])
+
+
+def test_augment_appends_causal_operator_channels():
+    rec = sines()[0]
+    ctx = feature_context([rec])
+    aug = augment(rec, ["hysteresis", "creep"], ctx)
+    assert aug.nu == 1 + 8 + get_effect("creep").features(rec.u, ctx).shape[1]
+    np.testing.assert_array_equal(aug.u[:, 0], rec.u[:, 0])
+    # causal: features of a truncated recording equal the start of the full ones
+    short = augment(rec.slice(0, 500), ["hysteresis", "creep"], ctx)
+    np.testing.assert_allclose(short.u, aug.u[:500])
+
+
+def test_diagnosis_names_the_effect_behind_the_residual():
+    recs = sines()
+    ctx = FeatureContext(FS, np.array([100.0]), 6.0)
+    rng = np.random.default_rng(0)
+    residuals = [0.4 * lowpass_bank(r.u[:, 0], FS, np.array([0.5]))[:, :1] / 20
+                 + 0.01 * rng.standard_normal((r.n_samples, 1)) for r in recs]
+    ranked = diagnose(recs, residuals, ctx, declared=["hysteresis"], n_shifts=19)
+    assert ranked[0].effect == "creep" and ranked[0].significant
+    assert "hysteresis" not in [r.effect for r in ranked]
+
+
+def test_white_residual_has_no_significant_missing_effect():
+    recs = sines()
+    ctx = FeatureContext(FS, np.array([100.0]), 6.0)
+    rng = np.random.default_rng(1)
+    residuals = [0.01 * rng.standard_normal((r.n_samples, 1)) for r in recs]
+    assert not any(r.significant for r in diagnose(recs, residuals, ctx, [], n_shifts=19))
+    # correlation tests: a white residual independent of a broadband input passes them all
+    u = rng.standard_normal(20_000)
+    e = 0.01 * rng.standard_normal(20_000)
+    assert all(t.passed for t in correlation_tests(e, u))
+    coloured = lowpass_bank(e, FS, np.array([0.01]))[:, 0]
+    assert not correlation_tests(coloured, u)[0].passed  # autocorrelated
+    leaking = e + 0.01 * np.roll(u, 3)
+    assert not correlation_tests(leaking, u)[1].passed  # correlated with the input
+
+
+def test_loop_writes_its_report(tmp_path):
+    train, tests = small_dataset(tmp_path, effects={"creep": {"enabled": True}})
+    proc = run_app("loop", *data_overrides(train, tests), "model=ffnn", "loop.max_rounds=1",
+                   "loop.n_shifts=9", "trainer.max_epochs=3", "trainer.enable_progress_bar=false",
+                   "logger=none", f"hydra.run.dir={tmp_path}/loop")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    report = json.loads((tmp_path / "loop" / "loop_report.json").read_text())
+    assert report["units"] == {"y": "um"}
+    rounds = report["rounds"]
+    assert rounds[0]["effects"] == [] and rounds[-1]["added"] is None
+    for entry in rounds:
+        assert set(entry["tests"]) == {"sine_5", "sine_20"}
+        assert {"rmse_free_run", "rmse_one_step", "r2_free_run"} <= set(entry["tests"]["sine_5"])
+        assert {"effect", "score", "significant", "evidence"} <= set(entry["diagnosis"][0])
+    if len(rounds) == 2:
+        assert rounds[1]["effects"] == [rounds[0]["added"]]
+    assert (tmp_path / "loop" / "loop_report.md").read_text().startswith("# Residual loop")
+    assert (tmp_path / "loop" / "loops_before_after.png").is_file()
+    assert (tmp_path / "loop" / "round_0" / "residual_diagnostics.png").is_file()
+
+
+def test_model_with_effects_trains_saves_and_evaluates(tmp_path):
+    train, tests = small_dataset(tmp_path)
+    run_dir = tmp_path / "run"
+    proc = run_app("train", *data_overrides(train, tests), "model.effects=[hysteresis]",
+                   "trainer.max_epochs=2", "trainer.enable_progress_bar=false", "logger=none",
+                   f"hydra.run.dir={run_dir}")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    again = run_app("evaluate", f"checkpoint={run_dir}", *data_overrides(train, tests),
+                    f"hydra.run.dir={tmp_path}/eval", "plots=false")
+    assert again.returncode == 0, again.stderr[-3000:]
+    saved = json.loads((run_dir / "metrics.json").read_text())["mean"]["rmse_free_run"]
+    fresh = json.loads((tmp_path / "eval" / "metrics.json").read_text())["mean"]["rmse_free_run"]
+    assert fresh == pytest.approx(saved, rel=1e-6)
