@@ -1,4 +1,5 @@
-"""Architectures, registry, training, save/load and export."""
+"""Architectures, registry, training and save/load (shared fixtures for the predict and
+export tests)."""
 
 from __future__ import annotations
 
@@ -122,48 +123,6 @@ def test_study_architectures_have_the_published_structure():
 
 
 @pytest.mark.parametrize("name", ["ffnn", "lstm", "cnn", "svm"])
-def test_free_run_feeds_back_its_own_predictions(name, splits, trained):
-    model, dm = trained[name]
-    rec = splits.test[0]
-    ft = dm.window.first_target
-    corrupted_y = rec.y.copy()
-    corrupted_y[ft:] += 100.0  # measured outputs after the initial window must not matter
-    corrupted = Recording(u=rec.u, y=corrupted_y, fs=rec.fs, name=rec.name)
-    clean_free, bad_free = (
-        free_run(model, [rec], dm.window)[0],
-        free_run(model, [corrupted], dm.window)[0],
-    )
-    np.testing.assert_allclose(clean_free[ft:], bad_free[ft:], rtol=0, atol=1e-9)
-    clean_one, bad_one = (
-        one_step(model, [rec], dm.window)[0],
-        one_step(model, [corrupted], dm.window)[0],
-    )
-    assert np.abs(clean_one - bad_one)[ft:].max() > 0.1  # one-step does read the measurement
-
-
-@pytest.mark.parametrize("name", ["ffnn", "lstm", "svm"])
-def test_batched_free_run_matches_a_naive_loop(name, splits, trained):
-    model, dm = trained[name]
-    recs = [splits.test[0].slice(0, 150, name="short"), splits.test[1]]
-    batched = free_run(model, recs, dm.window)
-    w = dm.window
-    for rec, fast in zip(recs, batched, strict=True):
-        y = rec.y.copy()
-        for k in range(w.first_target, rec.n_samples):
-            u_past = rec.u[k - w.nk - w.nb + 1 : k - w.nk + 1][None]
-            y_past = y[k - w.na : k][None]
-            if isinstance(model, torch.nn.Module):
-                with torch.no_grad():
-                    y[k] = model.predict_physical(
-                        torch.tensor(u_past, dtype=torch.float32),
-                        torch.tensor(y_past, dtype=torch.float32),
-                    )[0]
-            else:
-                y[k] = model.predict_physical(u_past, y_past)[0]
-        np.testing.assert_allclose(fast, y, atol=2e-4)
-
-
-@pytest.mark.parametrize("name", ["ffnn", "lstm", "cnn", "svm"])
 def test_save_and_load_round_trip(name, splits, trained, tmp_path):
     model, dm = trained[name]
     path = save_model(model, tmp_path / "model")
@@ -188,13 +147,6 @@ def test_missing_and_corrupt_checkpoints(tmp_path):
         load_model(bad_svm)
 
 
-def test_data_with_other_channels_than_the_model(trained):
-    model, dm = trained["ffnn"]
-    two_inputs = Recording(u=np.zeros((100, 2)), y=np.zeros(100), fs=100.0, name="mimo")
-    with pytest.raises(DataError, match="2 input.*expects 1"):
-        free_run(model, [two_inputs], dm.window)
-
-
 def test_mimo_model_trains_and_simulates(tmp_path):
     splits = narx_data(n=800, nu=2, ny=1)
     dm = datamodule_for("lstm", splits)
@@ -204,19 +156,10 @@ def test_mimo_model_trains_and_simulates(tmp_path):
     assert y.shape == splits.test[0].y.shape and np.all(np.isfinite(y))
 
 
-def test_onnx_export_matches_pytorch(trained, tmp_path):
-    ort = pytest.importorskip("onnxruntime")
-    from hysteresis_lab.models.export import export_onnx
-
-    for name in ("ffnn", "lstm", "cnn"):
-        model, dm = trained[name]
-        path = export_onnx(model, tmp_path / f"{name}.onnx")
-        rng = np.random.default_rng(1)
-        u = rng.normal(size=(7, dm.window.nb, 1)).astype(np.float32)
-        y = rng.normal(size=(7, dm.window.na, 1)).astype(np.float32)
-        onnx_out = ort.InferenceSession(str(path)).run(None, {"u_past": u, "y_past": y})[0]
-        with torch.no_grad():
-            torch_out = model.predict_physical(torch.from_numpy(u), torch.from_numpy(y)).numpy()
-        np.testing.assert_allclose(onnx_out, torch_out, atol=1e-4)
-    with pytest.raises(ConfigError, match="skops"):
-        export_onnx(trained["svm"][0], tmp_path / "svm.onnx")
+def test_invalid_hyperparameters_are_config_errors():
+    with pytest.raises(ConfigError, match="lr_schedule"):
+        get_model_class("ffnn")(nu=1, ny=1, lr_schedule="step")
+    with pytest.raises(ConfigError, match="num_layers > lstm_layers"):
+        get_model_class("lstm")(nu=1, ny=1, num_layers=2, lstm_layers=2)
+    with pytest.raises(ConfigError, match="kernel"):
+        get_model_class("svm")(nu=1, ny=1, kernel="laplace")

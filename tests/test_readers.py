@@ -89,13 +89,15 @@ def test_missing_time_column_needs_fs(tmp_path):
 def test_mismatched_lengths_in_npz(tmp_path):
     path = tmp_path / "m.npz"
     np.savez(path, t=np.arange(5.0), u=np.zeros(5), y=np.zeros(4))
-    with pytest.raises(DataError, match="different lengths"):
+    with pytest.raises(DataError, match="different lengths") as info:
         read_recording(path)
+    assert_names_file_and_fix(info, path)
 
 
 def test_unknown_suffix_and_missing_file(tmp_path):
-    with pytest.raises(DataError, match="unknown file type '.xlsx'"):
+    with pytest.raises(DataError, match="unknown file type '.xlsx'") as info:
         read_recording(tmp_path / "data.xlsx")
+    assert_names_file_and_fix(info, tmp_path / "data.xlsx")
     with pytest.raises(DataError, match="no such file"):
         read_recording(tmp_path / "absent.csv")
 
@@ -108,6 +110,133 @@ def test_user_files_reject_mixed_sampling_rates(rec, tmp_path):
         load_user_files(train, [str(test)], columns={"inputs": ["u", "v"]})
     with pytest.raises(DataError, match="data.train=<path>"):
         load_user_files(None, [str(test)])
+
+
+def assert_names_file_and_fix(info: pytest.ExceptionInfo, path) -> None:
+    message = str(info.value)
+    assert str(path) in message and "Fix:" in message
+
+
+def test_fs_disagreeing_with_time_column(rec, tmp_path):
+    path = write_csv(rec, tmp_path / "r.csv")
+    with pytest.raises(DataError, match="time column gives fs = 50 Hz but fs = 100 Hz") as info:
+        read_recording(path, inputs=["u", "v"], fs=100.0)
+    assert_names_file_and_fix(info, path)
+    assert read_recording(path, inputs=["u", "v"], fs=50.0).fs == pytest.approx(50.0)
+
+
+def test_nonuniform_time_column_names_the_row(tmp_path):
+    t = np.arange(20) * 0.01
+    t[12:] += 0.002
+    path = tmp_path / "jitter.csv"
+    np.savetxt(path, np.column_stack([t, t, t]), delimiter=",", header="t,u,y", comments="")
+    with pytest.raises(DataError, match="not uniformly sampled: step .* at row 12") as info:
+        read_csv(path)
+    assert_names_file_and_fix(info, path)
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".mat", ".h5"])
+def test_wrong_column_names_list_what_exists(rec, tmp_path, suffix):
+    writer = {".npz": write_npz, ".mat": write_mat, ".h5": write_hdf5}[suffix]
+    path = writer(rec, tmp_path / f"r{suffix}")
+    with pytest.raises(DataError, match=r"missing (column|dataset)\(s\) \['force'\]") as info:
+        read_recording(path, inputs=["force"])
+    assert "'u'" in str(info.value) and "'v'" in str(info.value)
+    assert_names_file_and_fix(info, path)
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".mat", ".h5"])
+def test_nan_and_inf_in_binary_files(tmp_path, suffix):
+    y = np.zeros(10)
+    y[7] = np.inf if suffix == ".mat" else np.nan
+    path = tmp_path / f"bad{suffix}"
+    columns = {"t": np.arange(10) / 10.0, "u": np.zeros(10), "y": y}
+    if suffix == ".npz":
+        np.savez(path, **columns)
+    elif suffix == ".mat":
+        scipy.io.savemat(path, columns)
+    else:
+        with h5py.File(path, "w") as handle:
+            for key, values in columns.items():
+                handle.create_dataset(key, data=values)
+    with pytest.raises(DataError, match="NaN/inf value.*sample 7") as info:
+        read_recording(path)
+    assert_names_file_and_fix(info, path)
+
+
+def test_missing_time_column_without_fs_in_npz(tmp_path):
+    path = tmp_path / "no_t.npz"
+    np.savez(path, u=np.zeros(5), y=np.zeros(5))
+    with pytest.raises(DataError, match="missing column") as info:
+        read_recording(path)
+    assert_names_file_and_fix(info, path)
+    with pytest.raises(DataError, match="no time column and no sampling rate") as info:
+        read_recording(path, time=None)
+    assert_names_file_and_fix(info, path)
+    assert read_recording(path, time=None, fs=8.0).fs == 8.0
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".npz", ".mat", ".h5"])
+def test_empty_and_corrupt_files(tmp_path, suffix):
+    empty = tmp_path / f"empty{suffix}"
+    empty.write_bytes(b"")
+    with pytest.raises(DataError, match="empty") as info:
+        read_recording(empty)
+    assert_names_file_and_fix(info, empty)
+    if suffix != ".csv":
+        junk = tmp_path / f"junk{suffix}"
+        junk.write_bytes(b"this is not a data file" * 10)
+        with pytest.raises(DataError, match="cannot read") as info:
+            read_recording(junk)
+        assert_names_file_and_fix(info, junk)
+
+
+def test_csv_without_header_and_other_delimiters(tmp_path):
+    path = write_text(tmp_path, "0,1,2\n0.1,1,3\n")
+    with pytest.raises(DataError, match="not a header") as info:
+        read_csv(path)
+    assert_names_file_and_fix(info, path)
+    semi = write_text(tmp_path, "t;u;y\n0;1;2\n0.5;1;3\n", name="semi.csv")
+    assert read_csv(semi).fs == pytest.approx(2.0)
+    tabs = write_text(tmp_path, "t\tu\ty\n0\t1\t2\n0.5\t1\t3\n", name="tabs.txt")
+    assert read_recording(tabs).n_samples == 2
+
+
+def test_units_names_and_columns_are_configurable(tmp_path):
+    path = write_text(tmp_path, "time,v1,v2,x\n0,1,2,3\n0.25,1,2,4\n0.5,1,2,5\n", "m.csv")
+    back = read_csv(
+        path, time="time", inputs=["v1", "v2"], outputs="x", units={"u": "mV", "y": "nm"}
+    )
+    assert (back.nu, back.ny, back.fs) == (2, 1, 4.0)
+    assert (back.u_units, back.y_units, back.u_names) == ("mV", "nm", ("v1", "v2"))
+    assert back.name == "m" and back.metadata["path"] == str(path)
+    with pytest.raises(DataError, match="unknown key"):
+        read_csv(path, time="time", inputs=["v1"], outputs="x", units={"z": "V"})
+
+
+def test_hdf5_dataset_paths(rec, tmp_path):
+    path = tmp_path / "grouped.hdf5"
+    with h5py.File(path, "w") as handle:
+        handle.create_dataset("exp/input", data=rec.u[:, 0])
+        handle.create_dataset("exp/output", data=rec.y[:, 0])
+        handle.attrs["fs"] = 50.0
+    back = read_recording(path, time=None, inputs="exp/input", outputs="exp/output")
+    assert back.fs == 50.0
+    np.testing.assert_allclose(back.y[:, 0], rec.y[:, 0])
+    with pytest.raises(DataError, match=r"the file has \['exp/input', 'exp/output'\]"):
+        read_recording(path, time=None, inputs="u", outputs="exp/output")
+
+
+def test_mat_v73_matrix_is_transposed(tmp_path):
+    u = np.random.default_rng(0).normal(size=(40, 3))
+    path = tmp_path / "mimo73.mat"
+    with h5py.File(path, "w") as handle:  # MATLAB writes an N x 3 matrix as a (3, N) dataset
+        handle.create_dataset("u", data=u.T)
+        handle.create_dataset("y", data=u[:, :1].T * 2)
+        handle.create_dataset("t", data=(np.arange(40) / 100.0)[None, :])
+    back = read_recording(path)
+    assert (back.nu, back.ny, back.fs) == (3, 1, pytest.approx(100.0))
+    np.testing.assert_allclose(back.u, u)
 
 
 def test_scipy_mat_with_matrix_inputs(tmp_path):

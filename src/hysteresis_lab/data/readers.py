@@ -28,6 +28,30 @@ def _names(value: str | Sequence[str]) -> list[str]:
     return [value] if isinstance(value, str) else list(value)
 
 
+def _units(
+    units: Mapping[str, str] | None, u_units: str, y_units: str, source: Path
+) -> tuple[str, str]:
+    """``units={"u": ..., "y": ...}`` overrides ``u_units``/``y_units``."""
+    if not units:
+        return u_units, y_units
+    unknown = set(units) - {"u", "y"}
+    if unknown:
+        raise DataError(
+            f"unknown key(s) {sorted(unknown)} in units.",
+            source=str(source),
+            fix="give units as {u: <input unit>, y: <output unit>} (e.g. data.units.y=um)",
+        )
+    return str(units.get("u", u_units)), str(units.get("y", y_units))
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
 def _check_file(path: Path) -> Path:
     path = Path(path)
     if not path.is_file():
@@ -91,7 +115,9 @@ def _recording(
     u_units: str,
     y_units: str,
     name: str | None,
+    units: Mapping[str, str] | None = None,
 ) -> Recording:
+    u_units, y_units = _units(units, u_units, y_units, source)
     wanted = ([time] if time else []) + list(inputs) + list(outputs)
     missing = [c for c in wanted if c not in columns]
     if missing:
@@ -140,17 +166,31 @@ def read_csv(
     inputs: str | Sequence[str] = ("u",),
     outputs: str | Sequence[str] = ("y",),
     fs: float | None = None,
+    units: Mapping[str, str] | None = None,
+    name: str | None = None,
     u_units: str = "V",
     y_units: str = "um",
-    name: str | None = None,
-    delimiter: str = ",",
+    delimiter: str | None = None,
 ) -> Recording:
-    """A CSV file with a header row of column names (``t,u,y`` by default)."""
+    """A CSV file with a header row of column names (``t,u,y`` by default).
+
+    The delimiter (comma, semicolon or tab) is detected from the header unless given.
+    """
     path = _check_file(Path(path))
     with path.open(newline="") as handle:
+        first = handle.readline()
+        if delimiter is None:
+            delimiter = next((d for d in (",", ";", "\t") if d in first), ",")
+        handle.seek(0)
         reader = csv.reader(handle, delimiter=delimiter)
         header = [h.strip() for h in next(reader, [])]
         rows = [row for row in reader if any(cell.strip() for cell in row)]
+    if not any(header) or all(_is_number(h) for h in header if h):
+        raise DataError(
+            f"the first line {first.strip()!r} is not a header of column names.",
+            source=str(path),
+            fix="start the file with a header row such as 't,u,y'",
+        )
     if not rows:
         raise DataError(
             "the file has a header but no data rows.",
@@ -172,7 +212,7 @@ def read_csv(
                 ) from None
     columns = {k: np.asarray(v) for k, v in table.items()}
     return _recording(
-        columns, path, time, _names(inputs), _names(outputs), fs, u_units, y_units, name
+        columns, path, time, _names(inputs), _names(outputs), fs, u_units, y_units, name, units
     )
 
 
@@ -182,9 +222,10 @@ def read_npz(
     inputs: str | Sequence[str] = ("u",),
     outputs: str | Sequence[str] = ("y",),
     fs: float | None = None,
+    units: Mapping[str, str] | None = None,
+    name: str | None = None,
     u_units: str = "V",
     y_units: str = "um",
-    name: str | None = None,
 ) -> Recording:
     """An NPZ archive with one array per column (``t``, ``u``, ``y`` by default)."""
     path = _check_file(Path(path))
@@ -200,7 +241,7 @@ def read_npz(
     if "fs" in columns and fs is None and (time is None or time not in columns):
         fs = float(np.ravel(columns["fs"])[0])
     columns, inputs, outputs = _expand_matrices(columns, _names(inputs), _names(outputs))
-    return _recording(columns, path, time, inputs, outputs, fs, u_units, y_units, name)
+    return _recording(columns, path, time, inputs, outputs, fs, u_units, y_units, name, units)
 
 
 def read_mat(
@@ -209,15 +250,16 @@ def read_mat(
     inputs: str | Sequence[str] = ("u",),
     outputs: str | Sequence[str] = ("y",),
     fs: float | None = None,
+    units: Mapping[str, str] | None = None,
+    name: str | None = None,
     u_units: str = "V",
     y_units: str = "um",
-    name: str | None = None,
 ) -> Recording:
     """A MATLAB file: v4-v7 via scipy.io, v7.3 (HDF5) via h5py."""
     path = _check_file(Path(path))
     columns = load_mat_variables(path)
     columns, inputs, outputs = _expand_matrices(columns, _names(inputs), _names(outputs))
-    return _recording(columns, path, time, inputs, outputs, fs, u_units, y_units, name)
+    return _recording(columns, path, time, inputs, outputs, fs, u_units, y_units, name, units)
 
 
 def load_mat_variables(path: Path) -> dict[str, np.ndarray]:
@@ -242,9 +284,10 @@ def read_hdf5(
     inputs: str | Sequence[str] = ("u",),
     outputs: str | Sequence[str] = ("y",),
     fs: float | None = None,
+    units: Mapping[str, str] | None = None,
+    name: str | None = None,
     u_units: str = "V",
     y_units: str = "um",
-    name: str | None = None,
 ) -> Recording:
     """An HDF5 file; column names are dataset paths (e.g. ``"multisine/u"``)."""
     path = _check_file(Path(path))
@@ -269,7 +312,7 @@ def read_hdf5(
             fix="name the datasets in data.columns",
         )
     return _recording(
-        columns, path, time, _names(inputs), _names(outputs), fs, u_units, y_units, name
+        columns, path, time, _names(inputs), _names(outputs), fs, u_units, y_units, name, units
     )
 
 

@@ -2,22 +2,49 @@
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from hysteresis_lab.data.readers import read_recording
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.errors import DataError
 
-DEFAULT_COLUMNS = {"time": "t", "inputs": ["u"], "outputs": ["y"]}
+log = logging.getLogger(__name__)
+
+DEFAULT_COLUMNS: dict[str, Any] = {"time": "t", "inputs": ["u"], "outputs": ["y"]}
+DEFAULT_UNITS: dict[str, str] = {"u": "V", "y": "um"}
 
 
-def _paths(value: str | Sequence[str] | None) -> list[str]:
+def _paths(value: str | Path | Sequence[str | Path] | None) -> list[str]:
     if value is None:
         return []
-    return [str(value)] if isinstance(value, str | Path) else [str(v) for v in value]
+    if isinstance(value, str | Path):
+        return [str(value)] if str(value).strip() else []
+    return [str(v) for v in value]
+
+
+def _check_same_format(recordings: list[Recording]) -> None:
+    """Sampling rate and channel counts must agree; the message names both files."""
+    first = recordings[0]
+    for rec in recordings[1:]:
+        here, there = rec.metadata["path"], first.metadata["path"]
+        if not np.isclose(rec.fs, first.fs, rtol=1e-6):
+            raise DataError(
+                f"sampling rate {rec.fs:g} Hz differs from {first.fs:g} Hz of {there}.",
+                source=here,
+                fix="resample all recordings to one rate (or correct the time column / data.fs)",
+            )
+        if (rec.nu, rec.ny) != (first.nu, first.ny):
+            raise DataError(
+                f"{rec.nu} input(s) / {rec.ny} output(s) but {there} has {first.nu} / {first.ny}.",
+                source=here,
+                fix="use the same input and output columns (data.columns) in every file",
+            )
 
 
 def load_user_files(
@@ -26,12 +53,18 @@ def load_user_files(
     val: str | Sequence[str] | None = None,
     columns: Mapping[str, Any] | None = None,
     fs: float | None = None,
-    u_units: str = "V",
-    y_units: str = "um",
+    units: Mapping[str, str] | None = None,
     name: str = "csv",
     n_init: int = 0,
+    u_units: str | None = None,
+    y_units: str | None = None,
 ) -> DatasetSplits:
-    """Estimation (``train``), optional validation (``val``) and ``test`` recordings from files."""
+    """Estimation (``train``), optional validation (``val``) and ``test`` recordings from files.
+
+    ``train`` and ``test`` take one path or a list; ``columns`` names the time, input and output
+    columns (``time: null`` with ``fs`` when the files have no time column); ``units`` gives
+    ``{u: ..., y: ...}`` (``u_units``/``y_units`` are accepted as older spellings).
+    """
     if not _paths(train):
         raise DataError(
             "no training file was given.",
@@ -46,6 +79,11 @@ def load_user_files(
             source=f"data '{name}'",
             fix="use time, inputs and outputs",
         )
+    unit_map = {**DEFAULT_UNITS, **dict(units or {})}
+    if u_units is not None:
+        unit_map["u"] = u_units
+    if y_units is not None:
+        unit_map["y"] = y_units
 
     def read(paths: list[str]) -> list[Recording]:
         return [
@@ -55,16 +93,20 @@ def load_user_files(
                 inputs=cols["inputs"],
                 outputs=cols["outputs"],
                 fs=fs,
-                u_units=u_units,
-                y_units=y_units,
+                units=unit_map,
             )
             for p in paths
         ]
 
+    train_recs, val_recs, test_recs = read(_paths(train)), read(_paths(val)), read(_paths(test))
+    _check_same_format([*train_recs, *val_recs, *test_recs])
+    if not test_recs:
+        log.warning("data '%s' has no test files (data.test=[<path>,...]).", name)
     return DatasetSplits(
         name=name,
-        train=read(_paths(train)),
-        test=read(_paths(test)),
-        val=read(_paths(val)),
-        n_init=n_init,
+        train=train_recs,
+        test=test_recs,
+        val=val_recs,
+        n_init=int(n_init),
+        metadata={"files": {"train": _paths(train), "val": _paths(val), "test": _paths(test)}},
     )

@@ -7,11 +7,11 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from hysteresis_lab.evaluation.metrics import score
-from hysteresis_lab.evaluation.predict import free_run, n_step, one_step
 
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.windows import WindowSpec
+from hysteresis_lab.evaluation.metrics import score
+from hysteresis_lab.evaluation.predict import free_run, n_step, one_step
 
 log = logging.getLogger(__name__)
 

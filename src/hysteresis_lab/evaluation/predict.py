@@ -12,7 +12,7 @@ Every function returns one array (N, ny) per recording in physical units; the fi
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -21,12 +21,19 @@ import torch
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.scaling import Scaler
 from hysteresis_lab.data.windows import WindowSpec, assemble, make_windows
-from hysteresis_lab.errors import DataError
-
-Step = Callable[[Any], Any]
+from hysteresis_lab.errors import ConfigError, DataError
 
 
 def _check(model: Any, recordings: Sequence[Recording], window: WindowSpec) -> None:
+    if not recordings:
+        raise DataError("there are no recordings to predict.", fix="supply test recordings")
+    own = getattr(model, "window", None)
+    if own is not None and own != window:
+        raise ConfigError(
+            f"the model was built for lags na={own.na}, nb={own.nb}, nk={own.nk} but the data "
+            f"window is na={window.na}, nb={window.nb}, nk={window.nk}. Fix: evaluate with the "
+            "model's window (hysteresis_lab.models.io.model_window(model))."
+        )
     for rec in recordings:
         if (rec.nu, rec.ny) != (model.nu, model.ny):
             raise DataError(
@@ -53,15 +60,6 @@ def _scaler(model: Any) -> Scaler:
             )
         )
     return model.scaler
-
-
-def _numpy_step(model: Any) -> Step | None:
-    """A NumPy function scaled regressors -> scaled outputs, when the model offers one."""
-    if isinstance(model, torch.nn.Module):
-        fast = getattr(model, "numpy_forward", None)
-        return fast() if fast is not None else None
-    fast = getattr(model, "fast_predictor", None)
-    return fast() if fast is not None else model.predict_scaled
 
 
 def one_step(
@@ -99,11 +97,15 @@ def free_run(
     recordings: Sequence[Recording],
     window: WindowSpec,
     device: str | torch.device | None = None,
+    fast: bool = True,
 ) -> list[np.ndarray]:
-    """Simulate every recording from its input alone, all in one batch."""
+    """Simulate every recording from its input alone, all in one batch.
+
+    ``fast=False`` skips the model's NumPy free-run kernel (reference path for tests).
+    """
     _check(model, recordings, window)
     starts = [[0] for _ in recordings]
-    return _simulate(model, recordings, window, starts, device)
+    return _simulate(model, recordings, window, starts, device, fast)
 
 
 def n_step(
@@ -112,13 +114,20 @@ def n_step(
     window: WindowSpec,
     n: int,
     device: str | torch.device | None = None,
+    fast: bool = True,
 ) -> list[np.ndarray]:
-    """Free runs of ``n`` samples, each restarted from measured outputs (k-step-ahead)."""
+    """Free runs of ``n`` samples, each restarted from the measured outputs.
+
+    Segment ``i`` predicts samples ``ft + i*n .. ft + (i+1)*n - 1`` (``ft = first_target``)
+    from the measured outputs before it and its own predictions within it, so its last sample
+    is an ``n``-step-ahead prediction. ``n = 1`` equals `one_step`; ``n >= N`` equals
+    `free_run`.
+    """
     if n < 1:
         raise DataError(f"n_step={n} must be >= 1.", fix="set n_step to a positive integer")
     _check(model, recordings, window)
     starts = [list(range(0, rec.n_samples, n)) for rec in recordings]
-    return _simulate(model, recordings, window, starts, device)
+    return _simulate(model, recordings, window, starts, device, fast)
 
 
 def _simulate(
@@ -127,85 +136,170 @@ def _simulate(
     window: WindowSpec,
     restarts: list[list[int]],
     device: str | torch.device | None,
+    fast: bool = True,
 ) -> list[np.ndarray]:
-    """Batched simulation; at each sample in ``restarts`` the output history is re-measured."""
+    """Batched simulation; at each sample in ``restarts`` the output history is re-measured.
+
+    Recordings run longest first, so the ones still running are always the leading rows
+    (finished ones drop out of the batch instead of being simulated on padding).
+    """
     s = _scaler(model)
-    ft, na, nb, nk = window.first_target, window.na, window.nb, window.nk
-    length = max(rec.n_samples for rec in recordings)
-    batch = len(recordings)
+    ft = window.first_target
+    order = sorted(range(len(recordings)), key=lambda i: -recordings[i].n_samples)
+    recs = [recordings[i] for i in order]
+    lengths = np.array([rec.n_samples for rec in recs])
+    length, batch = int(lengths[0]), len(recs)
     u = np.zeros((batch, length, model.nu))
     y_meas = np.zeros((batch, length, model.ny))
-    for b, rec in enumerate(recordings):
+    for b, rec in enumerate(recs):
         u[b, : rec.n_samples] = (rec.u - s.u_offset) / s.u_scale
         y_meas[b, : rec.n_samples] = (rec.y - s.y_offset) / s.y_scale
-    y = y_meas.copy()  # the first ft samples stay measured; the rest is overwritten
     reset = np.zeros((length, batch), dtype=bool)
-    for b, points in enumerate(restarts):
-        for p in points:
-            reset[p + ft : p + ft + 1, b] = True  # from here on the lags are re-measured
-    reset[ft] = True
-    numpy_step = _numpy_step(model)
-    if numpy_step is not None and (device is None or str(device) == "cpu"):
-        y = _loop_numpy(numpy_step, model.layout, u, y, y_meas, reset, ft, na, nb, nk)
-    else:
-        y = _loop_torch(model, u, y, y_meas, reset, ft, na, nb, nk, device)
-    return [y[b, : rec.n_samples] * s.y_scale + s.y_offset for b, rec in enumerate(recordings)]
+    for b, position in enumerate(order):
+        for p in restarts[position]:
+            if p > 0 and p + ft < lengths[b]:
+                reset[p + ft, b] = True  # from here on the lags are re-measured
+    active = np.searchsorted(-lengths, -np.arange(length), side="left")  # rows with len > k
+    y = _run(model, u, y_meas, reset, active, window, device, fast)
+    out = [np.empty(0)] * batch
+    for b, position in enumerate(order):
+        out[position] = y[b, : lengths[b]] * s.y_scale + s.y_offset
+    return out
 
 
-def _loop_numpy(
-    step: Step,
-    layout: str,
+def _on_cpu(model: Any, device: str | torch.device | None) -> bool:
+    if device is not None:
+        return torch.device(device).type == "cpu"
+    if isinstance(model, torch.nn.Module):
+        return next(model.parameters()).device.type == "cpu"
+    return True
+
+
+def _run(
+    model: Any,
     u: np.ndarray,
-    y: np.ndarray,
     y_meas: np.ndarray,
     reset: np.ndarray,
-    ft: int,
-    na: int,
-    nb: int,
-    nk: int,
+    active: np.ndarray,
+    window: WindowSpec,
+    device: str | torch.device | None,
+    fast: bool = True,
 ) -> np.ndarray:
-    resets = reset.any(axis=1)
-    out = y.copy()  # predictions; ``y`` is the lag history (re-measured at restarts)
-    for k in range(ft, u.shape[1]):
-        if resets[k] and k > ft:
+    """Scaled simulation of all rows: measured lags up to ``first_target``, then predictions."""
+    factory = getattr(model, "free_run_kernel", None) if fast else None
+    kernel = factory(u, window) if factory is not None and _on_cpu(model, device) else None
+    if kernel is not None and not (kernel.stateful and reset.any()):
+        return _loop_kernel(kernel, y_meas, reset, active, window)
+    if isinstance(model, torch.nn.Module):
+        return _loop_torch(model, u, y_meas, reset, active, window, device)
+    return _loop_kernel(_GenericKernel(model, u, window), y_meas, reset, active, window)
+
+
+class _GenericKernel:
+    """Fallback step for a NumPy model: assemble the regressor, call ``predict_scaled``."""
+
+    stateful = False
+
+    def __init__(self, model: Any, u: np.ndarray, window: WindowSpec) -> None:
+        self.model, self.u, self.window = model, u, window
+
+    def step(self, k: int, n: int, y: np.ndarray) -> np.ndarray:
+        w = self.window
+        u_past = self.u[:n, k - w.nk - w.nb + 1 : k - w.nk + 1]
+        return self.model.predict_scaled(assemble(u_past, y[:n, k - w.na : k], "flat"))
+
+
+def _loop_kernel(
+    kernel: Any, y_meas: np.ndarray, reset: np.ndarray, active: np.ndarray, window: WindowSpec
+) -> np.ndarray:
+    """Run ``kernel.step`` over all samples; ``y`` holds the lag history (re-measured at
+    restarts), ``out`` the predictions."""
+    ft, na = window.first_target, window.na
+    y = y_meas.copy()
+    out = y_meas.copy()
+    restart_steps = set(np.flatnonzero(reset.any(axis=1)).tolist())
+    for k in range(ft, y.shape[1]):
+        n = int(active[k])
+        if k in restart_steps:
             rows = reset[k]
             y[rows, k - na : k] = y_meas[rows, k - na : k]
-        x = assemble(u[:, k - nk - nb + 1 : k - nk + 1], y[:, k - na : k], layout)
-        y[:, k] = out[:, k] = step(x)
+        y[:n, k] = out[:n, k] = kernel.step(k, n, y)
     return out
 
 
 def _loop_torch(
     model: torch.nn.Module,
     u: np.ndarray,
-    y: np.ndarray,
     y_meas: np.ndarray,
     reset: np.ndarray,
-    ft: int,
-    na: int,
-    nb: int,
-    nk: int,
+    active: np.ndarray,
+    window: WindowSpec,
     device: str | torch.device | None,
 ) -> np.ndarray:
+    """Generic torch loop (GPU, or any plugin network): preassembled scaled lags, ``net`` only.
+
+    For the sequence layout one feature array ``F[:, s] = [u[s-nk+1], y[s]]`` holds every
+    regressor: the one of step ``k`` is the view ``F[:, k-L : k]`` (masked where ``na`` or
+    ``nb`` is shorter than ``L``).
+    """
+    ft, na, nb, nk, length = window.first_target, window.na, window.nb, window.nk, window.seq_len
+    nu = u.shape[2]
     device = torch.device(device) if device is not None else next(model.parameters()).device
     original = next(model.parameters()).device
+    net = getattr(model, "net", model)
     model.to(device)
+    restart_steps = set(np.flatnonzero(reset.any(axis=1)).tolist())
     try:
         with torch.inference_mode():
-            ut = torch.as_tensor(u, dtype=torch.float32, device=device)
-            yt = torch.as_tensor(y, dtype=torch.float32, device=device)
-            ymt = torch.as_tensor(y_meas, dtype=torch.float32, device=device)
-            resets = reset.any(axis=1)
+            y_meas_t = torch.as_tensor(y_meas, dtype=torch.float32, device=device)
+            out = y_meas_t.clone()
             mask = torch.as_tensor(reset, device=device)
-            out = yt.clone()  # predictions; ``yt`` is the lag history (re-measured at restarts)
-            for k in range(ft, u.shape[1]):
-                if resets[k] and k > ft:
-                    rows = mask[k]
-                    yt[rows, k - na : k] = ymt[rows, k - na : k]
-                x = assemble(ut[:, k - nk - nb + 1 : k - nk + 1], yt[:, k - na : k], model.layout)
-                prediction = model(x)
-                yt[:, k] = prediction
-                out[:, k] = prediction
+            if model.layout == "sequence":
+                pad = length + 1  # F index = sample index + pad
+                feats = torch.zeros(u.shape[0], u.shape[1] + pad, nu + y_meas.shape[2],
+                                    device=device)
+                u_t = torch.as_tensor(u, dtype=torch.float32, device=device)
+                # F[:, s + pad, :nu] = u[s - nk + 1]
+                first = max(0, nk - 1)
+                stop = u.shape[1] + nk - 1
+                feats[:, first + pad : min(stop, u.shape[1]) + pad, :nu] = u_t[
+                    :, first - nk + 1 : min(stop, u.shape[1]) - nk + 1
+                ]
+                feats[:, pad : pad + ft, nu:] = y_meas_t[:, :ft]
+                m_u, m_y = (torch.as_tensor(m, dtype=torch.float32, device=device)
+                            for m in _seq_masks(window))
+                seq_mask = torch.cat(
+                    [m_u[:, None].expand(length, nu), m_y[:, None].expand(length, -1)], 1
+                )
+                masked = not bool(seq_mask.all())
+                for k in range(ft, u.shape[1]):
+                    n = int(active[k])
+                    if k in restart_steps:
+                        rows = mask[k]
+                        feats[rows, k - na + pad : k + pad, nu:] = y_meas_t[rows, k - na : k]
+                    x = feats[:n, k - length + pad : k + pad]
+                    prediction = net(x * seq_mask if masked else x)
+                    feats[:n, k + pad, nu:] = prediction
+                    out[:n, k] = prediction
+            else:
+                u_t = torch.as_tensor(u, dtype=torch.float32, device=device)
+                y_t = y_meas_t.clone()
+                for k in range(ft, u.shape[1]):
+                    n = int(active[k])
+                    if k in restart_steps:
+                        rows = mask[k]
+                        y_t[rows, k - na : k] = y_meas_t[rows, k - na : k]
+                    x = assemble(u_t[:n, k - nk - nb + 1 : k - nk + 1], y_t[:n, k - na : k],
+                                 "flat")
+                    prediction = net(x)
+                    y_t[:n, k] = prediction
+                    out[:n, k] = prediction
             return out.double().cpu().numpy()
     finally:
         model.to(original)
+
+
+def _seq_masks(window: WindowSpec) -> tuple[np.ndarray, np.ndarray]:
+    from hysteresis_lab.models.fast import sequence_masks
+
+    return sequence_masks(window)

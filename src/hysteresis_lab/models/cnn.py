@@ -4,11 +4,14 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
 import torch
 from torch import nn
 
+from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.base import NarxModule, mlp
+from hysteresis_lab.models.fast import FreeRunKernel, dense_layers, run_dense, sequence_masks
 
 
 class _ConvHead(nn.Module):
@@ -43,3 +46,62 @@ class CNNNet(NarxModule):
             )
         self.net = _ConvHead(self.n_features, units, conv_layers, kernel_size,
                              num_layers - conv_layers - 1, ny)
+
+    def free_run_kernel(self, u_scaled: np.ndarray, window: WindowSpec) -> FreeRunKernel:
+        """NumPy free-run step (im2col convolutions, float32)."""
+        return _CNNKernel(self.net, u_scaled, window)
+
+
+class _CNNKernel(FreeRunKernel):
+    """One CNN evaluation per step on the sequence regressor, as NumPy im2col matmuls."""
+
+    def __init__(self, head: _ConvHead, u_scaled: np.ndarray, window: WindowSpec) -> None:
+        self.convs = []  # (per-tap weights (K, in, out), bias, left pad, padded buffer)
+        batch, length = u_scaled.shape[0], window.seq_len
+        for m in head.conv:
+            if isinstance(m, nn.Conv1d):
+                weight = m.weight.detach().cpu().float().numpy()  # (out, in, K)
+                total = m.dilation[0] * (m.kernel_size[0] - 1)
+                buffer = np.zeros((batch, length + total, weight.shape[1]), np.float32)
+                self.convs.append(
+                    (weight.transpose(2, 1, 0).copy(), m.bias.detach().cpu().float().numpy(),
+                     total // 2, buffer)
+                )
+        self.dense = dense_layers(head.dense)
+        self.window = window
+        length = window.seq_len
+        # u lags, oldest first, come from u[k-nk-L+1 .. k-nk]: pad the front with L zeros
+        self.u = np.concatenate(
+            [np.zeros((u_scaled.shape[0], length, u_scaled.shape[2])), u_scaled], axis=1
+        ).astype(np.float32)
+        mask_u, mask_y = sequence_masks(window)
+        self.mask_u = mask_u.astype(np.float32)[None, :, None]
+        self.mask_y = mask_y.astype(np.float32)[None, :, None]
+        self.all_real = bool(mask_u.all() and mask_y.all())
+
+    def step(self, k: int, n: int, y: np.ndarray) -> np.ndarray:
+        length, nk = self.window.seq_len, self.window.nk
+        start = k - nk + 1  # index of u[k-nk-L+1] in the padded u
+        x_u = self.u[:n, start : start + length]
+        if k >= length:
+            x_y = y[:n, k - length : k].astype(np.float32)
+        else:
+            x_y = np.zeros((n, length, y.shape[2]), np.float32)
+            x_y[:, length - k :] = y[:n, :k]
+        if not self.all_real:
+            x_u, x_y = x_u * self.mask_u, x_y * self.mask_y
+        nu = x_u.shape[2]
+        h = x_u  # replaced by each layer's output
+        for layer, (taps, bias, left, buffer) in enumerate(self.convs):
+            padded = buffer[:n]  # zero borders = padding="same"
+            if layer == 0:
+                padded[:, left : left + length, :nu] = x_u
+                padded[:, left : left + length, nu:] = x_y
+            else:
+                padded[:, left : left + length] = h
+            h = padded[:, :length] @ taps[0]
+            for d in range(1, len(taps)):
+                h += padded[:, d : d + length] @ taps[d]
+            h += bias
+            np.maximum(h, 0.0, out=h)
+        return run_dense(h.max(axis=1).astype(np.float64), self.dense)

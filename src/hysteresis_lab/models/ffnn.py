@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-from torch import nn
 
+from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.base import NarxModule, mlp
+from hysteresis_lab.models.fast import FlatKernel, FreeRunKernel, dense_layers, run_dense
 
 
 class FFNN(NarxModule):
@@ -27,25 +27,17 @@ class FFNN(NarxModule):
             )
         self.net = mlp(self.n_features, ny, neurons, num_layers - 1)
 
-    def numpy_forward(self) -> Callable[[np.ndarray], np.ndarray]:
-        """The network as a NumPy function (CPU free run: tiny matmuls cost ~1 µs in NumPy,
-        several µs as torch ops)."""
-        layers = [
-            (
-                m.weight.detach().cpu().double().numpy().T.copy(),
-                m.bias.detach().cpu().double().numpy().copy(),
-            )
-            for m in self.net
-            if isinstance(m, nn.Linear)
-        ]
+    def free_run_kernel(self, u_scaled: np.ndarray, window: WindowSpec) -> FreeRunKernel:
+        """NumPy free-run step: the first layer's input part is precomputed per chunk."""
+        layers = dense_layers(self.net)
+        w1, b1 = layers[0]
+        split = window.nb * self.nu
+        w1u, w1y = w1[:split], w1[split:]
 
-        def forward(x: np.ndarray) -> np.ndarray:
-            h = x
-            for i, (weight, bias) in enumerate(layers):
-                h = h @ weight
-                h += bias
-                if i < len(layers) - 1:
-                    np.maximum(h, 0.0, out=h)
-            return h
+        def pre_u(xu: np.ndarray) -> np.ndarray:
+            return xu @ w1u + b1
 
-        return forward
+        def finish(pre: np.ndarray, xy: np.ndarray) -> np.ndarray:
+            return run_dense(pre + xy @ w1y, layers[1:])
+
+        return FlatKernel(u_scaled, window, pre_u, finish)

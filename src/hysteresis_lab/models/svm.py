@@ -26,6 +26,7 @@ from sklearn.svm import SVR, LinearSVR
 from hysteresis_lab.data.scaling import Scaler
 from hysteresis_lab.data.windows import WindowSpec, assemble
 from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.models.fast import FlatKernel, FreeRunKernel
 
 log = logging.getLogger(__name__)
 
@@ -159,26 +160,61 @@ class SVMModel:
         x = assemble((u_past - s.u_offset) / s.u_scale, (y_past - s.y_offset) / s.y_scale, "flat")
         return self.predict_scaled(x) * s.y_scale + s.y_offset
 
-    def fast_predictor(self) -> Any:
-        """A NumPy function scaled x (B, n) -> scaled y (B, ny) with the Nyström and linear
-        weights folded together, so one step costs a single kernel evaluation."""
-        if self.feature_map is None or not all(isinstance(e, LinearSVR) for e in self.estimators):
-            return self.predict_scaled
-        fm = self.feature_map
-        weights = fm.normalization_.T @ np.column_stack([e.coef_ for e in self.estimators])
+    def _folded(self) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
+        """``(components, weights, bias)``: scaled prediction = k(x, components) @ weights + bias.
+
+        Nyström + linear SVR folds to ``normalization_.T @ coef``; exact SVRs stack their
+        support vectors (dual coefficients block-wise per output). ``components`` is None for
+        the linear kernel (prediction = x @ weights + bias).
+        """
         bias = np.array([float(np.ravel(e.intercept_)[0]) for e in self.estimators])
-        comps = fm.components_
+        if self.feature_map is None and all(isinstance(e, LinearSVR) for e in self.estimators):
+            return None, np.column_stack([e.coef_ for e in self.estimators]), bias
+        if self.feature_map is not None:
+            fm = self.feature_map
+            coef = np.column_stack([e.coef_ for e in self.estimators])
+            return fm.components_, fm.normalization_.T @ coef, bias
+        comps = np.concatenate([e.support_vectors_ for e in self.estimators])
+        weights = np.zeros((len(comps), len(self.estimators)))
+        row = 0
+        for j, est in enumerate(self.estimators):
+            n_sv = len(est.support_vectors_)
+            weights[row : row + n_sv, j] = est.dual_coef_[0]
+            row += n_sv
+        return comps, weights, bias
+
+    def free_run_kernel(self, u_scaled: np.ndarray, window: WindowSpec) -> FreeRunKernel:
+        """NumPy free-run step with the model folded to one kernel evaluation per step."""
+        if not self.estimators:
+            raise ConfigError("the SVM is not fitted yet. Fix: call fit() (or train) first.")
+        comps, weights, bias = self._folded()
+        split = window.nb * self.nu
+        if comps is None:
+            wu, wy = weights[:split], weights[split:]
+            return FlatKernel(
+                u_scaled, window, lambda xu: xu @ wu + bias, lambda pre, xy: pre + xy @ wy
+            )
+        h = self.hparams
+        kernel, gamma, degree, coef0 = h["kernel"], h["gamma"], h["degree"], h["coef0"]
+        cu, cy = comps[:, :split].T.copy(), comps[:, split:].T.copy()
         comp_sq = np.sum(comps**2, axis=1)
-        gamma, degree, coef0, kernel = fm.gamma, fm.degree, fm.coef0, fm.kernel
+        if kernel == "rbf":
+            # exp(-g|x-c|^2) = exp(2g (x.c - |x|^2/2) - g|c|^2), split into u and y parts
+            def pre_u(xu: np.ndarray) -> np.ndarray:
+                return xu @ cu - 0.5 * np.sum(xu**2, axis=1)[:, None]
 
-        def predict(x: np.ndarray) -> np.ndarray:
-            dot = x @ comps.T
-            if kernel == "rbf":
-                k = np.exp(-gamma * (np.sum(x**2, axis=1)[:, None] + comp_sq - 2.0 * dot))
-            elif kernel == "poly":
-                k = (gamma * dot + coef0) ** degree
-            else:  # sigmoid
-                k = np.tanh(gamma * dot + coef0)
-            return k @ weights + bias
+            def finish(pre: np.ndarray, xy: np.ndarray) -> np.ndarray:
+                lin = pre + xy @ cy
+                lin -= 0.5 * np.sum(xy**2, axis=1)[:, None]
+                return np.exp(2.0 * gamma * lin - gamma * comp_sq) @ weights + bias
 
-        return predict
+        else:
+            outer = np.tanh if kernel == "sigmoid" else (lambda z: z**degree)
+
+            def pre_u(xu: np.ndarray) -> np.ndarray:
+                return gamma * (xu @ cu) + coef0
+
+            def finish(pre: np.ndarray, xy: np.ndarray) -> np.ndarray:
+                return outer(pre + gamma * (xy @ cy)) @ weights + bias
+
+        return FlatKernel(u_scaled, window, pre_u, finish)
