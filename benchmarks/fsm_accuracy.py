@@ -24,7 +24,7 @@ def main() -> None:
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     metrics = json.loads(Path(sys.argv[1]).read_text())
     rows = ["| amplitude | " + " | ".join(FSM_REFERENCE_UM) + f" | {metrics['model']} free run "
-            f"| {metrics['model']} one step |", "|---|---|---|---|---|"]
+            f"| {metrics['model']} one step |", "|---" * (len(FSM_REFERENCE_UM) + 3) + "|"]
     for amp in FSM_AMPLITUDES:
         tests = [m for name, m in metrics["tests"].items() if name.startswith(f"{amp}mV_")]
         if not tests:

@@ -1,4 +1,4 @@
-"""Train-and-evaluate runs: one model, or the study's four (``experiment=paper``).
+"""Train-and-evaluate runs of one model (the study's four: `hysteresis_lab.paper`).
 
 Everything a run produces lands in its output folder: checkpoints, ``metrics.json``,
 hysteresis-loop and residual figures, and TensorBoard event files (loss curves, figures,
@@ -24,7 +24,7 @@ from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.effects.augment import augment_splits, context_to_dict
 from hysteresis_lab.evaluation.evaluate import Evaluation, evaluate_model
 from hysteresis_lab.evaluation.plots import loops_figure, residuals_figure, save_figure
-from hysteresis_lab.evaluation.report import metrics_document, write_json, write_table2
+from hysteresis_lab.evaluation.report import metrics_document, write_json
 from hysteresis_lab.models.io import save_model
 from hysteresis_lab.training import build_model, fit, model_layout
 
@@ -42,7 +42,8 @@ class RunResult:
     window: WindowSpec
 
 
-def _container(cfg: Mapping[str, Any] | DictConfig) -> dict[str, Any]:
+def plain_dict(cfg: Mapping[str, Any] | DictConfig) -> dict[str, Any]:
+    """A resolved plain dict of a Hydra config node (or a copy of a mapping)."""
     if isinstance(cfg, DictConfig):
         return OmegaConf.to_container(cfg, resolve=True)  # type: ignore[return-value]
     return dict(cfg)
@@ -70,7 +71,7 @@ def train_and_evaluate(
     callbacks: list[Any] | None = None,
 ) -> RunResult:
     """Fit the model ``model_cfg`` on ``data_cfg``'s data, score it on every test recording."""
-    model_cfg, data_cfg, trainer_cfg = map(_container, (model_cfg, data_cfg, trainer_cfg))
+    model_cfg, data_cfg, trainer_cfg = map(plain_dict, (model_cfg, data_cfg, trainer_cfg))
     output_dir.mkdir(parents=True, exist_ok=True)
     L.seed_everything(seed, workers=True, verbose=False)
     effects = list(model_cfg.get("effects") or [])
@@ -134,51 +135,6 @@ def train_and_evaluate(
         output_dir,
     )
     return RunResult(document, trained.val_mse, evaluation, trained.model, datamodule.window)
-
-
-def run_paper(
-    models: Mapping[str, Mapping[str, Any]],
-    data_cfg: Mapping[str, Any],
-    trainer_cfg: Mapping[str, Any],
-    output_dir: Path,
-    seed: int = 0,
-    use_tensorboard: bool = True,
-) -> dict[str, RunResult]:
-    """The study's experiment: every model on one data set, then Table 2 and Figure 1."""
-    splits = build_splits(_container(data_cfg))
-    results: dict[str, RunResult] = {}
-    for key, model_cfg in models.items():
-        log.info("=== %s ===", key)
-        results[key] = train_and_evaluate(
-            model_cfg,
-            data_cfg,
-            trainer_cfg,
-            output_dir / key,
-            seed=seed,
-            splits=splits,
-            use_tensorboard=use_tensorboard,
-        )
-    documents = {key: result.document for key, result in results.items()}
-    md_path, csv_path = write_table2(documents, output_dir)
-    write_json(documents, output_dir / "paper_results.json")
-    free_run = {
-        rec.name: {
-            key: res.evaluation.predictions[rec.name]["free_run"] for key, res in results.items()
-        }
-        for rec in splits.test
-    }
-    figure = save_figure(
-        loops_figure(
-            splits.test,
-            free_run,
-            title="Free-run simulation: measured (black) and "
-            "predicted displacement against voltage",
-        ),
-        output_dir / "figure1.png",
-    )
-    log.info("Table 2: %s, %s; Figure 1: %s", md_path, csv_path, figure)
-    log.info("\n%s", md_path.read_text())
-    return results
 
 
 def _write_figures(

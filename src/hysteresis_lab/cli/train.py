@@ -28,7 +28,8 @@ log = logging.getLogger(__name__)
 @report_errors
 def run(cfg: DictConfig) -> float | None:
     """Run the task the composed config describes; return the sweep objective."""
-    from hysteresis_lab.pipeline import run_paper, train_and_evaluate
+    from hysteresis_lab.paper import run_paper
+    from hysteresis_lab.pipeline import train_and_evaluate
     from hysteresis_lab.tuning.pruning import trial_callback
 
     output_dir = Path(HydraConfig.get().runtime.output_dir)
@@ -42,6 +43,7 @@ def run(cfg: DictConfig) -> float | None:
             output_dir,
             seed=cfg.seed,
             use_tensorboard=use_tensorboard,
+            workers=cfg.paper.get("workers", "auto"),
         )
         return None
     if cfg.task != "train":
