@@ -60,7 +60,7 @@ def table2_markdown(results: Mapping[str, Mapping[str, Any]]) -> str:
         rows += [("**mean**", lambda doc: doc["mean"]), ("std", lambda doc: doc["std"])]
         for label, pick in rows:
             cells = [label]
-            cells += [_fmt(pick(results[m]).get(f"r2_{mode}"), 4) for m in models]
+            cells += [_fmt(pick(results[m]).get(f"r2_{mode}"), 6) for m in models]
             cells += [_fmt(pick(results[m]).get(f"rmse_{mode}"), 4) for m in models]
             lines.append("| " + " | ".join(cells) + " |")
         lines.append("")

@@ -77,14 +77,15 @@ class _LSTMKernel(FreeRunKernel):
                     for i in range(lstm.num_layers)]
         self.bias = [(param(f"bias_ih_l{i}") + param(f"bias_hh_l{i}")) * half
                      for i in range(lstm.num_layers)]
-        self.dense = dense_layers(head.dense)
+        self.dense = [(w.astype(np.float32), b.astype(np.float32))
+                      for w, b in dense_layers(head.dense)]
         self.hidden, self.nu = hidden, nu
         self.u = u_scaled.astype(np.float32)
         self.window = window
         length = window.seq_len
         batch = u_scaled.shape[0]
-        self.h = [np.zeros((batch, length, hidden), np.float32) for _ in self.wih]
-        self.c = [np.zeros((batch, length, hidden), np.float32) for _ in self.wih]
+        # h and c of every layer in one array, so finishing a window zeroes them in one call
+        self.state = np.zeros((2 * lstm.num_layers, batch, length, hidden), np.float32)
         mask_u, mask_y = sequence_masks(window)  # per time step, oldest first
         # at step k, slot s holds window k + m with m = (s - k) % L, at time step L-1-m
         slots = np.arange(length)
@@ -98,35 +99,38 @@ class _LSTMKernel(FreeRunKernel):
         """Feed sample (u[k-nk], y[k-1]) to the L in-flight windows; finish window k."""
         length, hidden = self.window.seq_len, self.hidden
         x_u = self.u[:n, max(k - self.window.nk, 0)]
-        x_y = y[:n, max(k - 1, 0)].astype(np.float32)
+        x_y = y[:n, max(k - 1, 0)]
         w0 = self.wih[0]
-        p_u, p_y = x_u @ w0[: self.nu], x_y @ w0[self.nu :]
+        p_u = x_u @ w0[: self.nu]
+        p_y = x_y.astype(np.float32) @ w0[self.nu :]
         if self.all_real:
-            inputs = (p_u + p_y)[:, None, :]
+            p_u += p_y
+            p_u += self.bias[0]
+            inputs = p_u[:, None, :]  # input projection + bias, shared by the L windows
         else:
             r = k % length
             inputs = self.mask_u[r] * p_u[:, None, :] + self.mask_y[r] * p_y[:, None, :]
+            inputs += self.bias[0]
         below = None
         for layer, (wih, whh, bias) in enumerate(zip(self.wih, self.whh, self.bias, strict=True)):
-            h, c = self.h[layer][:n], self.c[layer][:n]
+            h, c = self.state[2 * layer, :n], self.state[2 * layer + 1, :n]
             gates = (h.reshape(n * length, hidden) @ whh).reshape(n, length, 4 * hidden)
-            gates += bias
             if below is None:
                 gates += inputs
             else:
                 gates += (below.reshape(n * length, hidden) @ wih).reshape(gates.shape)
+                gates += bias
             t = np.tanh(gates, out=gates)
             sig = t * 0.5
             sig += 0.5
             c *= sig[..., hidden : 2 * hidden]
             c += sig[..., :hidden] * t[..., 2 * hidden : 3 * hidden]
-            h[...] = sig[..., 3 * hidden :] * np.tanh(c)
+            np.multiply(sig[..., 3 * hidden :], np.tanh(c), out=h)
             below = h
         slot = k % length
-        out = run_dense(self.h[-1][:n, slot].astype(np.float64), self.dense)
-        for state in (*self.h, *self.c):
-            state[:n, slot] = 0.0  # the slot now starts window k + L
-        return out
+        out = run_dense(self.state[-2, :n, slot], self.dense)
+        self.state[:, :n, slot] = 0.0  # the slot now starts window k + L
+        return out.astype(np.float64)
 
     def step(self, k: int, n: int, y: np.ndarray) -> np.ndarray:
         if self.next_k is None:  # warm up: the windows k..k+L-2 start before k
