@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import signal
+import socket
 import time
 from pathlib import Path
 
@@ -153,12 +154,33 @@ def test_nan_trial_fails_and_the_study_goes_on(tmp_path, csv_data):
     assert all(s in (TrialState.FAIL, TrialState.PRUNED) for s in states)
 
 
+PG_PASSWORD = "tuning-test-secret"
+
+
 @pytest.fixture(scope="module")
 def postgres_url(tmp_path_factory):
+    """A real PostgreSQL server on TCP loopback that demands a password (pgserver's binaries)."""
     pgserver = pytest.importorskip("pgserver")
-    server = pgserver.get_server(tmp_path_factory.mktemp("pgdata"), cleanup_mode="stop")
-    yield server.get_uri()
+    import psycopg
+    from pgserver.postgres_server import pg_ctl
+
+    pgdata = tmp_path_factory.mktemp("pgdata")
+    server = pgserver.get_server(pgdata, cleanup_mode="stop")  # initdb, Unix socket only
+    with psycopg.connect(server.get_uri()) as conn:
+        conn.execute(f"ALTER USER postgres PASSWORD '{PG_PASSWORD}'")
     server.cleanup()
+    hba = Path(server.pgdata) / "pg_hba.conf"
+    hba.write_text("local all all trust\nhost all all 127.0.0.1/32 scram-sha-256\n")
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    options = ["-o", "-h 127.0.0.1", "-o", f"-p {port}", "-o", f"-k {pgdata}"]
+    pg_ctl(["-w", *options, "-l", str(pgdata / "tcp.log"), "start"], pgdata=server.pgdata,
+           user=server.system_user, timeout=30)
+    with pytest.raises(psycopg.OperationalError):  # the password really is checked
+        psycopg.connect(f"postgresql://postgres:wrong@127.0.0.1:{port}/postgres").close()
+    yield f"postgresql://postgres:{PG_PASSWORD}@127.0.0.1:{port}/postgres"
+    pg_ctl(["-w", "stop"], pgdata=server.pgdata, user=server.system_user, timeout=30)
 
 
 def test_two_workers_share_one_postgres_study(tmp_path, csv_data, postgres_url):
@@ -181,8 +203,8 @@ def test_two_workers_share_one_postgres_study(tmp_path, csv_data, postgres_url):
     assert all(t.state == TrialState.COMPLETE for t in done)
     assert len({t.user_attrs[PID] for t in done}) == 2, "one worker did all the trials"
     assert len({t.number for t in done}) == n_trials
-    # the storage URL (credentials) is neither logged nor saved in any config or output
-    assert postgres_url not in "".join(outputs)
+    # the password is neither logged nor saved in any config or output
+    assert PG_PASSWORD not in "".join(outputs)
     for path in tmp_path.rglob("*"):
         if path.is_file() and path.suffix in {".yaml", ".log", ".json", ".csv"}:
-            assert postgres_url not in path.read_text(errors="ignore"), path
+            assert PG_PASSWORD not in path.read_text(errors="ignore"), path
