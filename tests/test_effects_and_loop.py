@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from helpers import data_overrides, run_app, small_dataset
 from hysteresis_lab.analysis.correlation import correlation_tests
@@ -82,7 +83,7 @@ def test_loop_writes_its_report(tmp_path):
     train, tests = small_dataset(tmp_path, effects={"creep": {"enabled": True}})
     proc = run_app("loop", *data_overrides(train, tests), "model=ffnn", "loop.max_rounds=1",
                    "loop.n_shifts=9", "trainer.max_epochs=3", "trainer.enable_progress_bar=false",
-                   "logger=none", f"hydra.run.dir={tmp_path}/loop")
+                   f"hydra.run.dir={tmp_path}/loop")
     assert proc.returncode == 0, proc.stderr[-3000:]
     report = json.loads((tmp_path / "loop" / "loop_report.json").read_text())
     assert report["units"] == {"y": "um"}
@@ -97,6 +98,11 @@ def test_loop_writes_its_report(tmp_path):
     assert (tmp_path / "loop" / "loop_report.md").read_text().startswith("# Residual loop")
     assert (tmp_path / "loop" / "loops_before_after.png").is_file()
     assert (tmp_path / "loop" / "round_0" / "residual_diagnostics.png").is_file()
+    events = EventAccumulator(str(tmp_path / "loop" / "round_0" / "tensorboard")).Reload()
+    assert "loop/residual_diagnostics" in events.Tags()["images"]
+    scored = {tag.rsplit("/", 1)[-1] for tag in events.Tags()["scalars"]
+              if tag.startswith("loop/diagnosis_score/")}
+    assert scored == {d["effect"] for d in rounds[0]["diagnosis"]}
 
 
 def test_model_with_effects_trains_saves_and_evaluates(tmp_path):

@@ -83,10 +83,10 @@ def run_loop(
         )
         analysis = residual_analysis(splits.test, result.evaluation.predictions, n_skip)
         write_json(analysis, round_dir / "residual_analysis.json")
-        save_figure(
-            diagnostics_figure(splits.test, result.evaluation.predictions, n_skip),
-            round_dir / "residual_diagnostics.png",
-        )
+        figure = diagnostics_figure(splits.test, result.evaluation.predictions, n_skip)
+        save_figure(figure, round_dir / "residual_diagnostics.png")
+        if use_tensorboard:
+            _log_round_to_tensorboard(round_dir / "tensorboard", figure, diagnosis, number)
         tests = {
             name: {k: m[k] for k in ("rmse_free_run", "rmse_one_step", "r2_free_run")}
             for name, m in result.document["tests"].items()
@@ -142,6 +142,18 @@ def run_loop(
     )
     log.info("\n%s", loop_markdown(report))
     return report
+
+
+def _log_round_to_tensorboard(
+    log_dir: Path, figure: Any, diagnosis: list[Any], number: int
+) -> None:
+    """Residual diagnostics figure and every effect's score, beside the round's training logs."""
+    from torch.utils.tensorboard import SummaryWriter
+
+    with SummaryWriter(log_dir=str(log_dir)) as writer:
+        writer.add_figure("loop/residual_diagnostics", figure, global_step=number, close=False)
+        for d in diagnosis:
+            writer.add_scalar(f"loop/diagnosis_score/{d.effect}", d.score, global_step=number)
 
 
 def loop_markdown(report: dict[str, Any]) -> str:
