@@ -6,6 +6,9 @@ import numpy as np
 import pytest
 
 from hysteresis_lab.data.recording import Recording
+from hysteresis_lab.data.splits import DatasetSplits
+from hysteresis_lab.training import build_model, fit
+from narx import CONFIGS, TRAINER, datamodule_for, narx_data
 
 
 def make_recording(
@@ -21,3 +24,20 @@ def make_recording(
 @pytest.fixture
 def index_recordings() -> list[Recording]:
     return [make_recording(50, "a"), make_recording(30, "b")]
+
+
+@pytest.fixture(scope="session")
+def splits() -> DatasetSplits:
+    """The small NARX data set of `narx` (train + two sine tests)."""
+    return narx_data()
+
+
+@pytest.fixture(scope="session")
+def trained(splits, tmp_path_factory) -> dict:
+    """Every built-in architecture trained briefly on `splits`: name -> (model, datamodule)."""
+    models = {}
+    for name, cfg in CONFIGS.items():
+        dm = datamodule_for(name, splits)
+        result = fit(build_model(cfg, dm), dm, TRAINER, tmp_path_factory.mktemp(name))
+        models[name] = (result.model, dm)
+    return models

@@ -8,7 +8,7 @@ import torch
 
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.training import build_model
-from test_models import CONFIGS, datamodule_for, narx_data
+from narx import CONFIGS, datamodule_for, narx_data
 
 
 @pytest.mark.parametrize("name", ["ffnn", "lstm", "cnn"])

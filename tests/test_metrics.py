@@ -36,12 +36,3 @@ def test_score_skips_initial_samples_and_checks_shapes():
     with pytest.raises(DataError, match="nothing left"):
         score(rec, predicted, n_skip=5)
 
-
-def test_summarise_mean_and_std_over_tests():
-    from hysteresis_lab.evaluation.metrics import summarise
-
-    summary = summarise({"a": {"rmse": 1.0, "r2": 0.5}, "b": {"rmse": 3.0, "r2": 0.7}})
-    assert summary["mean"] == pytest.approx({"r2": 0.6, "rmse": 2.0})
-    assert summary["std"] == pytest.approx({"r2": 0.1, "rmse": 1.0})
-    with pytest.raises(DataError):
-        summarise({})

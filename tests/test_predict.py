@@ -10,26 +10,10 @@ from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.errors import ConfigError, DataError
 from hysteresis_lab.evaluation.predict import free_run, n_step, one_step
-from hysteresis_lab.training import build_model, fit
-from test_models import CONFIGS, TRAINER, datamodule_for, narx_data
+from hysteresis_lab.training import build_model
+from narx import CONFIGS
 
 NAMES = ["ffnn", "lstm", "cnn", "svm"]
-
-
-@pytest.fixture(scope="module")
-def splits():
-    return narx_data()
-
-
-@pytest.fixture(scope="module")
-def trained(splits, tmp_path_factory) -> dict:
-    models = {}
-    for name, cfg in CONFIGS.items():
-        dm = datamodule_for(name, splits)
-        result = fit(build_model(cfg, dm), dm, {**TRAINER, "max_epochs": 2},
-                     tmp_path_factory.mktemp(name))
-        models[name] = (result.model, dm)
-    return models
 
 
 def naive_free_run(model, rec: Recording, w: WindowSpec) -> np.ndarray:

@@ -54,19 +54,3 @@ def score(measured: Recording, predicted: np.ndarray, n_skip: int = 0) -> dict[s
     y, p = measured.y[n_skip:], predicted[n_skip:]
     return {"rmse": rmse(y, p), "r2": r2(y, p), "nrmse": nrmse(y, p)}
 
-
-def summarise(per_test: dict[str, dict[str, float]]) -> dict[str, dict[str, float]]:
-    """Mean and (population) standard deviation of every metric over the test recordings."""
-    if not per_test:
-        raise DataError("there are no per-test metrics to summarise.", fix="score a test first")
-    keys = sorted({key for metrics in per_test.values() for key in metrics})
-    table = {
-        key: np.array([metrics.get(key, np.nan) for metrics in per_test.values()], dtype=float)
-        for key in keys
-    }
-    return {
-        "mean": {key: float(np.nanmean(v)) if np.isfinite(v).any() else float("nan")
-                 for key, v in table.items()},
-        "std": {key: float(np.nanstd(v)) if np.isfinite(v).any() else float("nan")
-                for key, v in table.items()},
-    }

@@ -22,6 +22,7 @@ from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.scaling import Scaler
 from hysteresis_lab.data.windows import WindowSpec, assemble, make_windows
 from hysteresis_lab.errors import ConfigError, DataError
+from hysteresis_lab.models.fast import sequence_masks
 
 
 def _check(model: Any, recordings: Sequence[Recording], window: WindowSpec) -> None:
@@ -267,7 +268,7 @@ def _loop_torch(
                 ]
                 feats[:, pad : pad + ft, nu:] = y_meas_t[:, :ft]
                 m_u, m_y = (torch.as_tensor(m, dtype=torch.float32, device=device)
-                            for m in _seq_masks(window))
+                            for m in sequence_masks(window))
                 seq_mask = torch.cat(
                     [m_u[:, None].expand(length, nu), m_y[:, None].expand(length, -1)], 1
                 )
@@ -298,8 +299,3 @@ def _loop_torch(
     finally:
         model.to(original)
 
-
-def _seq_masks(window: WindowSpec) -> tuple[np.ndarray, np.ndarray]:
-    from hysteresis_lab.models.fast import sequence_masks
-
-    return sequence_masks(window)

@@ -61,7 +61,7 @@ class _CNNKernel(FreeRunKernel):
         for m in head.conv:
             if isinstance(m, nn.Conv1d):
                 weight = m.weight.detach().cpu().float().numpy()  # (out, in, K)
-                total = m.dilation[0] * (m.kernel_size[0] - 1)
+                total = m.kernel_size[0] - 1  # padding="same", dilation 1
                 buffer = np.zeros((batch, length + total, weight.shape[1]), np.float32)
                 self.convs.append(
                     (weight.transpose(2, 1, 0).copy(), m.bias.detach().cpu().float().numpy(),
@@ -69,7 +69,6 @@ class _CNNKernel(FreeRunKernel):
                 )
         self.dense = dense_layers(head.dense)
         self.window = window
-        length = window.seq_len
         # u lags, oldest first, come from u[k-nk-L+1 .. k-nk]: pad the front with L zeros
         self.u = np.concatenate(
             [np.zeros((u_scaled.shape[0], length, u_scaled.shape[2])), u_scaled], axis=1
