@@ -268,3 +268,15 @@ def test_default_dataset_accepts_effects_overrides():
     assert "noise" not in data.train[0].metadata["effects"]
     with pytest.raises(ConfigError):
         make_default_dataset(effects={"creap": {}})
+
+
+def test_training_sines_join_the_training_set_never_the_test_frequencies():
+    base = make_default_dataset(max_test_samples=400)
+    richer = make_default_dataset(max_test_samples=400, train_sines=[3.0, 75.0])
+    assert [r.name for r in richer.train] == ["multisine", "train_sine_3Hz", "train_sine_75Hz"]
+    assert richer.train[2].n_samples == 2 * 20_000 // 75
+    np.testing.assert_array_equal(richer.train[0].y, base.train[0].y)  # same multisine
+    for a, b in zip(richer.test, base.test, strict=True):
+        np.testing.assert_array_equal(a.y, b.y)  # same test data
+    with pytest.raises(ConfigError, match="also test frequencies"):
+        make_default_dataset(max_test_samples=400, train_sines=[10.0])

@@ -33,8 +33,7 @@ class LoopSettings:
 
     max_rounds: int = 3
     min_score: float = 0.05
-    alpha: float = 0.05
-    n_shifts: int = 39
+    alpha: float = 0.01
 
 
 def run_loop(
@@ -78,8 +77,6 @@ def run_loop(
             declared=effects,
             min_score=settings.min_score,
             alpha=settings.alpha,
-            n_shifts=settings.n_shifts,
-            seed=seed,
         )
         analysis = residual_analysis(splits.test, result.evaluation.predictions, n_skip)
         write_json(analysis, round_dir / "residual_analysis.json")

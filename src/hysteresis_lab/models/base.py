@@ -3,7 +3,8 @@
 A subclass sets ``layout`` ("flat" or "sequence") and builds ``self.net`` mapping scaled
 regressors to the scaled next output. The base owns what every architecture shares:
 normalisation (buffers saved with the weights, so a checkpoint maps volts to micrometres on
-its own), the MSE loss, Adam and the learning-rate schedule.
+its own), the MSE loss, Adam and the learning-rate schedule, and the differentiable free run
+used by simulation-error fine-tuning (``rollout_steps > 0``, see `hysteresis_lab.training`).
 """
 
 from __future__ import annotations
@@ -41,6 +42,9 @@ class NarxModule(L.LightningModule):
         weight_decay: float = 0.0,
         effects: Sequence[str] = (),
         feature_context: dict[str, Any] | None = None,
+        rollout_steps: int = 0,
+        rollout_epochs: int = 10,
+        rollout_lr: float | None = None,
     ) -> None:
         super().__init__()
         if nu < 1 or ny < 1:
@@ -52,6 +56,12 @@ class NarxModule(L.LightningModule):
             )
         if not lr > 0:
             raise ConfigError(f"learning rate lr={lr} must be positive. Fix: model.lr=1e-3.")
+        if rollout_steps < 0 or rollout_epochs < 1 or (rollout_lr is not None and rollout_lr <= 0):
+            raise ConfigError(
+                f"simulation-error fine-tuning needs rollout_steps >= 0 (0: off), rollout_epochs "
+                f">= 1 and a positive rollout_lr (got {rollout_steps}, {rollout_epochs}, "
+                f"{rollout_lr}). Fix: e.g. model.rollout_steps=200 model.rollout_epochs=10."
+            )
         for name in effects:
             get_effect(name)  # unknown names fail here, listing the catalogue
         if effects and feature_context is None:
@@ -70,6 +80,8 @@ class NarxModule(L.LightningModule):
         self.nu, self.ny = nu, ny
         self.net: nn.Module = nn.Identity()
         self.loss_fn = nn.MSELoss()
+        #: set by `hysteresis_lab.training` while fine-tuning on free-run segments
+        self.rollout_mode = False
 
     # ------------------------------------------------------------------ model
     @property
@@ -94,12 +106,44 @@ class NarxModule(L.LightningModule):
         """Physical units in (V, µm lags), physical next output out (B, ny)."""
         return self.unscale_output(self(self.scale_inputs(u_past, y_past)))
 
+    def simulate_scaled(self, u: torch.Tensor, y_initial: torch.Tensor) -> torch.Tensor:
+        """Differentiable free run: scaled inputs (B, T, nu) and the first ``first_target``
+        measured outputs (B, first_target, ny) -> predictions of samples first_target..T-1."""
+        w = self.window
+        start = w.first_target
+        history = list(y_initial[:, :start].unbind(1))
+        predictions = []
+        for k in range(start, u.shape[1]):
+            u_past = u[:, k - w.nk - w.nb + 1 : k - w.nk + 1]
+            y_past = (
+                torch.stack(history[k - w.na : k], 1)
+                if w.na
+                else y_initial.new_zeros(u.shape[0], 0, self.ny)
+            )
+            prediction = self(assemble(u_past, y_past, self.layout))
+            history.append(prediction)
+            predictions.append(prediction)
+        return torch.stack(predictions, 1)
+
     # ------------------------------------------------------------------ training
     def _step(self, batch: tuple[torch.Tensor, torch.Tensor], stage: str) -> torch.Tensor:
-        x, target = batch
-        loss = self.loss_fn(self(x), target)
-        self.log(f"{stage}_loss", loss, on_step=False, on_epoch=True, prog_bar=True,
-                 batch_size=x.shape[0])
+        """One-step loss on (regressors, target) windows, or in ``rollout_mode`` the free-run
+        loss on (u, y) segments."""
+        if self.rollout_mode:
+            u, y = batch
+            start = self.window.first_target
+            loss = self.loss_fn(self.simulate_scaled(u, y), y[:, start:])
+        else:
+            x, target = batch
+            loss = self.loss_fn(self(x), target)
+        self.log(
+            f"{stage}_loss",
+            loss,
+            on_step=False,
+            on_epoch=True,
+            prog_bar=True,
+            batch_size=batch[0].shape[0],
+        )
         return loss
 
     def training_step(self, batch: Any, batch_idx: int) -> torch.Tensor:
@@ -109,20 +153,30 @@ class NarxModule(L.LightningModule):
         return self._step(batch, "val")
 
     def configure_optimizers(self) -> Any:
-        optimizer = torch.optim.Adam(self.parameters(), lr=self.hparams.lr,
-                                     weight_decay=self.hparams.weight_decay)
+        lr = self.hparams.lr
+        if self.rollout_mode:  # fine-tuning starts from the one-step fit: smaller steps
+            lr = self.hparams.get("rollout_lr") or 0.1 * lr
+        optimizer = torch.optim.Adam(
+            self.parameters(), lr=lr, weight_decay=self.hparams.weight_decay
+        )
         schedule = self.hparams.lr_schedule
         if schedule == "cosine":
             epochs = max(1, int(self.trainer.max_epochs or 1))
-            scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=epochs,
-                                                                   eta_min=self.hparams.lr * 0.01)
-            return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler,
-                                                             "interval": "epoch"}}
+            scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(
+                optimizer, T_max=epochs, eta_min=lr * 0.01
+            )
+            return {
+                "optimizer": optimizer,
+                "lr_scheduler": {"scheduler": scheduler, "interval": "epoch"},
+            }
         if schedule == "plateau":
-            scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(optimizer, factor=0.5,
-                                                                   patience=5)
-            return {"optimizer": optimizer,
-                    "lr_scheduler": {"scheduler": scheduler, "monitor": "val_loss"}}
+            scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(
+                optimizer, factor=0.5, patience=5
+            )
+            return {
+                "optimizer": optimizer,
+                "lr_scheduler": {"scheduler": scheduler, "monitor": "val_loss"},
+            }
         return optimizer
 
 

@@ -10,6 +10,7 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from hysteresis_lab.data.splits import DatasetSplits
+from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.signals import multisine, sine
 from hysteresis_lab.sim.config import PositionerConfig
 from hysteresis_lab.sim.positioner import simulate_recording
@@ -23,6 +24,10 @@ def sine_name(frequency: float) -> str:
     return f"sine_{frequency:g}Hz"
 
 
+def _sine_signal(frequency: float, fs: float, amplitude: float) -> np.ndarray:
+    return sine(frequency, fs=fs, amplitude=amplitude, n_periods=1.0 if frequency < 1.0 else 2.0)
+
+
 def make_default_dataset(
     effects: Mapping[str, Any] | DictConfig | None = None,
     seed: int = 0,
@@ -31,28 +36,44 @@ def make_default_dataset(
     test_frequencies: Sequence[float] = TEST_FREQUENCIES_HZ,
     amplitude: float = 100.0,
     max_test_samples: int | None = None,
+    train_sines: Sequence[float] = (),
 ) -> DatasetSplits:
     """Multisine (500 lines, 0-500 Hz, ±amplitude, ``n_train`` samples) and sine test sets.
 
-    Each sine lasts two periods, except the 0.1 Hz one (one period, 10 s = 200,000 samples);
-    ``max_test_samples`` truncates them (for quick runs). Every recording starts at rest.
+    Each sine lasts two periods, except those below 1 Hz (one period: the 0.1 Hz one is 10 s =
+    200,000 samples); ``max_test_samples`` truncates the test sines (for quick runs). Every
+    recording starts at rest. ``train_sines`` adds full-amplitude sines at other frequencies to
+    the training set (the study trains on the multisine alone, whose many small lines never
+    drive the full-amplitude, high-rate loops of the test sines).
     """
     if isinstance(effects, DictConfig):
         effects = OmegaConf.to_container(effects, resolve=True)  # type: ignore[assignment]
+    overlap = sorted(set(map(float, train_sines)) & set(map(float, test_frequencies)))
+    if overlap:
+        raise ConfigError(
+            f"train_sines {overlap} Hz are also test frequencies: that would train on test data. "
+            "Fix: choose training sines between the test frequencies."
+        )
     config = PositionerConfig.from_dict(effects)
-    seeds = np.random.default_rng(seed).integers(0, 2**31, size=2 + len(test_frequencies))
+    n_tests = len(test_frequencies)
+    seeds = np.random.default_rng(seed).integers(0, 2**31, size=2 + n_tests + len(train_sines))
     u_train = multisine(n_train, fs=fs, amplitude=amplitude, seed=int(seeds[0]))
-    train = simulate_recording(u_train, fs, config, seed=int(seeds[1]), name="multisine")
+    train = [simulate_recording(u_train, fs, config, seed=int(seeds[1]), name="multisine")]
+    for frequency, rec_seed in zip(train_sines, seeds[2 + n_tests :], strict=True):
+        name = f"train_{sine_name(float(frequency))}"
+        u = _sine_signal(float(frequency), fs, amplitude)
+        train.append(simulate_recording(u, fs, config, seed=int(rec_seed), name=name))
     tests = []
-    for frequency, rec_seed in zip(test_frequencies, seeds[2:], strict=True):
-        periods = 1.0 if frequency < 1.0 else 2.0
-        u = sine(frequency, fs=fs, amplitude=amplitude, n_periods=periods)
+    for frequency, rec_seed in zip(test_frequencies, seeds[2 : 2 + n_tests], strict=True):
+        u = _sine_signal(frequency, fs, amplitude)
         if max_test_samples:
             u = u[:max_test_samples]
-        name = sine_name(frequency)
-        tests.append(simulate_recording(u, fs, config, seed=int(rec_seed), name=name))
+        tests.append(
+            simulate_recording(u, fs, config, seed=int(rec_seed), name=sine_name(frequency))
+        )
     return DatasetSplits(
-        name="default", train=[train], test=tests,
+        name="default",
+        train=train,
+        test=tests,
         metadata={"source": "simulator", "effects": config.to_dict(), "seed": seed},
     )
-

@@ -1,0 +1,105 @@
+"""Free-run segments of the training recordings, for simulation-error fine-tuning.
+
+A segment is ``first_target + steps`` consecutive samples of one recording, scaled like the
+one-step windows: the model starts from the first ``first_target`` measured outputs and
+simulates the remaining ``steps`` from the input alone (`NarxModule.simulate_scaled`).
+"""
+
+from __future__ import annotations
+
+import logging
+
+import lightning as L
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, TensorDataset
+
+from hysteresis_lab.data.datamodules import WindowDataModule
+from hysteresis_lab.data.recording import Recording
+from hysteresis_lab.errors import ConfigError
+
+log = logging.getLogger(__name__)
+
+
+class SegmentDataModule(L.LightningDataModule):
+    """Batches ``(u, y)`` of shape (B, first_target + steps, nu / ny), scaled.
+
+    Segments start every ``steps // 2`` samples. Validation segments come from the validation
+    recordings when there are any, otherwise a random share (``val_fraction`` of the window
+    module, same seed) of the training segments is held out.
+    """
+
+    def __init__(self, windows: WindowDataModule, steps: int) -> None:
+        super().__init__()
+        if steps < 1:
+            raise ConfigError(f"rollout_steps={steps} must be >= 1 for segment training.")
+        self.windows = windows
+        self.length = windows.window.first_target + steps
+        self.stride = max(1, steps // 2)
+        self._data: dict[str, TensorDataset] = {}
+
+    def setup(self, stage: str | None = None) -> None:
+        if self._data:
+            return
+        splits = self.windows.splits
+        train_u, train_y = self._segments(splits.train)
+        if splits.val:
+            val_u, val_y = self._segments(splits.val)
+        else:
+            order = np.random.default_rng(self.windows.seed).permutation(len(train_u))
+            n_val = max(1, int(round(self.windows.val_fraction * len(train_u))))
+            if n_val >= len(train_u):
+                raise ConfigError(
+                    f"only {len(train_u)} free-run segment(s) of {self.length} samples fit in the "
+                    "training data; none would be left for training after the validation share. "
+                    "Fix: a smaller model.rollout_steps."
+                )
+            val, keep = np.sort(order[:n_val]), np.sort(order[n_val:])
+            val_u, val_y, train_u, train_y = (
+                train_u[val],
+                train_y[val],
+                train_u[keep],
+                train_y[keep],
+            )
+        self._data = {
+            "train": TensorDataset(torch.from_numpy(train_u), torch.from_numpy(train_y)),
+            "val": TensorDataset(torch.from_numpy(val_u), torch.from_numpy(val_y)),
+        }
+        log.info(
+            "free-run fine-tuning: %d training and %d validation segments of %d samples",
+            len(train_u),
+            len(val_u),
+            self.length,
+        )
+
+    def _segments(self, recordings: list[Recording]) -> tuple[np.ndarray, np.ndarray]:
+        s = self.windows.scaler
+        us, ys = [], []
+        for rec in recordings:
+            u = ((rec.u - s.u_offset) / s.u_scale).astype(np.float32)
+            y = ((rec.y - s.y_offset) / s.y_scale).astype(np.float32)
+            for start in range(0, rec.n_samples - self.length + 1, self.stride):
+                us.append(u[start : start + self.length])
+                ys.append(y[start : start + self.length])
+        if not us:
+            longest = max(rec.n_samples for rec in recordings)
+            most = longest - self.windows.window.first_target
+            raise ConfigError(
+                f"free-run segments of {self.length} samples do not fit in recordings of at most "
+                f"{longest} samples. Fix: model.rollout_steps={max(1, most)} or less."
+            )
+        return np.stack(us), np.stack(ys)
+
+    def train_dataloader(self) -> DataLoader:
+        self.setup()
+        generator = torch.Generator().manual_seed(self.windows.seed)
+        return DataLoader(
+            self._data["train"],
+            batch_size=self.windows.batch_size,
+            shuffle=True,
+            generator=generator,
+        )
+
+    def val_dataloader(self) -> DataLoader:
+        self.setup()
+        return DataLoader(self._data["val"], batch_size=self.windows.batch_size)

@@ -1,0 +1,74 @@
+"""Simulation-error (free-run) fine-tuning: the differentiable free run and the training stage."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from hysteresis_lab.data.segments import SegmentDataModule
+from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.evaluation.predict import free_run
+from hysteresis_lab.training import build_model, fit
+from narx import CONFIGS, TRAINER, datamodule_for
+
+
+@pytest.mark.parametrize("name", ["ffnn", "lstm", "cnn"])
+def test_differentiable_free_run_equals_the_simulator(name, trained):
+    """`simulate_scaled` (used for training) is the same free run as the evaluation's."""
+    model, dm = trained[name]
+    rec = dm.splits.test[0]
+    s = dm.scaler
+    u = torch.tensor((rec.u - s.u_offset) / s.u_scale, dtype=torch.float32)[None]
+    y = torch.tensor((rec.y - s.y_offset) / s.y_scale, dtype=torch.float32)[None]
+    with torch.no_grad():
+        scaled = model.simulate_scaled(u, y[:, : dm.window.first_target])[0].double().numpy()
+    physical = scaled * s.y_scale + s.y_offset
+    reference = free_run(model, [rec], dm.window)[0][dm.window.first_target :]
+    np.testing.assert_allclose(physical, reference, atol=1e-4)
+
+
+def segment_loss(model, segments: SegmentDataModule) -> float:
+    """Mean free-run MSE (scaled) over the validation segments."""
+    segments.setup()
+    u, y = segments._data["val"].tensors
+    start = model.window.first_target
+    with torch.no_grad():
+        return float(torch.mean((model.simulate_scaled(u, y) - y[:, start:]) ** 2))
+
+
+def test_fine_tuning_lowers_the_free_run_error(splits, tmp_path):
+    """After the one-step fit, the free-run stage lowers the held-out free-run loss."""
+    dm = datamodule_for("ffnn", splits)
+    one_step = fit(build_model(CONFIGS["ffnn"], dm), dm, TRAINER, tmp_path / "one_step").model
+    segments = SegmentDataModule(dm, steps=50)
+    before = segment_loss(one_step, segments)
+    cfg = {**CONFIGS["ffnn"], "rollout_steps": 50, "rollout_epochs": 8, "rollout_lr": 3e-3}
+    tuned = fit(build_model(cfg, dm), dm, TRAINER, tmp_path / "free_run")
+    after = segment_loss(tuned.model, segments)
+    assert after < 0.8 * before
+    assert tuned.checkpoint is not None and tuned.checkpoint.parent.name == "checkpoints_free_run"
+    assert not tuned.model.rollout_mode  # back to one-step batches for later use
+
+
+def test_segments_are_scaled_consecutive_samples(splits):
+    dm = datamodule_for("ffnn", splits)
+    segments = SegmentDataModule(dm, steps=40)
+    segments.setup()
+    u, y = segments._data["train"].tensors
+    assert u.shape[1] == y.shape[1] == dm.window.first_target + 40
+    rec = splits.train[0]
+    s = dm.scaler
+    scaled_y = (rec.y - s.y_offset) / s.y_scale
+    # every segment is a contiguous stretch of the (only) training recording
+    for row in y[:5, :, 0].numpy():
+        start = int(np.argmin(np.abs(scaled_y[:-1, 0] - row[0]) + np.abs(scaled_y[1:, 0] - row[1])))
+        np.testing.assert_allclose(scaled_y[start : start + len(row), 0], row, atol=1e-6)
+
+
+def test_bad_fine_tuning_settings_are_config_errors(splits):
+    dm = datamodule_for("ffnn", splits)
+    with pytest.raises(ConfigError, match="rollout_steps >= 0"):
+        build_model({**CONFIGS["ffnn"], "rollout_steps": -1}, dm)
+    with pytest.raises(ConfigError, match="model.rollout_steps="):
+        SegmentDataModule(dm, steps=10_000).setup()
