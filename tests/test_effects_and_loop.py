@@ -108,6 +108,9 @@ def test_loop_writes_its_report(tmp_path):
         assert {"effect", "score", "significant", "evidence"} <= set(entry["diagnosis"][0])
     if len(rounds) == 2:
         assert rounds[1]["effects"] == [rounds[0]["added"]]
+        # warm start: the refit skips the one-step stage and only fine-tunes on free-run error
+        assert not (tmp_path / "loop" / "round_1" / "checkpoints").exists()
+        assert (tmp_path / "loop" / "round_1" / "checkpoints_free_run").is_dir()
     assert (tmp_path / "loop" / "loop_report.md").read_text().startswith("# Residual loop")
     assert (tmp_path / "loop" / "loops_before_after.png").is_file()
     assert (tmp_path / "loop" / "round_0" / "residual_diagnostics.png").is_file()
@@ -131,3 +134,13 @@ def test_model_with_effects_trains_saves_and_evaluates(tmp_path):
     saved = json.loads((run_dir / "metrics.json").read_text())["mean"]["rmse_free_run"]
     fresh = json.loads((tmp_path / "eval" / "metrics.json").read_text())["mean"]["rmse_free_run"]
     assert fresh == pytest.approx(saved, rel=1e-6)
+
+
+def test_loop_fine_tunes_only_the_networks_that_can():
+    from hysteresis_lab.analysis.loop import _without_unsupported_fine_tuning
+
+    settings = {"rollout_steps": 200, "rollout_epochs": 5}
+    assert _without_unsupported_fine_tuning({"name": "svm", "C": 1.0, **settings}) == {
+        "name": "svm", "C": 1.0}
+    assert _without_unsupported_fine_tuning({"name": "lstm", **settings}) == {
+        "name": "lstm", **settings}

@@ -1,4 +1,5 @@
-"""Simulation-error (free-run) fine-tuning: the differentiable free run and the training stage."""
+"""Free-run (simulation-error) fine-tuning and warm starts: the differentiable free run, the
+training stage, nested refits."""
 
 from __future__ import annotations
 
@@ -6,9 +7,11 @@ import numpy as np
 import pytest
 import torch
 
+from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.data.segments import SegmentDataModule
+from hysteresis_lab.effects.augment import augment_splits, context_to_dict
 from hysteresis_lab.errors import ConfigError
-from hysteresis_lab.evaluation.predict import free_run
+from hysteresis_lab.evaluation.predict import free_run, one_step
 from hysteresis_lab.training import build_model, fit
 from narx import CONFIGS, TRAINER, datamodule_for
 
@@ -72,3 +75,27 @@ def test_bad_fine_tuning_settings_are_config_errors(splits):
         build_model({**CONFIGS["ffnn"], "rollout_steps": -1}, dm)
     with pytest.raises(ConfigError, match="model.rollout_steps="):
         SegmentDataModule(dm, steps=10_000).setup()
+
+
+@pytest.mark.parametrize("name", ["ffnn", "lstm", "cnn"])
+def test_warm_start_adds_inputs_without_changing_the_model(name, splits, trained):
+    """A network warm-started with an extra effect input predicts exactly what the fitted one
+    did (the new input weights start at zero): the loop's refits are nested models."""
+    fitted, dm = trained[name]
+    augmented, ctx = augment_splits(splits, ["creep"])
+    dm_aug = WindowDataModule(augmented, layout=dm.layout, scaling="standard", batch_size=64)
+    grown = build_model({**CONFIGS[name], "effects": ["creep"]}, dm_aug,
+                        feature_context=context_to_dict(ctx))
+    assert grown.nu == fitted.nu + 1
+    before = one_step(grown, augmented.test, dm.window)
+    grown.warm_start_from(fitted)
+    after = one_step(grown, augmented.test, dm.window)
+    reference = one_step(fitted, splits.test, dm.window)
+    for a, b, r in zip(before, after, reference, strict=True):
+        np.testing.assert_allclose(b, r, atol=1e-5)
+        assert np.max(np.abs(a - r)) > 1e-3  # an untrained network would not match
+
+
+def test_warm_start_rejects_another_architecture(trained):
+    with pytest.raises(ConfigError, match="cannot warm-start"):
+        trained["lstm"][0].warm_start_from(trained["ffnn"][0])

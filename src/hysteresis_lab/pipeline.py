@@ -69,8 +69,14 @@ def train_and_evaluate(
     plots: bool = True,
     evaluate: bool = True,
     callbacks: list[Any] | None = None,
+    warm_start: Any | None = None,
 ) -> RunResult:
-    """Fit the model ``model_cfg`` on ``data_cfg``'s data, score it on every test recording."""
+    """Fit the model ``model_cfg`` on ``data_cfg``'s data, score it on every test recording.
+
+    ``warm_start``: a fitted network of the same architecture whose inputs are the first of
+    this model's (see `NarxModule.warm_start_from`); with free-run fine-tuning configured,
+    only that stage runs.
+    """
     model_cfg, data_cfg, trainer_cfg = map(plain_dict, (model_cfg, data_cfg, trainer_cfg))
     output_dir.mkdir(parents=True, exist_ok=True)
     L.seed_everything(seed, workers=True, verbose=False)
@@ -79,6 +85,8 @@ def train_and_evaluate(
     datamodule = build_datamodule(data_cfg, model_layout(model_cfg), seed=seed, splits=data)
     extra = {"feature_context": context_to_dict(context)} if effects else {}
     model = build_model(model_cfg, datamodule, **extra)
+    if warm_start is not None:
+        model.warm_start_from(warm_start)
     logger = (
         TensorBoardLogger(
             save_dir=str(output_dir), name="tensorboard", version="", default_hp_metric=False
@@ -86,7 +94,15 @@ def train_and_evaluate(
         if use_tensorboard
         else None
     )
-    trained = fit(model, datamodule, trainer_cfg, output_dir, logger=logger, callbacks=callbacks)
+    trained = fit(
+        model,
+        datamodule,
+        trainer_cfg,
+        output_dir,
+        logger=logger,
+        callbacks=callbacks,
+        one_step=warm_start is None,
+    )
     model_path = save_model(trained.model, output_dir / "model")
     log.info("saved %s", model_path)
     if not evaluate:

@@ -75,8 +75,13 @@ def fit(
     output_dir: Path,
     logger: TensorBoardLogger | None = None,
     callbacks: list[Any] | None = None,
+    one_step: bool = True,
 ) -> TrainResult:
-    """Fit ``model``; nets keep the checkpoint with the best validation loss."""
+    """Fit ``model``; nets keep the checkpoint with the best validation loss.
+
+    ``one_step=False`` skips the one-step stage when the model fine-tunes on the free-run
+    error anyway (``rollout_steps > 0``): for a model warm-started from a fitted one.
+    """
     datamodule.setup()
     start = time.perf_counter()
     if not isinstance(model, L.LightningModule):
@@ -86,6 +91,29 @@ def fit(
         val_mse = float(np.mean((model.predict_scaled(x_val) - t_val) ** 2))
         return TrainResult(model, val_mse, time.perf_counter() - start)
 
+    steps = int(model.hparams.get("rollout_steps") or 0)
+    if one_step or steps == 0:
+        best, val_mse = _fit_one_step(model, datamodule, trainer_cfg, output_dir, logger, callbacks)
+    else:
+        best, val_mse = None, _validation_mse(model, datamodule)
+    if steps > 0:
+        best = _fine_tune_free_run(
+            model, datamodule, steps, trainer_cfg, output_dir, logger, starting_checkpoint=best
+        )
+    seconds = time.perf_counter() - start
+    log.info("trained in %.1f s", seconds)
+    return TrainResult(model.eval(), val_mse, seconds, best)
+
+
+def _fit_one_step(
+    model: L.LightningModule,
+    datamodule: WindowDataModule,
+    trainer_cfg: Mapping[str, Any],
+    output_dir: Path,
+    logger: TensorBoardLogger | None,
+    callbacks: list[Any] | None,
+) -> tuple[Path | None, float]:
+    """The study's training on the one-step error; the best checkpoint's path and loss."""
     checkpoint = ModelCheckpoint(
         dirpath=output_dir / "checkpoints",
         filename="best-{epoch:03d}-{val_loss:.3e}",
@@ -106,12 +134,16 @@ def fit(
     trainer.fit(model, datamodule=datamodule)
     best, val_mse = _restore_best(model, checkpoint)
     log.info("best validation MSE %.4e (scaled); checkpoint %s", val_mse, best)
-    steps = int(model.hparams.get("rollout_steps") or 0)
-    if steps > 0:
-        best = _fine_tune_free_run(model, datamodule, steps, trainer_cfg, output_dir, logger)
-    seconds = time.perf_counter() - start
-    log.info("trained in %.1f s", seconds)
-    return TrainResult(model.eval(), val_mse, seconds, best)
+    return best, val_mse
+
+
+def _validation_mse(model: L.LightningModule, datamodule: WindowDataModule) -> float:
+    """One-step MSE (scaled) of ``model`` on the validation windows."""
+    datamodule.setup()
+    x, target = datamodule.scale_windows(datamodule.val_windows)
+    with torch.inference_mode():
+        predicted = model(torch.from_numpy(x).to(model.device)).cpu().numpy()
+    return float(np.mean((predicted - target) ** 2))
 
 
 def _restore_best(
@@ -133,12 +165,14 @@ def _fine_tune_free_run(
     trainer_cfg: Mapping[str, Any],
     output_dir: Path,
     logger: TensorBoardLogger | None,
+    starting_checkpoint: Path | None,
 ) -> Path | None:
     """Simulation-error fine-tuning: minimise the free-run MSE over ``steps``-sample segments.
 
-    Starts from the one-step fit, keeps the checkpoint with the best validation free-run loss
-    (``val_loss`` of this stage, logged beside the one-step curves). The one-step validation
-    MSE stays the run's reported (sweep) objective.
+    Starts from the current weights and keeps the checkpoint with the best validation
+    free-run loss (``val_loss`` of this stage, own TensorBoard version ``free_run``) — or the
+    starting weights when no epoch beat them on that loss. The one-step validation MSE stays
+    the run's reported (sweep) objective.
     """
     segments = SegmentDataModule(datamodule, steps)
     checkpoint = ModelCheckpoint(
@@ -151,6 +185,7 @@ def _fine_tune_free_run(
     settings = {**dict(trainer_cfg), "max_epochs": int(model.hparams.get("rollout_epochs", 10))}
     if settings.get("gradient_clip_val") is None:
         settings["gradient_clip_val"] = 1.0  # feedback through many steps: keep updates bounded
+    starting_weights = {k: v.detach().clone() for k, v in model.state_dict().items()}
     model.rollout_mode = True
     try:
         stage_logger = (
@@ -164,12 +199,25 @@ def _fine_tune_free_run(
             callbacks=[checkpoint],
             default_root_dir=str(output_dir),
         )
+        starting_loss = float(
+            trainer.validate(model, datamodule=segments, verbose=False)[0]["val_loss"]
+        )
         trainer.fit(model, datamodule=segments)
         best, val_free_run = _restore_best(model, checkpoint)
     finally:
         model.rollout_mode = False
+    if not val_free_run < starting_loss:
+        model.load_state_dict(starting_weights)
+        log.info(
+            "free-run fine-tuning did not beat the starting weights on validation (%.4e vs "
+            "%.4e, scaled): kept them",
+            val_free_run,
+            starting_loss,
+        )
+        return starting_checkpoint
     log.info(
-        "free-run fine-tuning: best validation free-run MSE %.4e (scaled) over %d steps",
+        "free-run fine-tuning: validation free-run MSE %.4e -> %.4e (scaled) over %d steps",
+        starting_loss,
         val_free_run,
         steps,
     )

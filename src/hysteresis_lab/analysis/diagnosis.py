@@ -103,12 +103,18 @@ def _standardised(columns: list[np.ndarray]) -> list[np.ndarray]:
 
 
 def _blocks(
-    prepared: Sequence[_Prepared], designs: Sequence[np.ndarray], folds: int, min_block: int = 20
+    prepared: Sequence[_Prepared],
+    designs: Sequence[np.ndarray],
+    folds: int,
+    min_blocks: int = 20,
+    min_rows: int = 20,
 ) -> list[_Block]:
-    """Every recording cut into up to ``folds`` contiguous blocks of ``min_block`` rows or more."""
+    """Every recording cut into contiguous blocks of ``min_rows`` rows or more: ``folds`` each,
+    more when there are few recordings (``min_blocks`` in all, for the signed-rank test)."""
+    per_recording = max(folds, -(-min_blocks // len(prepared)))
     blocks = []
     for position, (p, design) in enumerate(zip(prepared, designs, strict=True)):
-        n_blocks = max(1, min(folds, len(p.e) // min_block))
+        n_blocks = max(1, min(per_recording, len(p.e) // min_rows))
         edges = np.linspace(0, len(p.e), n_blocks + 1).astype(int)
         blocks += [
             _Block(position, p.e[i:j], design[i:j])

@@ -4,6 +4,8 @@ Each round trains the model with the effects declared so far, scores it on the t
 recordings in both modes, analyses the free-run residuals and ranks the effects the model
 does not declare yet (`hysteresis_lab.analysis.diagnosis`). The top significant one is added
 and the next round refits, until nothing significant remains or ``max_rounds`` is reached.
+With ``warm_start`` a refit starts from the previous round's network with the new effect's
+input weights at zero (nested models: it begins exactly where the last round ended).
 """
 
 from __future__ import annotations
@@ -22,6 +24,8 @@ from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.effects.augment import feature_context
 from hysteresis_lab.evaluation.plots import loops_figure, save_figure
 from hysteresis_lab.evaluation.report import write_json
+from hysteresis_lab.models.base import NarxModule
+from hysteresis_lab.models.registry import get_model_class
 from hysteresis_lab.pipeline import RunResult, train_and_evaluate
 
 log = logging.getLogger(__name__)
@@ -34,6 +38,7 @@ class LoopSettings:
     max_rounds: int = 3
     min_score: float = 0.05
     alpha: float = 0.01
+    warm_start: bool = True  # refit from the previous round's network (new inputs at zero)
 
 
 def run_loop(
@@ -47,6 +52,7 @@ def run_loop(
     use_tensorboard: bool = True,
 ) -> dict[str, Any]:
     """Run the loop; write ``loop_report.json``, ``loop_report.md`` and figures."""
+    model_cfg = _without_unsupported_fine_tuning(model_cfg)
     effects = list(model_cfg.get("effects") or [])
     context = feature_context(splits.train)
     rounds: list[dict[str, Any]] = []
@@ -62,6 +68,7 @@ def run_loop(
             seed=seed,
             splits=splits,
             use_tensorboard=use_tensorboard,
+            warm_start=_previous_network(results) if settings.warm_start else None,
         )
         results.append(result)
         n_skip = max(result.window.first_target, splits.n_init)
@@ -139,6 +146,23 @@ def run_loop(
     )
     log.info("\n%s", loop_markdown(report))
     return report
+
+
+def _without_unsupported_fine_tuning(model_cfg: Mapping[str, Any]) -> dict[str, Any]:
+    """The loop turns free-run fine-tuning on by default; models without it (the SVM) skip it."""
+    cfg = dict(model_cfg)
+    rollout = [k for k in cfg if k.startswith("rollout_")]
+    if rollout and not issubclass(get_model_class(str(cfg.get("name"))), NarxModule):
+        log.info("model '%s' has no free-run fine-tuning: %s ignored", cfg.get("name"), rollout)
+        cfg = {k: v for k, v in cfg.items() if k not in rollout}
+    return cfg
+
+
+def _previous_network(results: list[RunResult]) -> Any | None:
+    """The last round's fitted network to start the refit from (None: first round, or SVM)."""
+    if not results or not hasattr(results[-1].model, "warm_start_from"):
+        return None
+    return results[-1].model
 
 
 def _log_round_to_tensorboard(

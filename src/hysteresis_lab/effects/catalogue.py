@@ -35,15 +35,23 @@ class Hysteresis(Effect):
 
 
 class Creep(Effect):
-    """Creep: slow first-order filter bank of the input (time constants 0.01 s ... 100 s)."""
+    """Creep: slow first-order filter bank of the input (time constants 0.01 s ... 100 s).
+
+    Only time constants the training data can show are used: at least 20 samples and at most
+    half the longest training recording (a slower filter never moves during training, and
+    on a long test signal its output would lie far outside what the model was fitted on).
+    """
 
     name = "creep"
     description = "creep (slow first-order filter bank, 0.01-100 s)"
     time_constants_s = np.array([0.01, 0.1, 1.0, 10.0, 100.0])
 
     def features(self, u: np.ndarray, ctx: FeatureContext) -> np.ndarray:
-        taus = self.time_constants_s[self.time_constants_s >= 20.0 / ctx.fs]
-        return _per_input(u, lambda x, i: lowpass_bank(x, ctx.fs, taus))
+        return _per_input(u, lambda x, i: lowpass_bank(x, ctx.fs, self.usable(ctx)))
+
+    def usable(self, ctx: FeatureContext) -> np.ndarray:
+        taus = self.time_constants_s
+        return taus[(taus >= 20.0 / ctx.fs) & (taus <= max(0.5 * ctx.duration_s, 20.0 / ctx.fs))]
 
 
 class Resonance(Effect):

@@ -125,6 +125,53 @@ class NarxModule(L.LightningModule):
             predictions.append(prediction)
         return torch.stack(predictions, 1)
 
+    def warm_start_from(self, previous: NarxModule) -> None:
+        """Start from ``previous``, a fitted model of the same architecture whose inputs are
+        this model's first ``previous.nu`` inputs (the loop adds effect channels at the end).
+
+        Every weight is copied; the input weights of the new channels start at zero, so the
+        model begins exactly where ``previous`` ended (nested models) and training only has to
+        learn what the new channels add.
+        """
+        if (
+            type(previous) is not type(self)
+            or previous.window != self.window
+            or (previous.ny != self.ny or previous.nu > self.nu)
+        ):
+            raise ConfigError(
+                f"cannot warm-start a {type(self).__name__} (nu={self.nu}) from a "
+                f"{type(previous).__name__} (nu={previous.nu}) with another window or outputs."
+            )
+        positions = torch.as_tensor(self._old_regressor_positions(previous.nu))
+        old = dict(previous.named_parameters())
+        with torch.no_grad():
+            for name, new in self.named_parameters():
+                before = old.get(name)
+                if before is None:
+                    raise ConfigError(f"cannot warm-start: '{name}' is not in the fitted model.")
+                if before.shape == new.shape:
+                    new.copy_(before)
+                elif (
+                    before.dim() >= 2
+                    and before.shape[1] == len(positions)
+                    and (before.shape[0] == new.shape[0] and before.shape[2:] == new.shape[2:])
+                ):
+                    new.zero_()
+                    new[:, positions] = before
+                else:
+                    raise ConfigError(
+                        f"cannot warm-start: '{name}' has shape {tuple(before.shape)} in the "
+                        f"fitted model and {tuple(new.shape)} here."
+                    )
+
+    def _old_regressor_positions(self, old_nu: int) -> list[int]:
+        """Where each regressor column of a model with ``old_nu`` inputs sits in this one's."""
+        w, nu, ny = self.window, self.nu, self.ny
+        if self.layout == "sequence":
+            return list(range(old_nu)) + [nu + j for j in range(ny)]
+        u_part = [lag * nu + ch for lag in range(w.nb) for ch in range(old_nu)]
+        return u_part + [w.nb * nu + j for j in range(w.na * ny)]
+
     # ------------------------------------------------------------------ training
     def _step(self, batch: tuple[torch.Tensor, torch.Tensor], stage: str) -> torch.Tensor:
         """One-step loss on (regressors, target) windows, or in ``rollout_mode`` the free-run
