@@ -108,8 +108,6 @@ def test_loop_writes_its_report(tmp_path):
         assert {"effect", "score", "significant", "evidence"} <= set(entry["diagnosis"][0])
     if len(rounds) == 2:
         assert rounds[1]["effects"] == [rounds[0]["added"]]
-        # warm start: the refit skips the one-step stage and only fine-tunes on free-run error
-        assert not (tmp_path / "loop" / "round_1" / "checkpoints").exists()
         assert (tmp_path / "loop" / "round_1" / "checkpoints_free_run").is_dir()
     assert (tmp_path / "loop" / "loop_report.md").read_text().startswith("# Residual loop")
     assert (tmp_path / "loop" / "loops_before_after.png").is_file()

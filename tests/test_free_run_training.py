@@ -3,6 +3,7 @@ training stage, nested refits."""
 
 from __future__ import annotations
 
+import lightning as L
 import numpy as np
 import pytest
 import torch
@@ -99,3 +100,17 @@ def test_warm_start_adds_inputs_without_changing_the_model(name, splits, trained
 def test_warm_start_rejects_another_architecture(trained):
     with pytest.raises(ConfigError, match="cannot warm-start"):
         trained["lstm"][0].warm_start_from(trained["ffnn"][0])
+
+
+def test_fine_tuning_that_does_not_help_keeps_the_starting_weights(splits, tmp_path):
+    """A diverging fine-tuning (absurd learning rate) must not replace a good one-step fit."""
+    dm = datamodule_for("ffnn", splits)
+    L.seed_everything(0)
+    plain = fit(build_model(CONFIGS["ffnn"], dm), dm, TRAINER, tmp_path / "plain").model
+    cfg = {**CONFIGS["ffnn"], "rollout_steps": 50, "rollout_epochs": 2, "rollout_lr": 1e3}
+    L.seed_everything(0)
+    guarded = fit(build_model(cfg, dm), dm, TRAINER, tmp_path / "guarded")
+    assert guarded.checkpoint is not None and guarded.checkpoint.parent.name == "checkpoints"
+    for a, b in zip(free_run(plain, splits.test, dm.window),
+                    free_run(guarded.model, splits.test, dm.window), strict=True):
+        np.testing.assert_allclose(a, b, atol=1e-6)

@@ -92,14 +92,17 @@ def fit(
         return TrainResult(model, val_mse, time.perf_counter() - start)
 
     steps = int(model.hparams.get("rollout_steps") or 0)
+    stages = (model, datamodule, trainer_cfg, output_dir, logger)
+    if not one_step and steps > 0:
+        val_mse = _validation_mse(model, datamodule)
+        best, improved = _fine_tune_free_run(*stages, steps, starting_checkpoint=None)
+        if not improved:  # the new inputs were not learned: refit from the warm start
+            log.info("refitting the warm-started network on the one-step error first")
+            one_step = True
     if one_step or steps == 0:
-        best, val_mse = _fit_one_step(model, datamodule, trainer_cfg, output_dir, logger, callbacks)
-    else:
-        best, val_mse = None, _validation_mse(model, datamodule)
-    if steps > 0:
-        best = _fine_tune_free_run(
-            model, datamodule, steps, trainer_cfg, output_dir, logger, starting_checkpoint=best
-        )
+        best, val_mse = _fit_one_step(*stages, callbacks)
+        if steps > 0:
+            best, _ = _fine_tune_free_run(*stages, steps, starting_checkpoint=best)
     seconds = time.perf_counter() - start
     log.info("trained in %.1f s", seconds)
     return TrainResult(model.eval(), val_mse, seconds, best)
@@ -161,18 +164,19 @@ def _restore_best(
 def _fine_tune_free_run(
     model: L.LightningModule,
     datamodule: WindowDataModule,
-    steps: int,
     trainer_cfg: Mapping[str, Any],
     output_dir: Path,
     logger: TensorBoardLogger | None,
+    steps: int,
     starting_checkpoint: Path | None,
-) -> Path | None:
+) -> tuple[Path | None, bool]:
     """Simulation-error fine-tuning: minimise the free-run MSE over ``steps``-sample segments.
 
     Starts from the current weights and keeps the checkpoint with the best validation
     free-run loss (``val_loss`` of this stage, own TensorBoard version ``free_run``) — or the
-    starting weights when no epoch beat them on that loss. The one-step validation MSE stays
-    the run's reported (sweep) objective.
+    starting weights when no epoch beat them on that loss (then it returns
+    ``starting_checkpoint`` and False). The one-step validation MSE stays the run's reported
+    (sweep) objective.
     """
     segments = SegmentDataModule(datamodule, steps)
     checkpoint = ModelCheckpoint(
@@ -214,14 +218,14 @@ def _fine_tune_free_run(
             val_free_run,
             starting_loss,
         )
-        return starting_checkpoint
+        return starting_checkpoint, False
     log.info(
         "free-run fine-tuning: validation free-run MSE %.4e -> %.4e (scaled) over %d steps",
         starting_loss,
         val_free_run,
         steps,
     )
-    return best
+    return best, True
 
 
 def _model_name(model_cfg: Mapping[str, Any]) -> str:
