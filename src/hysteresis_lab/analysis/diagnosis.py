@@ -140,6 +140,8 @@ def _held_out_sse(blocks: Sequence[_Block], ridge: float = 1e-4) -> np.ndarray:
 
 @dataclass
 class _Gains:
+    """One candidate's evidence: its score and the signed-rank p-value of its block gains."""
+
     score: float  # mean over recordings of the held-out gain
     p_value: float
 
