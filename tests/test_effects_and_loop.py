@@ -29,6 +29,13 @@ def sines() -> list[Recording]:
                       name=f"s{f:g}") for f in (0.5, 2.0, 8.0)]
 
 
+def creep_shaped_residuals(recs: list[Recording]) -> list[np.ndarray]:
+    """A slow first-order (0.5 s) response to each input plus a little white noise."""
+    rng = np.random.default_rng(0)
+    return [0.4 * lowpass_bank(r.u[:, 0], FS, np.array([0.5]))[:, :1] / 20
+            + 0.01 * rng.standard_normal((r.n_samples, 1)) for r in recs]
+
+
 def test_catalogue_registers_through_entry_points():
     assert set(available_effects()) >= CATALOGUE
     with pytest.raises(ConfigError, match="unknown effect 'creap'"):
@@ -55,9 +62,7 @@ def test_augment_appends_causal_operator_channels():
 def test_diagnosis_names_the_effect_behind_the_residual():
     recs = sines()
     ctx = FeatureContext(FS, np.array([100.0]), 6.0)
-    rng = np.random.default_rng(0)
-    residuals = [0.4 * lowpass_bank(r.u[:, 0], FS, np.array([0.5]))[:, :1] / 20
-                 + 0.01 * rng.standard_normal((r.n_samples, 1)) for r in recs]
+    residuals = creep_shaped_residuals(recs)
     ranked = diagnose(recs, residuals, ctx, declared=["hysteresis"])
     assert ranked[0].effect == "creep" and ranked[0].significant
     assert "hysteresis" not in [r.effect for r in ranked]
@@ -68,9 +73,7 @@ def test_declared_effect_explains_its_own_residual():
     creep-shaped residual leaves no significant missing effect."""
     recs = sines()
     ctx = FeatureContext(FS, np.array([100.0]), 6.0)
-    rng = np.random.default_rng(0)
-    residuals = [0.4 * lowpass_bank(r.u[:, 0], FS, np.array([0.5]))[:, :1] / 20
-                 + 0.01 * rng.standard_normal((r.n_samples, 1)) for r in recs]
+    residuals = creep_shaped_residuals(recs)
     ranked = diagnose(recs, residuals, ctx, declared=["creep"])
     assert "creep" not in [r.effect for r in ranked]
     assert not any(r.significant for r in ranked)

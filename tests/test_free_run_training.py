@@ -34,8 +34,7 @@ def test_differentiable_free_run_equals_the_simulator(name, trained):
 
 def segment_loss(model, segments: SegmentDataModule) -> float:
     """Mean free-run MSE (scaled) over the validation segments."""
-    segments.setup()
-    u, y = segments._data["val"].tensors
+    u, y = segments.val_dataloader().dataset.tensors
     start = model.window.first_target
     with torch.no_grad():
         return float(torch.mean((model.simulate_scaled(u, y) - y[:, start:]) ** 2))
@@ -61,8 +60,7 @@ def test_fine_tuning_lowers_the_free_run_error(seed, splits, tmp_path):
 def test_segments_are_scaled_consecutive_samples(splits):
     dm = datamodule_for("ffnn", splits)
     segments = SegmentDataModule(dm, steps=40)
-    segments.setup()
-    u, y = segments._data["train"].tensors
+    u, y = segments.train_dataloader().dataset.tensors
     assert u.shape[1] == y.shape[1] == dm.window.first_target + 40
     rec = splits.train[0]
     s = dm.scaler

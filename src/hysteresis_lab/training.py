@@ -5,7 +5,7 @@ from __future__ import annotations
 import inspect
 import logging
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -87,14 +87,13 @@ def fit(
     if not isinstance(model, L.LightningModule):
         x, target = datamodule.scale_windows(datamodule.train_windows)
         model.fit(x, target)
-        x_val, t_val = datamodule.scale_windows(datamodule.val_windows)
-        val_mse = float(np.mean((model.predict_scaled(x_val) - t_val) ** 2))
+        val_mse = _validation_mse(model.predict_scaled, datamodule)
         return TrainResult(model, val_mse, time.perf_counter() - start)
 
     steps = int(model.hparams.get("rollout_steps") or 0)
     stages = (model, datamodule, trainer_cfg, output_dir, logger)
     if not one_step and steps > 0:
-        val_mse = _validation_mse(model, datamodule)
+        val_mse = _validation_mse(_scaled_predictor(model), datamodule)
         best, improved = _fine_tune_free_run(*stages, steps, starting_checkpoint=None)
         if not improved:  # the new inputs were not learned: refit from the warm start
             log.info("refitting the warm-started network on the one-step error first")
@@ -117,14 +116,7 @@ def _fit_one_step(
     callbacks: list[Any] | None,
 ) -> tuple[Path | None, float]:
     """The study's training on the one-step error; the best checkpoint's path and loss."""
-    checkpoint = ModelCheckpoint(
-        dirpath=output_dir / "checkpoints",
-        filename="best-{epoch:03d}-{val_loss:.3e}",
-        monitor="val_loss",
-        mode="min",
-        save_top_k=1,
-        save_last=False,
-    )
+    checkpoint = _best_checkpoint(output_dir / "checkpoints")
     all_callbacks: list[Any] = [checkpoint, *(callbacks or [])]
     if logger is not None:
         all_callbacks.append(LearningRateMonitor(logging_interval="epoch"))
@@ -140,13 +132,35 @@ def _fit_one_step(
     return best, val_mse
 
 
-def _validation_mse(model: L.LightningModule, datamodule: WindowDataModule) -> float:
-    """One-step MSE (scaled) of ``model`` on the validation windows."""
+def _best_checkpoint(directory: Path) -> ModelCheckpoint:
+    """Keeps the one checkpoint with the lowest ``val_loss``."""
+    return ModelCheckpoint(
+        dirpath=directory,
+        filename="best-{epoch:03d}-{val_loss:.3e}",
+        monitor="val_loss",
+        mode="min",
+        save_top_k=1,
+        save_last=False,
+    )
+
+
+def _scaled_predictor(model: L.LightningModule) -> Callable[[np.ndarray], np.ndarray]:
+    """Scaled regressors -> scaled next outputs, as NumPy, for a network."""
+
+    def predict(x: np.ndarray) -> np.ndarray:
+        with torch.inference_mode():
+            return model(torch.from_numpy(x).to(model.device)).cpu().numpy()
+
+    return predict
+
+
+def _validation_mse(
+    predict: Callable[[np.ndarray], np.ndarray], datamodule: WindowDataModule
+) -> float:
+    """One-step MSE (scaled) of ``predict`` on the validation windows."""
     datamodule.setup()
     x, target = datamodule.scale_windows(datamodule.val_windows)
-    with torch.inference_mode():
-        predicted = model(torch.from_numpy(x).to(model.device)).cpu().numpy()
-    return float(np.mean((predicted - target) ** 2))
+    return float(np.mean((predict(x) - target) ** 2))
 
 
 def _restore_best(
@@ -179,13 +193,7 @@ def _fine_tune_free_run(
     (sweep) objective.
     """
     segments = SegmentDataModule(datamodule, steps)
-    checkpoint = ModelCheckpoint(
-        dirpath=output_dir / "checkpoints_free_run",
-        filename="best-{epoch:03d}-{val_loss:.3e}",
-        monitor="val_loss",
-        mode="min",
-        save_top_k=1,
-    )
+    checkpoint = _best_checkpoint(output_dir / "checkpoints_free_run")
     settings = {**dict(trainer_cfg), "max_epochs": int(model.hparams.get("rollout_epochs", 10))}
     if settings.get("gradient_clip_val") is None:
         settings["gradient_clip_val"] = 1.0  # feedback through many steps: keep updates bounded

@@ -32,6 +32,13 @@ from hysteresis_lab.errors import ConfigError
 log = logging.getLogger(__name__)
 
 
+def random_holdout(n: int, fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Sorted indices of a random ``fraction`` of ``n`` items (at least one) and of the rest."""
+    order = np.random.default_rng(seed).permutation(n)
+    n_val = max(1, int(round(fraction * n)))
+    return np.sort(order[:n_val]), np.sort(order[n_val:])
+
+
 class WindowDataModule(L.LightningDataModule):
     """Regression windows of any recordings, for estimation, validation and test.
 
@@ -103,9 +110,8 @@ class WindowDataModule(L.LightningDataModule):
         if self.splits.val:
             val = make_windows(self.splits.val, self.window)
         else:
-            order = np.random.default_rng(self.seed).permutation(len(train))
-            n_val = max(1, int(round(self.val_fraction * len(train))))
-            val, train = train.take(np.sort(order[:n_val])), train.take(np.sort(order[n_val:]))
+            held_out, kept = random_holdout(len(train), self.val_fraction, self.seed)
+            val, train = train.take(held_out), train.take(kept)
         self.train_windows, self.val_windows = train, val
         self._tensors = {"train": self._to_tensors(train), "val": self._to_tensors(val)}
         log.info(

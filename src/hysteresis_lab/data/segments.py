@@ -14,7 +14,7 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, TensorDataset
 
-from hysteresis_lab.data.datamodules import WindowDataModule
+from hysteresis_lab.data.datamodules import WindowDataModule, random_holdout
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.errors import ConfigError
 
@@ -46,15 +46,13 @@ class SegmentDataModule(L.LightningDataModule):
         if splits.val:
             val_u, val_y = self._segments(splits.val)
         else:
-            order = np.random.default_rng(self.windows.seed).permutation(len(train_u))
-            n_val = max(1, int(round(self.windows.val_fraction * len(train_u))))
-            if n_val >= len(train_u):
+            val, keep = random_holdout(len(train_u), self.windows.val_fraction, self.windows.seed)
+            if len(keep) == 0:
                 raise ConfigError(
                     f"only {len(train_u)} free-run segment(s) of {self.length} samples fit in the "
                     "training data; none would be left for training after the validation share. "
                     "Fix: a smaller model.rollout_steps."
                 )
-            val, keep = np.sort(order[:n_val]), np.sort(order[n_val:])
             val_u, val_y, train_u, train_y = (
                 train_u[val],
                 train_y[val],
