@@ -280,3 +280,12 @@ def test_training_sines_join_the_training_set_never_the_test_frequencies():
         np.testing.assert_array_equal(a.y, b.y)  # same test data
     with pytest.raises(ConfigError, match="also test frequencies"):
         make_default_dataset(max_test_samples=400, train_sines=[10.0])
+
+
+def test_training_sines_can_stay_below_the_test_amplitude():
+    data = make_default_dataset(max_test_samples=400, train_sines=[3.0],
+                                train_sine_amplitude=80.0)
+    assert np.max(np.abs(data.train[1].u)) == pytest.approx(80.0, rel=1e-3)
+    assert np.max(np.abs(data.test[3].u)) == pytest.approx(100.0, rel=1e-3)
+    with pytest.raises(ConfigError, match="train_sine_amplitude"):
+        make_default_dataset(max_test_samples=400, train_sines=[3.0], train_sine_amplitude=150.0)

@@ -70,12 +70,14 @@ def train_and_evaluate(
     evaluate: bool = True,
     callbacks: list[Any] | None = None,
     warm_start: Any | None = None,
+    freeze_network: bool = False,
 ) -> RunResult:
     """Fit the model ``model_cfg`` on ``data_cfg``'s data, score it on every test recording.
 
     ``warm_start``: a fitted network of the same architecture whose inputs are the first of
     this model's (see `NarxModule.warm_start_from`); with free-run fine-tuning configured,
-    only that stage runs.
+    only that stage runs. ``freeze_network``: after the warm start train only the linear
+    effect path (`NarxModule.freeze_network`; models without one train as usual).
     """
     model_cfg, data_cfg, trainer_cfg = map(plain_dict, (model_cfg, data_cfg, trainer_cfg))
     output_dir.mkdir(parents=True, exist_ok=True)
@@ -83,10 +85,17 @@ def train_and_evaluate(
     effects = list(model_cfg.get("effects") or [])
     data, context = augment_splits(splits or build_splits(data_cfg), effects)
     datamodule = build_datamodule(data_cfg, model_layout(model_cfg), seed=seed, splits=data)
-    extra = {"feature_context": context_to_dict(context)} if effects else {}
+    extra = (
+        {"feature_context": context_to_dict(context),
+         "n_base_inputs": data.metadata["n_base_inputs"]}
+        if effects
+        else {}
+    )
     model = build_model(model_cfg, datamodule, **extra)
     if warm_start is not None:
         model.warm_start_from(warm_start)
+        if freeze_network and getattr(model, "effect_weight", None) is not None:
+            model.freeze_network()
     logger = (
         TensorBoardLogger(
             save_dir=str(output_dir), name="tensorboard", version="", default_hp_metric=False

@@ -254,4 +254,5 @@ def _accepted_parameters(cls: type) -> set[str]:
         names |= {p.name for p in params if p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)}
         if not any(p.kind == p.VAR_KEYWORD for p in params):
             break
-    return names - {"self", "nu", "ny", "na", "nb", "nk", "scaler", "feature_context"}
+    return names - {"self", "nu", "ny", "na", "nb", "nk", "scaler", "feature_context",
+                     "n_base_inputs"}

@@ -3,7 +3,8 @@
 An omitted-variable test per effect. The residual of every test recording is regressed on the
 effect's candidate signals *beyond* what the model already has: the input itself and the
 operators of every effect it declares (the baseline design). One set of coefficients serves
-all recordings, so an effect counts only when one law explains the residual everywhere. Each
+all recordings, so an effect counts only when one law explains the residual everywhere; an
+effect that does not depend on the input (drift) gets coefficients per recording instead. Each
 recording is cut into contiguous blocks; every block is predicted by the fit on all the other
 blocks (of every recording), and the gain in held-out explained variance over the baseline is
 the evidence. Every recording weighs the same, however long; the score is the mean over
@@ -95,6 +96,20 @@ def _prepare(
     return _Prepared(e * weight, _centre(np.column_stack(base)[keep]) * weight, keep, weight)
 
 
+def _per_recording(signals: list[np.ndarray]) -> list[np.ndarray]:
+    """Each recording's signals in columns of their own (zeros elsewhere): an effect that does
+    not depend on the input (drift) takes a different course in every recording, so it gets
+    its own coefficients per recording instead of one law for all."""
+    width = sum(s.shape[1] for s in signals)
+    out, column = [], 0
+    for s in signals:
+        block = np.zeros((len(s), width))
+        block[:, column : column + s.shape[1]] = s
+        out.append(block)
+        column += s.shape[1]
+    return out
+
+
 def _standardised(columns: list[np.ndarray]) -> list[np.ndarray]:
     """Columns divided by their pooled std (conditioning of the ridge fit)."""
     scale = np.std(np.concatenate(columns), axis=0)
@@ -184,12 +199,13 @@ def diagnose(
     results = []
     for name in names:
         effect = get_effect(name)
-        signals = _standardised(
-            [
-                _centre(effect.evidence(rec.u, context)[p.keep]) * p.weight
-                for rec, p in zip(recordings, prepared, strict=True)
-            ]
-        )
+        evidence_signals = [
+            _centre(effect.evidence(rec.u, context)[p.keep]) * p.weight
+            for rec, p in zip(recordings, prepared, strict=True)
+        ]
+        if not effect.predictable:
+            evidence_signals = _per_recording(evidence_signals)
+        signals = _standardised(evidence_signals)
         full = [np.column_stack([b, s]) for b, s in zip(base, signals, strict=True)]
         gains = _gains(base_blocks, _blocks(prepared, full, folds))
         significant = gains.score >= min_score and gains.p_value <= alpha

@@ -5,7 +5,9 @@ recordings in both modes, analyses the free-run residuals and ranks the effects 
 does not declare yet (`hysteresis_lab.analysis.diagnosis`). The top significant one is added
 and the next round refits, until nothing significant remains or ``max_rounds`` is reached.
 With ``warm_start`` a refit starts from the previous round's network with the new effect's
-input weights at zero (nested models: it begins exactly where the last round ended).
+input weights at zero (nested models: it begins exactly where the last round ended); with
+the linear effect path (``model.effect_path=linear``) and ``freeze_network`` the refit
+learns only that path, so the fitted network stays exactly as it was.
 """
 
 from __future__ import annotations
@@ -39,6 +41,8 @@ class LoopSettings:
     min_score: float = 0.05
     alpha: float = 0.01
     warm_start: bool = True  # refit from the previous round's network (new inputs at zero)
+    #: with model.effect_path=linear: a refit trains only the effect path, the network stays
+    freeze_network: bool = True
 
 
 def run_loop(
@@ -69,6 +73,7 @@ def run_loop(
             splits=splits,
             use_tensorboard=use_tensorboard,
             warm_start=_previous_network(results) if settings.warm_start else None,
+            freeze_network=settings.freeze_network,
         )
         results.append(result)
         n_skip = max(result.window.first_target, splits.n_init)
@@ -149,12 +154,13 @@ def run_loop(
 
 
 def _without_unsupported_fine_tuning(model_cfg: Mapping[str, Any]) -> dict[str, Any]:
-    """The loop turns free-run fine-tuning on by default; models without it (the SVM) skip it."""
+    """The loop turns free-run fine-tuning and the linear effect path on by default; models
+    without them (the SVM) skip them."""
     cfg = dict(model_cfg)
-    rollout = [k for k in cfg if k.startswith("rollout_")]
-    if rollout and not issubclass(get_model_class(str(cfg.get("name"))), NarxModule):
-        log.info("model '%s' has no free-run fine-tuning: %s ignored", cfg.get("name"), rollout)
-        cfg = {k: v for k, v in cfg.items() if k not in rollout}
+    network_only = [k for k in cfg if k.startswith("rollout_") or k == "effect_path"]
+    if network_only and not issubclass(get_model_class(str(cfg.get("name"))), NarxModule):
+        log.info("model '%s' is no network: %s ignored", cfg.get("name"), network_only)
+        cfg = {k: v for k, v in cfg.items() if k not in network_only}
     return cfg
 
 

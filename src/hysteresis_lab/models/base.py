@@ -5,6 +5,13 @@ regressors to the scaled next output. The base owns what every architecture shar
 normalisation (buffers saved with the weights, so a checkpoint maps volts to micrometres on
 its own), the MSE loss, Adam and the learning-rate schedule, and the differentiable free run
 used by simulation-error fine-tuning (``rollout_steps > 0``, see `hysteresis_lab.training`).
+
+Declared effects (`hysteresis_lab.effects`) arrive as extra input channels after the
+``n_base_inputs`` measured ones. ``effect_path="network"`` feeds them to the network like any
+input; ``effect_path="linear"`` keeps them out of the network and adds a linear map of their
+lags to its output (``y = net(u, y lags) + W · effect lags``): physically the classical
+superposition (a Prandtl–Ishlinskii sum of play operators, a creep filter bank, mode filters),
+and a model that extrapolates linearly in the new operators instead of through ReLUs.
 """
 
 from __future__ import annotations
@@ -13,7 +20,9 @@ from collections.abc import Sequence
 from typing import Any, ClassVar
 
 import lightning as L
+import numpy as np
 import torch
+from numpy.lib.stride_tricks import sliding_window_view
 from torch import nn
 
 from hysteresis_lab.data.windows import Layout, WindowSpec, assemble
@@ -21,6 +30,7 @@ from hysteresis_lab.effects.registry import get_effect
 from hysteresis_lab.errors import ConfigError
 
 LR_SCHEDULES = ("cosine", "plateau", "none")
+EFFECT_PATHS = ("network", "linear")
 
 
 class NarxModule(L.LightningModule):
@@ -45,6 +55,8 @@ class NarxModule(L.LightningModule):
         rollout_steps: int = 0,
         rollout_epochs: int = 10,
         rollout_lr: float | None = None,
+        effect_path: str = "network",
+        n_base_inputs: int | None = None,
     ) -> None:
         super().__init__()
         if nu < 1 or ny < 1:
@@ -69,6 +81,13 @@ class NarxModule(L.LightningModule):
                 "a model with effects needs the feature_context of its training data. Fix: build "
                 "it through hysteresis_lab.pipeline (hysteresis-lab-train), which supplies it."
             )
+        if effect_path not in EFFECT_PATHS:
+            raise ConfigError(
+                f"unknown effect_path '{effect_path}'. Fix: model.effect_path=one of "
+                f"{list(EFFECT_PATHS)}."
+            )
+        if n_base_inputs is not None and not 1 <= n_base_inputs <= nu:
+            raise ConfigError(f"n_base_inputs={n_base_inputs} must lie in 1..nu={nu}.")
         self.window = WindowSpec(na=na, nb=nb, nk=nk)
         self.save_hyperparameters()
         self.hparams["model_name"] = type(self).registry_name or type(self).__name__
@@ -78,10 +97,22 @@ class NarxModule(L.LightningModule):
             values = torch.as_tensor(scaler.get(key, [default] * size), dtype=torch.float32)
             self.register_buffer(key, values.reshape(size))
         self.nu, self.ny = nu, ny
+        self.n_base_inputs = nu if n_base_inputs is None else n_base_inputs
         self.net: nn.Module = nn.Identity()
+        #: weights of the linear effect path, (ny, regressor) flat or (ny, features, L) sequence
+        self.effect_weight: nn.Parameter | None = None
+        if effect_path == "linear" and self.n_base_inputs < nu:
+            effect_columns = self._effect_columns()
+            self.register_buffer("effect_mask", effect_columns.float(), persistent=False)
+            self.register_buffer("net_mask", (~effect_columns).float(), persistent=False)
+            shape = (ny, len(effect_columns)) if self.layout == "flat" else (
+                ny, len(effect_columns), self.window.seq_len)
+            self.effect_weight = nn.Parameter(torch.zeros(shape))
         self.loss_fn = nn.MSELoss()
         #: set by `hysteresis_lab.training` while fine-tuning on free-run segments
         self.rollout_mode = False
+        #: set by `freeze_network`: only the linear effect path trains
+        self.network_frozen = False
 
     # ------------------------------------------------------------------ model
     @property
@@ -91,7 +122,52 @@ class NarxModule(L.LightningModule):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """Scaled regressors (layout of the class) -> scaled next output (B, ny)."""
-        return self.net(x)
+        if self.effect_weight is None:
+            return self.net(x)
+        return self.net(x * self.net_mask) + self.effect_term(x)
+
+    def _effect_columns(self) -> torch.Tensor:
+        """True for the regressor columns (flat) or features (sequence) of effect channels."""
+        channel = torch.arange(self.nu) >= self.n_base_inputs
+        outputs = torch.zeros(self.ny, dtype=torch.bool)
+        if self.layout == "sequence":
+            return torch.cat([channel, outputs])
+        return torch.cat([channel.repeat(self.window.nb), outputs.repeat(self.window.na)])
+
+    def effect_term(self, x: torch.Tensor) -> torch.Tensor:
+        """The linear effect path's output for scaled regressors ``x`` (B, ny)."""
+        assert self.effect_weight is not None
+        if self.layout == "flat":
+            return (x * self.effect_mask) @ self.effect_weight.T
+        return torch.einsum("blf,yfl->by", x * self.effect_mask, self.effect_weight)
+
+    def free_run_split(self, u_scaled: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """For free-run simulation: the inputs the network sees (effect channels zeroed) and
+        the linear effect path's output for every target sample (B, N, ny), or None.
+
+        The effect path depends on the inputs alone, so it is computed once for all samples
+        and the network's free-run kernels stay unchanged.
+        """
+        if self.effect_weight is None:
+            return u_scaled, None
+        w = self.window
+        batch, length, nu = u_scaled.shape
+        term = np.zeros((batch, length, self.ny))
+        padded = np.concatenate([np.zeros((batch, w.nk + w.nb, nu)), u_scaled], axis=1)
+        lags = sliding_window_view(padded, w.nb, axis=1)  # [b, s, ch, j] = padded[b, s + j, ch]
+        y_zero = np.zeros((1, w.na, self.ny), dtype=np.float32)
+        with torch.no_grad():
+            for start in range(0, length, 8192):
+                ks = np.arange(start, min(start + 8192, length))
+                # u lags of target k: u[k-nk-nb+1 .. k-nk] = padded[k+1 .. k+nb], oldest first
+                u_past = lags[:, ks + 1].transpose(0, 1, 3, 2).reshape(-1, w.nb, nu)
+                x = assemble(u_past.astype(np.float32),
+                             np.broadcast_to(y_zero, (len(u_past), w.na, self.ny)), self.layout)
+                out = self.effect_term(torch.as_tensor(x, device=self.effect_weight.device))
+                term[:, ks] = out.double().cpu().numpy().reshape(batch, len(ks), self.ny)
+        network_inputs = u_scaled.copy()
+        network_inputs[..., self.n_base_inputs :] = 0.0
+        return network_inputs, term
 
     def scale_inputs(self, u_past: torch.Tensor, y_past: torch.Tensor) -> torch.Tensor:
         """Physical lags (B, nb, nu), (B, na, ny) -> scaled regressors in this model's layout."""
@@ -147,6 +223,8 @@ class NarxModule(L.LightningModule):
         with torch.no_grad():
             for name, new in self.named_parameters():
                 before = old.get(name)
+                if before is None and name == "effect_weight":
+                    continue  # the linear effect path is new: it starts at zero
                 if before is None:
                     raise ConfigError(f"cannot warm-start: '{name}' is not in the fitted model.")
                 if before.shape == new.shape:
@@ -163,6 +241,18 @@ class NarxModule(L.LightningModule):
                         f"cannot warm-start: '{name}' has shape {tuple(before.shape)} in the "
                         f"fitted model and {tuple(new.shape)} here."
                     )
+
+    def freeze_network(self) -> None:
+        """Train only the linear effect path from now on: a refit that adds an effect keeps the
+        fitted network exactly and learns what the new operators add (nested models)."""
+        if self.effect_weight is None:
+            raise ConfigError(
+                "freeze_network needs a linear effect path (model.effect_path=linear and at "
+                "least one declared effect)."
+            )
+        for name, parameter in self.named_parameters():
+            parameter.requires_grad_(name == "effect_weight")
+        self.network_frozen = True
 
     def _old_regressor_positions(self, old_nu: int) -> list[int]:
         """Where each regressor column of a model with ``old_nu`` inputs sits in this one's."""
@@ -201,11 +291,12 @@ class NarxModule(L.LightningModule):
 
     def configure_optimizers(self) -> Any:
         lr = self.hparams.lr
-        if self.rollout_mode:  # fine-tuning starts from the one-step fit: smaller steps
+        if self.rollout_mode and not self.network_frozen:
+            # fine-tuning starts from the one-step fit: smaller steps (a frozen network's
+            # effect path starts at zero and gets the full rate)
             lr = self.hparams.get("rollout_lr") or 0.1 * lr
-        optimizer = torch.optim.Adam(
-            self.parameters(), lr=lr, weight_decay=self.hparams.weight_decay
-        )
+        trainable = [p for p in self.parameters() if p.requires_grad]
+        optimizer = torch.optim.Adam(trainable, lr=lr, weight_decay=self.hparams.weight_decay)
         schedule = self.hparams.lr_schedule
         if schedule == "cosine":
             epochs = max(1, int(self.trainer.max_epochs or 1))

@@ -37,17 +37,24 @@ def make_default_dataset(
     amplitude: float = 100.0,
     max_test_samples: int | None = None,
     train_sines: Sequence[float] = (),
+    train_sine_amplitude: float | None = None,
 ) -> DatasetSplits:
     """Multisine (500 lines, 0-500 Hz, ±amplitude, ``n_train`` samples) and sine test sets.
 
     Each sine lasts two periods, except those below 1 Hz (one period: the 0.1 Hz one is 10 s =
     200,000 samples); ``max_test_samples`` truncates the test sines (for quick runs). Every
-    recording starts at rest. ``train_sines`` adds full-amplitude sines at other frequencies to
-    the training set (the study trains on the multisine alone, whose many small lines never
-    drive the full-amplitude, high-rate loops of the test sines).
+    recording starts at rest. ``train_sines`` adds sines at other frequencies to the training
+    set (the study trains on the multisine alone, whose many small lines never drive the
+    full-amplitude, high-rate loops of the test sines), of ``train_sine_amplitude`` (default:
+    the test amplitude; less keeps identification inside the amplifier's linear range).
     """
     if isinstance(effects, DictConfig):
         effects = OmegaConf.to_container(effects, resolve=True)  # type: ignore[assignment]
+    if train_sine_amplitude is not None and not 0 < train_sine_amplitude <= amplitude:
+        raise ConfigError(
+            f"train_sine_amplitude={train_sine_amplitude} V must lie in (0, {amplitude:g}] V. "
+            "Fix: data.splits.train_sine_amplitude=null (the test amplitude) or a smaller value."
+        )
     overlap = sorted(set(map(float, train_sines)) & set(map(float, test_frequencies)))
     if overlap:
         raise ConfigError(
@@ -61,7 +68,7 @@ def make_default_dataset(
     train = [simulate_recording(u_train, fs, config, seed=int(seeds[1]), name="multisine")]
     for frequency, rec_seed in zip(train_sines, seeds[2 + n_tests :], strict=True):
         name = f"train_{sine_name(float(frequency))}"
-        u = _sine_signal(float(frequency), fs, amplitude)
+        u = _sine_signal(float(frequency), fs, train_sine_amplitude or amplitude)
         train.append(simulate_recording(u, fs, config, seed=int(rec_seed), name=name))
     tests = []
     for frequency, rec_seed in zip(test_frequencies, seeds[2 : 2 + n_tests], strict=True):
