@@ -214,8 +214,12 @@ def _loop_kernel(
     kernel: Any, y_meas: np.ndarray, reset: np.ndarray, active: np.ndarray, window: WindowSpec
 ) -> np.ndarray:
     """Run ``kernel.step`` over all samples; ``y`` holds the lag history (re-measured at
-    restarts), ``out`` the predictions."""
+    restarts), ``out`` the predictions. A kernel with ``run_all`` runs a restart-free
+    simulation in one call (see `hysteresis_lab.models.fast.FreeRunKernel`)."""
     ft, na = window.first_target, window.na
+    run_all = getattr(kernel, "run_all", None)
+    if run_all is not None and not reset.any():
+        return run_all(y_meas.copy(), active, ft)
     y = y_meas.copy()
     out = y_meas.copy()
     restart_steps = set(np.flatnonzero(reset.any(axis=1)).tolist())

@@ -6,7 +6,8 @@ A model may offer ``free_run_kernel(u_scaled, window)`` returning a `FreeRunKern
 simulator (`hysteresis_lab.evaluation.predict`) calls ``kernel.step(k, n, y)`` for
 ``k = first_target, first_target + 1, ...`` where ``y`` (B, N, ny) holds the *scaled* output
 history (measured initial conditions, then the model's own predictions) and rows ``:n`` are the
-recordings still running (the simulator sorts them longest first).
+recordings still running (the simulator sorts them longest first). A kernel may instead run
+every step at once (``run_all``, see `FreeRunKernel`), e.g. in compiled code.
 
 `FlatKernel` serves flat-regressor models whose first operation is linear in the regressor
 (FFNN first layer, Nyström/SVR kernel dot products, linear SVR): the input part of that linear
@@ -25,7 +26,13 @@ from hysteresis_lab.data.windows import WindowSpec
 
 
 class FreeRunKernel:
-    """Interface of a fast free-run step (see the module docstring)."""
+    """Interface of a fast free-run step (see the module docstring).
+
+    A kernel may also offer ``run_all(y, active, first_target) -> y``: the whole simulation
+    without restarts in one call (``y`` as for `step`, filled in place from
+    ``first_target`` on for the rows ``:active[k]``); the simulator then uses it instead of
+    the loop over `step`.
+    """
 
     #: True when the kernel carries state between consecutive steps (no restarts allowed).
     stateful: bool = False

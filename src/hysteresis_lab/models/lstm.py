@@ -12,6 +12,7 @@ from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.base import NarxModule, mlp
 from hysteresis_lab.models.fast import FreeRunKernel, dense_layers, run_dense, sequence_masks
+from hysteresis_lab.models.lstm_kernel import lstm_free_run
 
 
 class _LSTMHead(nn.Module):
@@ -87,6 +88,7 @@ class _LSTMKernel(FreeRunKernel):
         # h and c of every layer in one array, so finishing a window zeroes them in one call
         self.state = np.zeros((2 * lstm.num_layers, batch, length, hidden), np.float32)
         mask_u, mask_y = sequence_masks(window)  # per time step, oldest first
+        self.seq_masks = (mask_u.astype(np.float32), mask_y.astype(np.float32))
         # at step k, slot s holds window k + m with m = (s - k) % L, at time step L-1-m
         slots = np.arange(length)
         m = (slots[None, :] - np.arange(length)[:, None]) % length  # [k % L, slot]
@@ -140,3 +142,13 @@ class _LSTMKernel(FreeRunKernel):
             raise RuntimeError(f"LSTM kernel stepped to {k}, expected {self.next_k}")
         self.next_k = k + 1
         return self._advance(k, n, y)
+
+    def run_all(self, y: np.ndarray, active: np.ndarray, first_target: int,
+                term: np.ndarray | None = None) -> np.ndarray:
+        """Every step from ``first_target`` on at once (compiled), from a fresh state.
+
+        ``y`` (B, N, ny) float64 holds the measured initial conditions and is filled in place
+        with the predictions (plus ``term[b, k]`` if given) of the rows ``:active[k]``.
+        """
+        return lstm_free_run(self.u, y, active, first_target, self.window.nk, self.wih,
+                             self.whh, self.bias, *self.seq_masks, self.dense, term=term)

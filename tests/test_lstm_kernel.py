@@ -1,0 +1,121 @@
+"""The compiled LSTM free run (`_LSTMKernel.run_all`) against the NumPy step and torch."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from hysteresis_lab.data.recording import Recording
+from hysteresis_lab.data.windows import WindowSpec
+from hysteresis_lab.evaluation.predict import free_run
+from hysteresis_lab.models.lstm import LSTMNet, _LSTMKernel
+from hysteresis_lab.models.lstm_kernel import _tanh_rows
+
+# (window, nu, ny, num_layers, lstm_layers): default lags; masked lags, delay 2, two inputs,
+# a hidden dense layer; no output lags; no delay, two outputs, three LSTM layers
+SETUPS = [
+    (WindowSpec(), 1, 1, 3, 2),
+    (WindowSpec(na=3, nb=6, nk=2), 2, 1, 3, 1),
+    (WindowSpec(na=0, nb=5, nk=1), 1, 1, 2, 1),
+    (WindowSpec(na=4, nb=4, nk=0), 1, 2, 4, 3),
+]
+
+
+def random_model(window: WindowSpec, nu: int, ny: int, num_layers: int, lstm_layers: int,
+                 seed: int = 0) -> LSTMNet:
+    torch.manual_seed(seed)
+    model = LSTMNet(nu=nu, ny=ny, na=window.na, nb=window.nb, nk=window.nk,
+                    num_layers=num_layers, lstm_layers=lstm_layers, units=12)
+    with torch.no_grad():  # larger weights than the default init: saturating gates
+        for p in model.net.parameters():
+            p.mul_(2.0)
+    return model.eval()
+
+
+def recordings(nu: int, ny: int, lengths: tuple[int, ...] = (160, 90, 90, 40)) -> list[Recording]:
+    rng = np.random.default_rng(1)
+    recs = []
+    for i, n in enumerate(lengths):
+        t = np.arange(n) / 100.0
+        u = np.sin(2 * np.pi * (1.0 + i) * t)[:, None] + 0.3 * rng.standard_normal((n, nu))
+        recs.append(Recording(u=u, y=rng.standard_normal((n, ny)), fs=100.0, name=f"r{i}"))
+    return recs
+
+
+def step_loop(kernel: _LSTMKernel, y: np.ndarray, active: np.ndarray,
+              first_target: int, term: np.ndarray | None = None) -> np.ndarray:
+    """The NumPy reference: one `step` per sample (what the simulator did before run_all)."""
+    for k in range(first_target, y.shape[1]):
+        n = int(active[k])
+        y[:n, k] = kernel.step(k, n, y) + (term[:n, k] if term is not None else 0.0)
+    return y
+
+
+@pytest.mark.parametrize("setup", SETUPS, ids=["default", "masked", "na0", "nk0_mimo"])
+def test_run_all_equals_the_step_kernel_and_torch(setup, monkeypatch):
+    window, nu, ny, num_layers, lstm_layers = setup
+    model = random_model(window, nu, ny, num_layers, lstm_layers)
+    recs = recordings(nu, ny)
+    reference = free_run(model, recs, window, fast=False)  # torch loop
+
+    def no_step(*args, **kwargs):
+        raise AssertionError("free_run should use run_all, not step")
+
+    with monkeypatch.context() as patch:
+        patch.setattr(_LSTMKernel, "step", no_step)
+        compiled = free_run(model, recs, window)
+    for rec, a, b in zip(recs, compiled, reference, strict=True):
+        assert a.shape == rec.y.shape
+        np.testing.assert_array_equal(a[: window.first_target], rec.y[: window.first_target])
+        np.testing.assert_allclose(a, b, atol=2e-5)
+        assert b[window.first_target :].std() > 0.01  # the output moves: not a trivial check
+
+    # the same rows directly, against the NumPy step kernel, with an input-only output term
+    n = max(r.n_samples for r in recs)
+    lengths = np.array([r.n_samples for r in recs])
+    u = np.zeros((len(recs), n, nu))
+    y = np.zeros((len(recs), n, ny))
+    for b, rec in enumerate(recs):
+        u[b, : rec.n_samples], y[b, : rec.n_samples] = rec.u, rec.y
+    active = np.searchsorted(-lengths, -np.arange(n), side="left")
+    term = np.random.default_rng(2).standard_normal(y.shape) * 0.1
+    ft = window.first_target
+    for extra in (None, term):
+        fast = model.free_run_kernel(u, window).run_all(y.copy(), active, ft, term=extra)
+        slow = step_loop(model.free_run_kernel(u, window), y.copy(), active, ft, extra)
+        np.testing.assert_allclose(fast, slow, atol=1e-5)
+        np.testing.assert_array_equal(fast[:, :ft], y[:, :ft])
+        for b, length in enumerate(lengths):  # rows past their end keep the padding
+            np.testing.assert_array_equal(fast[b, length:], y[b, length:])
+
+
+def test_run_all_is_independent_of_the_batch():
+    window = WindowSpec()
+    model = random_model(window, 1, 1, 3, 2)
+    recs = recordings(1, 1)
+    batched = free_run(model, recs, window)
+    for rec, a in zip(recs, batched, strict=True):
+        np.testing.assert_array_equal(a, free_run(model, [rec], window)[0])
+
+
+def test_compiled_tanh_is_correctly_rounded():
+    rng = np.random.default_rng(0)
+    x = np.concatenate([
+        rng.standard_normal(20_000) * 3, rng.standard_normal(20_000) * 1e-3,
+        np.linspace(-12.0, 12.0, 20_001), [0.0, 1e-45, -1e-45, 9.0, 9.5, 3e38, -3e38],
+    ]).astype(np.float32)
+    out = x.copy()[None]
+    _tanh_rows(out, 1, 0, x.size)
+    exact = np.tanh(x.astype(np.float64))
+    ulp = np.spacing(np.abs(exact).astype(np.float32)).astype(np.float64)
+    assert np.max(np.abs(out[0] - exact) / ulp) <= 0.5001
+    special = np.array([[np.nan, np.inf, -np.inf, -0.0]], np.float32)
+    _tanh_rows(special, 1, 0, 4)
+    assert np.isnan(special[0, 0]) and special[0, 1] == 1.0 and special[0, 2] == -1.0
+    assert special[0, 3] == 0.0 and np.signbit(special[0, 3])
+    rows = np.full((3, 4), 0.5, np.float32)
+    _tanh_rows(rows, 2, 1, 3)  # only rows < 2, columns 1..2
+    np.testing.assert_array_equal(rows[2], 0.5)
+    np.testing.assert_array_equal(rows[:2, [0, 3]], 0.5)
+    np.testing.assert_allclose(rows[:2, 1:3], np.tanh(np.float32(0.5)), rtol=1e-7)
