@@ -73,8 +73,10 @@ def verdict(row: dict, sizes: dict[str, float], predictable: bool) -> str:
     acting = [t for t, size in sizes.items() if size > ACTS_UM]
     missed = [t for t in acting if change[t] > -CUT_PCT]
     worse = [t for t in change if t not in acting and change[t] > WORSE_PCT]
-    if missed or worse:
-        return f"FAIL: cut < {CUT_PCT:.0f} % on {missed}; > {WORSE_PCT:.0f} % worse on {worse}"
+    failures = ([f"cut < {CUT_PCT:.0f} % on {missed}"] if missed else []) + (
+        [f"> {WORSE_PCT:.0f} % worse on {worse}"] if worse else [])
+    if failures:
+        return "FAIL: " + "; ".join(failures)
     return f"PASS: cut >= {CUT_PCT:.0f} % on {acting}; no other test > {WORSE_PCT:.0f} % worse"
 
 
@@ -117,7 +119,7 @@ def main() -> None:
     parser.add_argument("--rollout-steps", type=int, default=200)
     parser.add_argument("--rollout-epochs", type=int, default=5)
     parser.add_argument("--train-sines", default=TRAIN_SINES, help="Hydra list, or [] for none")
-    parser.add_argument("--effect-path", default="linear", choices=["network", "linear"],
+    parser.add_argument("--effect-path", default="network", choices=["network", "linear"],
                         help="how effect operators enter the network (model.effect_path)")
     parser.add_argument("--root", type=Path, default=Path("outputs/undeclared"))
     args = parser.parse_args()

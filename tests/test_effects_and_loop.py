@@ -140,7 +140,7 @@ def test_model_with_effects_trains_saves_and_evaluates(tmp_path):
 def test_loop_fine_tunes_only_the_networks_that_can():
     from hysteresis_lab.analysis.loop import _without_unsupported_fine_tuning
 
-    settings = {"rollout_steps": 200, "rollout_epochs": 5}
+    settings = {"rollout_steps": 200, "rollout_epochs": 5, "effect_path": "linear"}
     assert _without_unsupported_fine_tuning({"name": "svm", "C": 1.0, **settings}) == {
         "name": "svm", "C": 1.0}
     assert _without_unsupported_fine_tuning({"name": "lstm", **settings}) == {

@@ -187,13 +187,29 @@ def _run(
     fast: bool = True,
 ) -> np.ndarray:
     """Scaled simulation of all rows: measured lags up to ``first_target``, then predictions."""
+    split = getattr(model, "free_run_split", None)
+    u, term = split(u) if split is not None else (u, None)  # see NarxModule.free_run_split
     factory = getattr(model, "free_run_kernel", None) if fast else None
     kernel = factory(u, window) if factory is not None and _on_cpu(model, device) else None
     if kernel is not None and not (kernel.stateful and reset.any()):
-        return _loop_kernel(kernel, y_meas, reset, active, window)
+        return _loop_kernel(_with_term(kernel, term), y_meas, reset, active, window)
     if isinstance(model, torch.nn.Module):
-        return _loop_torch(model, u, y_meas, reset, active, window, device)
+        return _loop_torch(model, u, y_meas, reset, active, window, device, term)
     return _loop_kernel(_GenericKernel(model, u, window), y_meas, reset, active, window)
+
+
+class _PlusInputTerm:
+    """A kernel whose every step adds a precomputed, input-only term (the linear effect path)."""
+
+    def __init__(self, kernel: Any, term: np.ndarray) -> None:
+        self.kernel, self.term, self.stateful = kernel, term, kernel.stateful
+
+    def step(self, k: int, n: int, y: np.ndarray) -> np.ndarray:
+        return self.kernel.step(k, n, y) + self.term[:n, k]
+
+
+def _with_term(kernel: Any, term: np.ndarray | None) -> Any:
+    return kernel if term is None else _PlusInputTerm(kernel, term)
 
 
 class _GenericKernel:
@@ -240,6 +256,7 @@ def _loop_torch(
     active: np.ndarray,
     window: WindowSpec,
     device: str | torch.device | None,
+    term: np.ndarray | None = None,
 ) -> np.ndarray:
     """Generic torch loop (GPU, or any plugin network): preassembled scaled lags, ``net`` only.
 
@@ -259,6 +276,10 @@ def _loop_torch(
             y_meas_t = torch.as_tensor(y_meas, dtype=torch.float32, device=device)
             out = y_meas_t.clone()
             mask = torch.as_tensor(reset, device=device)
+            term_t = torch.as_tensor(
+                term if term is not None else np.zeros(y_meas.shape), dtype=torch.float32,
+                device=device,
+            )
             if model.layout == "sequence":
                 pad = length + 1  # F index = sample index + pad
                 feats = torch.zeros(u.shape[0], u.shape[1] + pad, nu + y_meas.shape[2],
@@ -283,7 +304,7 @@ def _loop_torch(
                         rows = mask[k]
                         feats[rows, k - na + pad : k + pad, nu:] = y_meas_t[rows, k - na : k]
                     x = feats[:n, k - length + pad : k + pad]
-                    prediction = net(x * seq_mask if masked else x)
+                    prediction = net(x * seq_mask if masked else x) + term_t[:n, k]
                     feats[:n, k + pad, nu:] = prediction
                     out[:n, k] = prediction
             else:
@@ -296,7 +317,7 @@ def _loop_torch(
                         y_t[rows, k - na : k] = y_meas_t[rows, k - na : k]
                     x = assemble(u_t[:n, k - nk - nb + 1 : k - nk + 1], y_t[:n, k - na : k],
                                  "flat")
-                    prediction = net(x)
+                    prediction = net(x) + term_t[:n, k]
                     y_t[:n, k] = prediction
                     out[:n, k] = prediction
             return out.double().cpu().numpy()
