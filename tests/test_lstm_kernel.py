@@ -13,12 +13,14 @@ from hysteresis_lab.models.lstm import LSTMNet, _LSTMKernel
 from hysteresis_lab.models.lstm_kernel import _tanh_rows
 
 # (window, nu, ny, num_layers, lstm_layers): default lags; masked lags, delay 2, two inputs,
-# a hidden dense layer; no output lags; no delay, two outputs, three LSTM layers
+# a hidden dense layer; no output lags; no delay, two outputs, three LSTM layers; masked
+# lags with two outputs (the torch loop's output mask spans every output)
 SETUPS = [
     (WindowSpec(), 1, 1, 3, 2),
     (WindowSpec(na=3, nb=6, nk=2), 2, 1, 3, 1),
     (WindowSpec(na=0, nb=5, nk=1), 1, 1, 2, 1),
     (WindowSpec(na=4, nb=4, nk=0), 1, 2, 4, 3),
+    (WindowSpec(na=5, nb=3, nk=1), 1, 2, 3, 2),
 ]
 
 
@@ -52,7 +54,8 @@ def step_loop(kernel: _LSTMKernel, y: np.ndarray, active: np.ndarray,
     return y
 
 
-@pytest.mark.parametrize("setup", SETUPS, ids=["default", "masked", "na0", "nk0_mimo"])
+@pytest.mark.parametrize("setup", SETUPS,
+                         ids=["default", "masked", "na0", "nk0_mimo", "masked_mimo"])
 def test_run_all_equals_the_step_kernel_and_torch(setup, monkeypatch):
     window, nu, ny, num_layers, lstm_layers = setup
     model = random_model(window, nu, ny, num_layers, lstm_layers)

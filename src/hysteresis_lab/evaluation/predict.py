@@ -208,8 +208,17 @@ class _PlusInputTerm:
         return self.kernel.step(k, n, y) + self.term[:n, k]
 
 
+class _PlusInputTermAtOnce(_PlusInputTerm):
+    """The same for a kernel that runs every step at once and takes the term itself."""
+
+    def run_all(self, y: np.ndarray, active: np.ndarray, first_target: int) -> np.ndarray:
+        return self.kernel.run_all(y, active, first_target, term=self.term)
+
+
 def _with_term(kernel: Any, term: np.ndarray | None) -> Any:
-    return kernel if term is None else _PlusInputTerm(kernel, term)
+    if term is None:
+        return kernel
+    return (_PlusInputTermAtOnce if hasattr(kernel, "run_all") else _PlusInputTerm)(kernel, term)
 
 
 class _GenericKernel:
@@ -295,7 +304,8 @@ def _loop_torch(
                 m_u, m_y = (torch.as_tensor(m, dtype=torch.float32, device=device)
                             for m in sequence_masks(window))
                 seq_mask = torch.cat(
-                    [m_u[:, None].expand(length, nu), m_y[:, None].expand(length, -1)], 1
+                    [m_u[:, None].expand(length, nu),
+                     m_y[:, None].expand(length, y_meas.shape[2])], 1
                 )
                 masked = not bool(seq_mask.all())
                 for k in range(ft, u.shape[1]):
