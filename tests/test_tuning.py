@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import socket
+import sqlite3
 import time
 from pathlib import Path
 
@@ -35,6 +37,18 @@ def sweep_args(results: Path, n_trials: int, *extra: str) -> list[str]:
         "model.neurons=range(8,33)",
         *extra,
     ]
+
+
+def trial_states(db: Path) -> list[tuple[int, str]]:
+    """(number, state) of every trial, read-only: polling must never race the worker that is
+    creating the storage's tables (optuna's storage would try to create them too)."""
+    if not db.exists():
+        return []
+    try:
+        with contextlib.closing(sqlite3.connect(f"file:{db}?mode=ro", uri=True)) as con:
+            return con.execute("SELECT number, state FROM trials").fetchall()
+    except sqlite3.OperationalError:  # no tables yet, or the database is locked
+        return []
 
 
 def load(results: Path, name: str = "ffnn_csv") -> optuna.Study:
@@ -88,24 +102,19 @@ def test_sigkill_mid_trial_loses_no_completed_trial(tmp_path, csv_data):
     worker = popen_app("train", *args)
     db = results / "ffnn_csv.db"
     deadline = time.time() + 300
-    killed_during = None
+    killed = False
     while time.time() < deadline:
         time.sleep(0.5)
-        if not db.exists():
-            continue
-        try:
-            trials = load(results).get_trials()
-        except KeyError:  # the database exists before the study in it
-            continue
-        complete = [t for t in trials if t.state == TrialState.COMPLETE]
-        running = [t for t in trials if t.state == TrialState.RUNNING]
-        if complete and running:
+        states = {state for _, state in trial_states(db)}
+        if {"COMPLETE", "RUNNING"} <= states:
             os.killpg(worker.pid, signal.SIGKILL)
-            killed_during = running[0].number
-            kept = {t.number: (t.params, t.value) for t in complete}
+            killed = True
             break
     worker.wait()
-    assert killed_during is not None, "the sweep never reached a second trial"
+    assert killed, "the sweep never reached a second trial"
+    trials = load(results).get_trials()
+    kept = {t.number: (t.params, t.value) for t in trials if t.state == TrialState.COMPLETE}
+    killed_during = next(t.number for t in trials if t.state == TrialState.RUNNING)
 
     resumed = run_app("train", *args)
     assert resumed.returncode == 0, resumed.stderr[-3000:]
