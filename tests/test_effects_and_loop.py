@@ -122,10 +122,19 @@ def test_loop_writes_its_report(tmp_path):
     assert scored == {d["effect"] for d in rounds[0]["diagnosis"]}
 
 
-def test_model_with_effects_trains_saves_and_evaluates(tmp_path):
+@pytest.mark.parametrize(
+    "model",
+    [
+        ["model=ffnn"],
+        ["model=ffnn", "model.effect_path=linear"],
+        ["model=svm", "model.n_components=100", "model.max_samples=1000"],
+    ],
+    ids=["ffnn", "ffnn_linear_path", "svm"],
+)
+def test_model_with_effects_trains_saves_and_evaluates(model, tmp_path):
     train, tests = small_dataset(tmp_path)
     run_dir = tmp_path / "run"
-    proc = run_app("train", *data_overrides(train, tests), "model.effects=[hysteresis]",
+    proc = run_app("train", *data_overrides(train, tests), *model, "model.effects=[hysteresis]",
                    "trainer.max_epochs=2", "trainer.enable_progress_bar=false", "logger=none",
                    f"hydra.run.dir={run_dir}")
     assert proc.returncode == 0, proc.stderr[-3000:]
@@ -137,11 +146,11 @@ def test_model_with_effects_trains_saves_and_evaluates(tmp_path):
     assert fresh == pytest.approx(saved, rel=1e-6)
 
 
-def test_loop_fine_tunes_only_the_networks_that_can():
-    from hysteresis_lab.analysis.loop import _without_unsupported_fine_tuning
+def test_loop_gives_network_settings_only_to_networks():
+    from hysteresis_lab.analysis.loop import _without_network_only_settings
 
     settings = {"rollout_steps": 200, "rollout_epochs": 5, "effect_path": "linear"}
-    assert _without_unsupported_fine_tuning({"name": "svm", "C": 1.0, **settings}) == {
+    assert _without_network_only_settings({"name": "svm", "C": 1.0, **settings}) == {
         "name": "svm", "C": 1.0}
-    assert _without_unsupported_fine_tuning({"name": "lstm", **settings}) == {
+    assert _without_network_only_settings({"name": "lstm", **settings}) == {
         "name": "lstm", **settings}

@@ -42,12 +42,14 @@ def model_layout(model_cfg: Mapping[str, Any]) -> str:
 def build_model(model_cfg: Mapping[str, Any], datamodule: WindowDataModule, **extra: Any) -> Any:
     """Instantiate the registered model ``model_cfg['name']`` for the DataModule's data.
 
-    ``extra`` passes values the pipeline derives (e.g. the effects' ``feature_context``).
+    ``extra`` passes values the pipeline derives (e.g. the effects' ``feature_context``);
+    those the model does not take (``n_base_inputs`` for the SVM) are left out.
     """
     name = _model_name(model_cfg)
     cls = get_model_class(name)
     params = {k: v for k, v in model_cfg.items() if k != "name"}
-    accepted = _accepted_parameters(cls)
+    extra = {k: v for k, v in extra.items() if k in _init_parameters(cls)}
+    accepted = _init_parameters(cls) - DERIVED_PARAMETERS
     unknown = sorted(set(params) - accepted)
     if unknown:
         raise ConfigError(
@@ -243,7 +245,12 @@ def _model_name(model_cfg: Mapping[str, Any]) -> str:
     return str(name)
 
 
-def _accepted_parameters(cls: type) -> set[str]:
+#: model parameters that come from the data, never from the config
+DERIVED_PARAMETERS = {"self", "nu", "ny", "na", "nb", "nk", "scaler", "feature_context",
+                      "n_base_inputs"}
+
+
+def _init_parameters(cls: type) -> set[str]:
     """Keyword parameters of ``cls.__init__``, following ``**kwargs`` up the class hierarchy."""
     names: set[str] = set()
     for klass in cls.__mro__:
@@ -254,5 +261,4 @@ def _accepted_parameters(cls: type) -> set[str]:
         names |= {p.name for p in params if p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)}
         if not any(p.kind == p.VAR_KEYWORD for p in params):
             break
-    return names - {"self", "nu", "ny", "na", "nb", "nk", "scaler", "feature_context",
-                     "n_base_inputs"}
+    return names

@@ -56,7 +56,7 @@ def run_loop(
     use_tensorboard: bool = True,
 ) -> dict[str, Any]:
     """Run the loop; write ``loop_report.json``, ``loop_report.md`` and figures."""
-    model_cfg = _without_unsupported_fine_tuning(model_cfg)
+    model_cfg = _without_network_only_settings(model_cfg)
     effects = list(model_cfg.get("effects") or [])
     context = feature_context(splits.train)
     rounds: list[dict[str, Any]] = []
@@ -153,9 +153,9 @@ def run_loop(
     return report
 
 
-def _without_unsupported_fine_tuning(model_cfg: Mapping[str, Any]) -> dict[str, Any]:
-    """The loop turns free-run fine-tuning and the linear effect path on by default; models
-    without them (the SVM) skip them."""
+def _without_network_only_settings(model_cfg: Mapping[str, Any]) -> dict[str, Any]:
+    """Free-run fine-tuning (on by default in the loop) and ``effect_path`` are network
+    settings; a model that is no network (the SVM) skips them."""
     cfg = dict(model_cfg)
     network_only = [k for k in cfg if k.startswith("rollout_") or k == "effect_path"]
     if network_only and not issubclass(get_model_class(str(cfg.get("name"))), NarxModule):
