@@ -11,6 +11,7 @@ from torch import nn
 from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.base import NarxModule, mlp
+from hysteresis_lab.models.cnn_kernel import cnn_free_run
 from hysteresis_lab.models.fast import FreeRunKernel, dense_layers, run_dense, sequence_masks
 
 
@@ -48,7 +49,7 @@ class CNNNet(NarxModule):
                              num_layers - conv_layers - 1, ny)
 
     def free_run_kernel(self, u_scaled: np.ndarray, window: WindowSpec) -> FreeRunKernel:
-        """NumPy free-run step (im2col convolutions, float32)."""
+        """NumPy free-run step (per-tap convolutions, float32); `run_all` runs it compiled."""
         return _CNNKernel(self.net, u_scaled, window)
 
 
@@ -76,6 +77,7 @@ class _CNNKernel(FreeRunKernel):
         mask_u, mask_y = sequence_masks(window)
         self.mask_u = mask_u.astype(np.float32)[None, :, None]
         self.mask_y = mask_y.astype(np.float32)[None, :, None]
+        self.seq_masks = (mask_u.astype(np.float32), mask_y.astype(np.float32))
         self.all_real = bool(mask_u.all() and mask_y.all())
 
     def step(self, k: int, n: int, y: np.ndarray) -> np.ndarray:
@@ -104,3 +106,19 @@ class _CNNKernel(FreeRunKernel):
             h += bias
             np.maximum(h, 0.0, out=h)
         return run_dense(h.max(axis=1).astype(np.float64), self.dense)
+
+    def run_all(self, y: np.ndarray, active: np.ndarray, first_target: int,
+                term: np.ndarray | None = None) -> np.ndarray:
+        """Every step from ``first_target`` on at once (compiled, see `cnn_free_run`).
+
+        ``y`` (B, N, ny) float64 holds the measured initial conditions and is filled in place
+        with the predictions (plus ``term[b, k]`` if given) of the rows ``:active[k]``.
+        """
+        length = self.window.seq_len
+        return cnn_free_run(
+            self.u[:, length:], y, active, first_target, self.window.nk,
+            [taps for taps, _, _, _ in self.convs], [bias for _, bias, _, _ in self.convs],
+            *self.seq_masks,
+            [(w.astype(np.float32), b.astype(np.float32)) for w, b in self.dense],
+            term=term,
+        )
