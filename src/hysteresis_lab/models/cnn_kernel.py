@@ -7,7 +7,7 @@ steps, mostly of a single recording). `cnn_free_run` runs the whole loop (regres
 prediction) in one compiled function with the same float32 arithmetic; only the summation
 order of the products differs (float32 rounding), and the dense head runs in float32 like the
 LSTM's (the step kernel uses float64 there). The matrix products and the dense head are those
-of `hysteresis_lab.models.lstm_kernel`.
+of `hysteresis_lab.models.jit_ops`.
 
 Functions compile on first use (``cache=True`` keeps the machine code between sessions).
 """
@@ -17,10 +17,17 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from hysteresis_lab.models.lstm_kernel import _JIT, _dense_head, _matmul_add
+from hysteresis_lab.models.jit_ops import (
+    JIT,
+    check_free_run_arrays,
+    dense_head,
+    matmul_add,
+    packed_dense,
+    term_array,
+)
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def _conv_relu(x: np.ndarray, taps: np.ndarray, bias: np.ndarray, out: np.ndarray) -> None:
     """``out = relu(conv1d(x))`` with ``padding="same"``: ``x`` (L, in), ``taps`` (K, in, out).
 
@@ -36,7 +43,7 @@ def _conv_relu(x: np.ndarray, taps: np.ndarray, bias: np.ndarray, out: np.ndarra
         t0 = max(0, left - d)
         t1 = min(length, length + left - d)
         if t1 > t0:
-            _matmul_add(x[t0 + d - left :], taps[d], out[t0:], t1 - t0, 1, -1)
+            matmul_add(x[t0 + d - left :], taps[d], out[t0:], t1 - t0, 1, -1)
     for t in range(length):
         row = out[t]
         for j in range(row.shape[0]):
@@ -44,7 +51,7 @@ def _conv_relu(x: np.ndarray, taps: np.ndarray, bias: np.ndarray, out: np.ndarra
                 row[j] = 0.0
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def _free_run(
     u: np.ndarray,
     y: np.ndarray,
@@ -97,7 +104,7 @@ def _free_run(
                     if v > m or v != v:
                         m = v
                 pooled[j] = m
-            out = _dense_head(pooled, dense_w, dense_b, dense_dims, d_in, d_out)
+            out = dense_head(pooled, dense_w, dense_b, dense_dims, d_in, d_out)
             for i in range(ny):
                 y[b, k, i] = np.float64(out[i]) + (term[b, k, i] if has_term else 0.0)
 
@@ -126,24 +133,15 @@ def cnn_free_run(
     """
     f32 = np.float32
     units = bias[0].shape[0]
-    # the compiled loop does not check bounds: check the shapes here
-    if not (y.dtype == np.float64 and y.flags.c_contiguous):
-        raise ValueError("y must be a C-contiguous float64 array (it is filled in place)")
-    if (u.shape[:2] != y.shape[:2] or len(active) < y.shape[1]
-            or taps[0].shape[1] != u.shape[2] + y.shape[2]
-            or any(t.shape != (taps[0].shape[0], units, units) for t in taps[1:])
-            or (term is not None and term.shape != y.shape)):
-        raise ValueError(f"inconsistent shapes: u {u.shape}, y {y.shape}, active "
-                         f"{np.shape(active)}, taps {[t.shape for t in taps]}, term "
-                         f"{None if term is None else term.shape}")
+    check_free_run_arrays(u, y, active, term, taps[0].shape[1])
+    if any(t.shape != (taps[0].shape[0], units, units) for t in taps[1:]):
+        raise ValueError(f"inconsistent conv taps {[t.shape for t in taps]}")
     if y.shape[1] <= first_target:
         return y
-    dims = [units] + [w.shape[1] for w, _ in dense]
     _free_run(
         np.ascontiguousarray(u, dtype=f32),
         y,
-        np.zeros((y.shape[0], 0, y.shape[2])) if term is None
-        else np.ascontiguousarray(term, dtype=np.float64),
+        term_array(term, y),
         np.ascontiguousarray(active, dtype=np.int64),
         int(first_target),
         int(nk),
@@ -153,8 +151,6 @@ def cnn_free_run(
         np.ascontiguousarray(np.array(bias, dtype=f32)),
         np.ascontiguousarray(mask_u, dtype=f32),
         np.ascontiguousarray(mask_y, dtype=f32),
-        np.concatenate([np.ravel(w) for w, _ in dense]).astype(f32),
-        np.concatenate([np.ravel(b) for _, b in dense]).astype(f32),
-        np.array(dims, dtype=np.int64),
+        *packed_dense(dense, units),
     )
     return y

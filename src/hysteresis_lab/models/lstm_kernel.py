@@ -27,10 +27,15 @@ import math
 import numba
 import numpy as np
 
-# error_model="numpy": no Python zero-division checks, so the element loops vectorise.
-_JIT = {"cache": True, "error_model": "numpy"}
-# Products and polynomial terms may be fused into FMAs (a rounding-level change only).
-_JIT_FMA = {**_JIT, "fastmath": {"contract"}}
+from hysteresis_lab.models.jit_ops import (
+    JIT,
+    JIT_FMA,
+    check_free_run_arrays,
+    dense_head,
+    matmul_add,
+    packed_dense,
+    term_array,
+)
 
 #: expm1(z) / z on 0 <= z <= 10/16: degree-8 least-squares fit at 200 Chebyshev nodes
 #: (relative error < 5e-14 in exact arithmetic); scaled by 16^-(i+1) (exactly) for z = |x|
@@ -41,7 +46,7 @@ _EXPM1 = tuple(c / 16.0 ** (i + 1) for i, c in enumerate((
 )))
 
 
-@numba.njit(**_JIT_FMA)
+@numba.njit(**JIT_FMA)
 def _tanh_rows(a: np.ndarray, rows: int, start: int, stop: int) -> None:
     """In place: ``a[r, start:stop] = tanh(a[r, start:stop])`` for ``r < rows`` (float32).
 
@@ -75,45 +80,7 @@ def _tanh_rows(a: np.ndarray, rows: int, start: int, stop: int) -> None:
             row[j] = np.float32(math.copysign(t, x))
 
 
-@numba.njit(**_JIT_FMA)
-def _matmul_add(
-    x: np.ndarray, w: np.ndarray, out: np.ndarray, rows: int, period: int, skip: int
-) -> None:
-    """``out[r] += x[r] @ w`` for ``r < rows`` except ``r % period == skip`` (zero rows).
-
-    Eight rows of ``w`` at a time are applied to every row of ``x`` (they stay in L1 while
-    the output row streams); the inner loop over the output columns vectorises.
-    """
-    depth, width = w.shape
-    k = 0
-    while k + 8 <= depth:
-        w0, w1, w2, w3 = w[k], w[k + 1], w[k + 2], w[k + 3]
-        w4, w5, w6, w7 = w[k + 4], w[k + 5], w[k + 6], w[k + 7]
-        for r in range(rows):
-            if r % period == skip:
-                continue
-            xr = x[r]
-            a0, a1, a2, a3 = xr[k], xr[k + 1], xr[k + 2], xr[k + 3]
-            a4, a5, a6, a7 = xr[k + 4], xr[k + 5], xr[k + 6], xr[k + 7]
-            o = out[r]
-            for j in range(width):
-                o[j] += ((a0 * w0[j] + a1 * w1[j]) + (a2 * w2[j] + a3 * w3[j])) + (
-                    (a4 * w4[j] + a5 * w5[j]) + (a6 * w6[j] + a7 * w7[j])
-                )
-        k += 8
-    while k < depth:
-        w0 = w[k]
-        for r in range(rows):
-            if r % period == skip:
-                continue
-            a0 = x[r, k]
-            o = out[r]
-            for j in range(width):
-                o[j] += a0 * w0[j]
-        k += 1
-
-
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def _cell_update(
     gates: np.ndarray, h: np.ndarray, c: np.ndarray, scratch: np.ndarray, rows: int
 ) -> None:
@@ -136,7 +103,7 @@ def _cell_update(
             hr[j] = (g[3 * hidden + j] * np.float32(0.5) + np.float32(0.5)) * sr[j]
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def _add_inputs(
     gates: np.ndarray, x_u: np.ndarray, x_y: np.ndarray, wih0: np.ndarray, bias: np.ndarray,
     mask_u: np.ndarray, mask_y: np.ndarray, k: int, row0: int, p_u: np.ndarray,
@@ -168,30 +135,7 @@ def _add_inputs(
             g[j] += (mu * p_u[j] + my * p_y[j]) + bias[j]
 
 
-@numba.njit(**_JIT)
-def _dense_head(
-    h: np.ndarray, dense_w: np.ndarray, dense_b: np.ndarray, dims: np.ndarray,
-    d_in: np.ndarray, d_out: np.ndarray,
-) -> np.ndarray:
-    """ReLU, then each dense layer (ReLU between); returns a view of ``d_in`` (ny,)."""
-    d_in[: h.shape[0]] = h
-    offset_w, offset_b = 0, 0
-    for d in range(dims.shape[0] - 1):
-        fan_in, fan_out = dims[d], dims[d + 1]
-        d_out[:fan_out] = 0.0
-        for i in range(fan_in):
-            a = np.float32(0.0) if d_in[i] < 0.0 else d_in[i]  # ReLU (NaN stays NaN)
-            w_i = dense_w[offset_w + i * fan_out : offset_w + (i + 1) * fan_out]
-            for j in range(fan_out):
-                d_out[j] += a * w_i[j]
-        for j in range(fan_out):
-            d_in[j] = d_out[j] + dense_b[offset_b + j]
-        offset_w += fan_in * fan_out
-        offset_b += fan_out
-    return d_in[: dims[-1]]
-
-
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def _free_run(
     u: np.ndarray,
     y: np.ndarray,
@@ -235,7 +179,7 @@ def _free_run(
                     x, w, skip = h[layer], whh[layer], fresh
                 else:
                     x, w, skip = h[layer - 1], wih[layer - 1], -1
-                _matmul_add(x, w, gates, rows, length, skip)
+                matmul_add(x, w, gates, rows, length, skip)
             if layer == 0:
                 for b in range(n):
                     _add_inputs(gates, u[b, max(k - nk, 0)], y[b, max(k - 1, 0)], wih0,
@@ -248,7 +192,7 @@ def _free_run(
             _cell_update(gates, h[layer], c[layer], scratch, rows)
         for b in range(n):
             row = b * length + slot
-            out = _dense_head(h[layers - 1, row], dense_w, dense_b, dense_dims, d_in, d_out)
+            out = dense_head(h[layers - 1, row], dense_w, dense_b, dense_dims, d_in, d_out)
             if k >= first_target:
                 for i in range(ny):
                     y[b, k, i] = np.float64(out[i]) + (term[b, k, i] if has_term else 0.0)
@@ -283,22 +227,13 @@ def lstm_free_run(
     """
     f32 = np.float32
     hidden = whh[0].shape[0]
-    # the compiled loop does not check bounds: check the shapes here
-    if not (y.dtype == np.float64 and y.flags.c_contiguous):
-        raise ValueError("y must be a C-contiguous float64 array (it is filled in place)")
-    if (u.shape[:2] != y.shape[:2] or len(active) < y.shape[1]
-            or wih[0].shape[0] != u.shape[2] + y.shape[2]
-            or (term is not None and term.shape != y.shape)):
-        raise ValueError(f"inconsistent shapes: u {u.shape}, y {y.shape}, active "
-                         f"{np.shape(active)}, term {None if term is None else term.shape}")
+    check_free_run_arrays(u, y, active, term, wih[0].shape[0])
     if y.shape[1] <= first_target:
         return y
-    dims = [hidden] + [w.shape[1] for w, _ in dense]
     _free_run(
         np.ascontiguousarray(u, dtype=f32),
         y,
-        np.zeros((y.shape[0], 0, y.shape[2])) if term is None
-        else np.ascontiguousarray(term, dtype=np.float64),
+        term_array(term, y),
         np.ascontiguousarray(active, dtype=np.int64),
         int(first_target),
         int(nk),
@@ -309,8 +244,6 @@ def lstm_free_run(
         np.ascontiguousarray(np.array(bias, dtype=f32)),
         np.ascontiguousarray(mask_u, dtype=f32),
         np.ascontiguousarray(mask_y, dtype=f32),
-        np.concatenate([np.ravel(w) for w, _ in dense]).astype(f32),
-        np.concatenate([np.ravel(b) for _, b in dense]).astype(f32),
-        np.array(dims, dtype=np.int64),
+        *packed_dense(dense, hidden),
     )
     return y
