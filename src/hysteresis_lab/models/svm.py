@@ -29,6 +29,7 @@ from hysteresis_lab.data.scaling import Scaler
 from hysteresis_lab.data.windows import WindowSpec, assemble
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.fast import FlatKernel, FreeRunKernel
+from hysteresis_lab.models.svm_kernel import SVMKernel
 
 log = logging.getLogger(__name__)
 
@@ -187,7 +188,8 @@ class SVMModel:
         return comps, weights, bias
 
     def free_run_kernel(self, u_scaled: np.ndarray, window: WindowSpec) -> FreeRunKernel:
-        """NumPy free-run step with the model folded to one kernel evaluation per step."""
+        """Free-run step with the model folded to one kernel evaluation per step (NumPy
+        ``step``; compiled ``run_all`` for the non-linear kernels)."""
         if not self.estimators:
             raise ConfigError("the SVM is not fitted yet. Fix: call fit() (or train) first.")
         comps, weights, bias = self._folded()
@@ -220,4 +222,5 @@ class SVMModel:
             def finish(pre: np.ndarray, xy: np.ndarray) -> np.ndarray:
                 return outer(pre + gamma * (xy @ cy)) @ weights + bias
 
-        return FlatKernel(u_scaled, window, pre_u, finish)
+        return SVMKernel(u_scaled, window, pre_u, finish, kernel, cy, weights, bias, gamma,
+                         degree, comp_sq)
