@@ -169,16 +169,19 @@ class SVMModel:
 
         Nyström + linear SVR folds to ``normalization_.T @ coef``; exact SVRs stack their
         support vectors (dual coefficients block-wise per output). ``components`` is None for
-        the linear kernel (prediction = x @ weights + bias).
+        the linear kernel (prediction = x @ weights + bias). All in float64: the fit sees
+        float32 windows, and a float32 ``|c|^2`` in the expanded rbf of the free run is off by
+        ~1e-4 (scaled) already at the first step.
         """
         bias = np.array([float(np.ravel(e.intercept_)[0]) for e in self.estimators])
         if self.feature_map is None and all(isinstance(e, LinearSVR) for e in self.estimators):
-            return None, np.column_stack([e.coef_ for e in self.estimators]), bias
+            return None, np.column_stack([e.coef_ for e in self.estimators]).astype(float), bias
         if self.feature_map is not None:
             fm = self.feature_map
             coef = np.column_stack([e.coef_ for e in self.estimators])
-            return fm.components_, fm.normalization_.T @ coef, bias
-        comps = np.concatenate([e.support_vectors_ for e in self.estimators])
+            components = fm.components_.astype(float)
+            return components, fm.normalization_.T.astype(float) @ coef, bias
+        comps = np.concatenate([e.support_vectors_ for e in self.estimators]).astype(float)
         weights = np.zeros((len(comps), len(self.estimators)))
         row = 0
         for j, est in enumerate(self.estimators):
