@@ -285,9 +285,9 @@ def _loop_torch(
             y_meas_t = torch.as_tensor(y_meas, dtype=torch.float32, device=device)
             out = y_meas_t.clone()
             mask = torch.as_tensor(reset, device=device)
-            term_t = torch.as_tensor(
-                term if term is not None else np.zeros(y_meas.shape), dtype=torch.float32,
-                device=device,
+            term_t = (
+                None if term is None
+                else torch.as_tensor(term, dtype=torch.float32, device=device)
             )
             if model.layout == "sequence":
                 pad = length + 1  # F index = sample index + pad
@@ -314,7 +314,9 @@ def _loop_torch(
                         rows = mask[k]
                         feats[rows, k - na + pad : k + pad, nu:] = y_meas_t[rows, k - na : k]
                     x = feats[:n, k - length + pad : k + pad]
-                    prediction = net(x * seq_mask if masked else x) + term_t[:n, k]
+                    prediction = net(x * seq_mask if masked else x)
+                    if term_t is not None:
+                        prediction = prediction + term_t[:n, k]
                     feats[:n, k + pad, nu:] = prediction
                     out[:n, k] = prediction
             else:
@@ -327,7 +329,9 @@ def _loop_torch(
                         y_t[rows, k - na : k] = y_meas_t[rows, k - na : k]
                     x = assemble(u_t[:n, k - nk - nb + 1 : k - nk + 1], y_t[:n, k - na : k],
                                  "flat")
-                    prediction = net(x) + term_t[:n, k]
+                    prediction = net(x)
+                    if term_t is not None:
+                        prediction = prediction + term_t[:n, k]
                     y_t[:n, k] = prediction
                     out[:n, k] = prediction
             return out.double().cpu().numpy()

@@ -22,12 +22,12 @@ from typing import Any, ClassVar
 import lightning as L
 import numpy as np
 import torch
-from numpy.lib.stride_tricks import sliding_window_view
 from torch import nn
 
 from hysteresis_lab.data.windows import Layout, WindowSpec, assemble
 from hysteresis_lab.effects.registry import get_effect
 from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.models.fast import input_lags
 
 LR_SCHEDULES = ("cosine", "plateau", "none")
 EFFECT_PATHS = ("network", "linear")
@@ -111,8 +111,6 @@ class NarxModule(L.LightningModule):
         self.loss_fn = nn.MSELoss()
         #: set by `hysteresis_lab.training` while fine-tuning on free-run segments
         self.rollout_mode = False
-        #: set by `freeze_network`: only the linear effect path trains
-        self.network_frozen = False
 
     # ------------------------------------------------------------------ model
     @property
@@ -153,14 +151,14 @@ class NarxModule(L.LightningModule):
         w = self.window
         batch, length, nu = u_scaled.shape
         term = np.zeros((batch, length, self.ny))
-        padded = np.concatenate([np.zeros((batch, w.nk + w.nb, nu)), u_scaled], axis=1)
-        lags = sliding_window_view(padded, w.nb, axis=1)  # [b, s, ch, j] = padded[b, s + j, ch]
+        # zeros before the start, so that every target sample has its nb input lags
+        shift = w.nk + w.nb
+        padded = np.concatenate([np.zeros((batch, shift, nu)), u_scaled], axis=1)
         y_zero = np.zeros((1, w.na, self.ny), dtype=np.float32)
         with torch.no_grad():
             for start in range(0, length, 8192):
                 ks = np.arange(start, min(start + 8192, length))
-                # u lags of target k: u[k-nk-nb+1 .. k-nk] = padded[k+1 .. k+nb], oldest first
-                u_past = lags[:, ks + 1].transpose(0, 1, 3, 2).reshape(-1, w.nb, nu)
+                u_past = input_lags(padded, w, ks + shift, batch).reshape(-1, w.nb, nu)
                 x = assemble(u_past.astype(np.float32),
                              np.broadcast_to(y_zero, (len(u_past), w.na, self.ny)), self.layout)
                 out = self.effect_term(torch.as_tensor(x, device=self.effect_weight.device))
@@ -252,7 +250,13 @@ class NarxModule(L.LightningModule):
             )
         for name, parameter in self.named_parameters():
             parameter.requires_grad_(name == "effect_weight")
-        self.network_frozen = True
+
+    @property
+    def network_frozen(self) -> bool:
+        """True after `freeze_network`: only the linear effect path trains."""
+        return self.effect_weight is not None and not any(
+            p.requires_grad for name, p in self.named_parameters() if name != "effect_weight"
+        )
 
     def _old_regressor_positions(self, old_nu: int) -> list[int]:
         """Where each regressor column of a model with ``old_nu`` inputs sits in this one's."""
