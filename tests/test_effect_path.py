@@ -13,8 +13,8 @@ from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.effects.augment import augment_splits, context_to_dict
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.evaluation.predict import free_run, one_step
-from hysteresis_lab.training import build_model, fit
-from narx import CONFIGS, TRAINER
+from hysteresis_lab.training import build_model
+from narx import CONFIGS
 
 
 def linear_path_model(name, splits, trained, effects=("creep", "hysteresis"), warm=True):
@@ -88,25 +88,3 @@ def test_unknown_effect_path_is_a_config_error(splits, trained):
     _, dm = trained["ffnn"]
     with pytest.raises(ConfigError, match="model.effect_path=one of"):
         build_model({**CONFIGS["ffnn"], "effect_path": "sideways"}, dm)
-
-
-@pytest.mark.parametrize("fine_tune", [False, True])
-def test_frozen_refit_trains_only_the_effect_path(fine_tune, splits, trained, tmp_path):
-    """The loop's nested refit: the fitted network stays exactly, the effect path learns."""
-    model, fitted, augmented, dm_aug = linear_path_model("ffnn", splits, trained)
-    if fine_tune:
-        model.hparams["rollout_steps"], model.hparams["rollout_epochs"] = 40, 2
-    model.freeze_network()
-    result = fit(model, dm_aug, TRAINER, tmp_path, one_step=not fine_tune)
-    refit = result.model
-    assert refit.effect_weight.abs().max() > 1e-4
-    with torch.no_grad():
-        refit.effect_weight.zero_()  # what is left is the network: the fitted one
-    for a, b in zip(free_run(refit, augmented.test, refit.window),
-                    free_run(fitted, splits.test, refit.window), strict=True):
-        np.testing.assert_allclose(a, b, atol=1e-5)
-
-
-def test_freezing_needs_a_linear_effect_path(trained):
-    with pytest.raises(ConfigError, match="effect_path=linear"):
-        trained["ffnn"][0].freeze_network()

@@ -70,14 +70,14 @@ def train_and_evaluate(
     evaluate: bool = True,
     callbacks: list[Any] | None = None,
     warm_start: Any | None = None,
-    freeze_network: bool = False,
+    refit: str = "full",
 ) -> RunResult:
     """Fit the model ``model_cfg`` on ``data_cfg``'s data, score it on every test recording.
 
     ``warm_start``: a fitted network of the same architecture whose inputs are the first of
     this model's (see `NarxModule.warm_start_from`); with free-run fine-tuning configured,
-    only that stage runs. ``freeze_network``: after the warm start train only the linear
-    effect path (`NarxModule.freeze_network`; models without one train as usual).
+    only that stage runs. ``refit``: with a warm start, ``"new_inputs"`` trains only the new
+    input channels' weights (`NarxModule.train_new_inputs_only`), ``"full"`` every weight.
     """
     model_cfg, data_cfg, trainer_cfg = map(plain_dict, (model_cfg, data_cfg, trainer_cfg))
     output_dir.mkdir(parents=True, exist_ok=True)
@@ -94,8 +94,8 @@ def train_and_evaluate(
     model = build_model(model_cfg, datamodule, **extra)
     if warm_start is not None:
         model.warm_start_from(warm_start)
-        if freeze_network and getattr(model, "effect_weight", None) is not None:
-            model.freeze_network()
+        if refit == "new_inputs":
+            model.train_new_inputs_only()
     logger = (
         TensorBoardLogger(
             save_dir=str(output_dir), name="tensorboard", version="", default_hp_metric=False

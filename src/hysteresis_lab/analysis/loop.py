@@ -6,8 +6,9 @@ does not declare yet (`hysteresis_lab.analysis.diagnosis`). The top significant 
 and the next round refits, until nothing significant remains or ``max_rounds`` is reached.
 With ``warm_start`` a refit starts from the previous round's network with the new effect's
 input weights at zero (nested models: it begins exactly where the last round ended); with
-the linear effect path (``model.effect_path=linear``) and ``freeze_network`` the refit
-learns only that path, so the fitted network stays exactly as it was.
+``refit="new_inputs"`` (the default) it trains only those weights, so everything the last
+round fitted stays exactly as it was and the before/after difference is what the added
+effect brings, not the spread between two fits.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from hysteresis_lab.analysis.diagnosis import diagnose
 from hysteresis_lab.analysis.report import diagnostics_figure, residual_analysis
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.effects.augment import feature_context
+from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.evaluation.plots import loops_figure, save_figure
 from hysteresis_lab.evaluation.report import write_json
 from hysteresis_lab.models.base import NarxModule
@@ -31,6 +33,8 @@ from hysteresis_lab.models.registry import get_model_class
 from hysteresis_lab.pipeline import RunResult, train_and_evaluate
 
 log = logging.getLogger(__name__)
+
+REFITS = ("new_inputs", "full")
 
 
 @dataclass
@@ -41,8 +45,16 @@ class LoopSettings:
     min_score: float = 0.05
     alpha: float = 0.01
     warm_start: bool = True  # refit from the previous round's network (new inputs at zero)
-    #: with model.effect_path=linear: a refit trains only the effect path, the network stays
-    freeze_network: bool = True
+    #: after a warm start: "new_inputs" trains only the added effect's input weights, "full" all
+    refit: str = "new_inputs"
+
+    def __post_init__(self) -> None:
+        if self.refit not in REFITS:
+            raise ConfigError(
+                f"unknown loop.refit '{self.refit}'. Fix: loop.refit=one of {list(REFITS)}."
+            )
+        if self.max_rounds < 0:
+            raise ConfigError(f"loop.max_rounds={self.max_rounds} must be >= 0.")
 
 
 def run_loop(
@@ -73,7 +85,7 @@ def run_loop(
             splits=splits,
             use_tensorboard=use_tensorboard,
             warm_start=_previous_network(results) if settings.warm_start else None,
-            freeze_network=settings.freeze_network,
+            refit=settings.refit,
         )
         results.append(result)
         n_skip = max(result.window.first_target, splits.n_init)

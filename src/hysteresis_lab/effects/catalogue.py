@@ -35,23 +35,29 @@ class Hysteresis(Effect):
 
 
 class Creep(Effect):
-    """Creep: slow first-order filter bank of the input (time constants 0.01 s ... 100 s).
+    """Creep: slow first-order filter bank of the input (time constants 0.1 s ... 100 s).
 
-    Only time constants the training data can show are used: at least 20 samples and at most
-    half the longest training recording (a slower filter never moves during training, and
-    on a long test signal its output would lie far outside what the model was fitted on).
+    Creep is the slow drift after a step, counted from 0.1 s on (the manufacturers' law
+    ``x(t) = x(0.1 s) * (1 + gamma * log10(t / 0.1 s))``); faster memory is the actuator's
+    dynamics, which the network's lags and the resonance effect cover. Only time constants
+    the training data can show are used: at least 20 samples and at most half the longest
+    training recording (a slower filter never moves during training, and on a long test
+    signal its output would lie far outside what the model was fitted on).
     """
 
     name = "creep"
-    description = "creep (slow first-order filter bank, 0.01-100 s)"
-    time_constants_s = np.array([0.01, 0.1, 1.0, 10.0, 100.0])
+    description = "creep (slow first-order filter bank, 0.1-100 s)"
+    time_constants_s = np.array([0.1, 1.0, 10.0, 100.0])
 
     def features(self, u: np.ndarray, ctx: FeatureContext) -> np.ndarray:
         return _per_input(u, lambda x, i: lowpass_bank(x, ctx.fs, self.usable(ctx)))
 
     def usable(self, ctx: FeatureContext) -> np.ndarray:
         taus = self.time_constants_s
-        return taus[(taus >= 20.0 / ctx.fs) & (taus <= max(0.5 * ctx.duration_s, 20.0 / ctx.fs))]
+        slowest = max(0.5 * ctx.duration_s, 20.0 / ctx.fs)
+        usable = taus[(taus >= 20.0 / ctx.fs) & (taus <= slowest)]
+        # training data too short for any of them: the slowest filter it can still show
+        return usable if len(usable) else np.array([min(slowest, taus[-1])])
 
 
 class Resonance(Effect):

@@ -205,7 +205,8 @@ class NarxModule(L.LightningModule):
 
         Every weight is copied; the input weights of the new channels start at zero, so the
         model begins exactly where ``previous`` ended (nested models) and training only has to
-        learn what the new channels add.
+        learn what the new channels add. Which entries are new is kept for
+        `train_new_inputs_only`.
         """
         if (
             type(previous) is not type(self)
@@ -218,14 +219,16 @@ class NarxModule(L.LightningModule):
             )
         positions = torch.as_tensor(self._old_regressor_positions(previous.nu))
         old = dict(previous.named_parameters())
+        self._new_entries: dict[str, torch.Tensor] = {}
         with torch.no_grad():
             for name, new in self.named_parameters():
                 before = old.get(name)
                 if before is None and name == "effect_weight":
-                    continue  # the linear effect path is new: it starts at zero
-                if before is None:
+                    new.zero_()  # the linear effect path is new: it starts at zero
+                    self._new_entries[name] = torch.ones_like(new, dtype=torch.bool)
+                elif before is None:
                     raise ConfigError(f"cannot warm-start: '{name}' is not in the fitted model.")
-                if before.shape == new.shape:
+                elif before.shape == new.shape:
                     new.copy_(before)
                 elif (
                     before.dim() >= 2
@@ -234,29 +237,49 @@ class NarxModule(L.LightningModule):
                 ):
                     new.zero_()
                     new[:, positions] = before
+                    is_new = torch.ones_like(new, dtype=torch.bool)
+                    is_new[:, positions] = False
+                    self._new_entries[name] = is_new
                 else:
                     raise ConfigError(
                         f"cannot warm-start: '{name}' has shape {tuple(before.shape)} in the "
                         f"fitted model and {tuple(new.shape)} here."
                     )
 
-    def freeze_network(self) -> None:
-        """Train only the linear effect path from now on: a refit that adds an effect keeps the
-        fitted network exactly and learns what the new operators add (nested models)."""
-        if self.effect_weight is None:
+    def train_new_inputs_only(self) -> None:
+        """After `warm_start_from`: train only the weights of the new input channels (the
+        added effect's operators); every other weight stays exactly as fitted, so a refit
+        learns what the new operators add and nothing else moves (nested models)."""
+        new_entries = getattr(self, "_new_entries", None)
+        if not new_entries:
             raise ConfigError(
-                "freeze_network needs a linear effect path (model.effect_path=linear and at "
-                "least one declared effect)."
+                "train_new_inputs_only needs a warm start (warm_start_from) from a model with "
+                "fewer inputs: there are no new input weights to train."
             )
+        self._kept_values: dict[str, tuple[torch.Tensor, torch.Tensor]] = {}
         for name, parameter in self.named_parameters():
-            parameter.requires_grad_(name == "effect_weight")
+            mask = new_entries.get(name)
+            parameter.requires_grad_(mask is not None)
+            if mask is not None:
+                mask = mask.to(parameter.device)
+                parameter.register_hook(lambda grad, m=mask: grad * m.to(grad.device))
+                self._kept_values[name] = (parameter.detach().clone(), mask)
 
     @property
-    def network_frozen(self) -> bool:
-        """True after `freeze_network`: only the linear effect path trains."""
-        return self.effect_weight is not None and not any(
-            p.requires_grad for name, p in self.named_parameters() if name != "effect_weight"
-        )
+    def new_inputs_only(self) -> bool:
+        """True after `train_new_inputs_only`."""
+        return bool(getattr(self, "_kept_values", None))
+
+    def on_train_batch_end(self, outputs: Any, batch: Any, batch_idx: int) -> None:
+        """With `train_new_inputs_only`: put back the old entries of the partly trained
+        tensors (their gradient is masked, but Adam's weight decay would still shrink them)."""
+        if not (self.new_inputs_only and self.hparams.weight_decay):
+            return
+        with torch.no_grad():
+            parameters = dict(self.named_parameters())
+            for name, (kept, mask) in self._kept_values.items():
+                value = parameters[name]
+                value.copy_(torch.where(mask.to(value.device), value, kept.to(value.device)))
 
     def _old_regressor_positions(self, old_nu: int) -> list[int]:
         """Where each regressor column of a model with ``old_nu`` inputs sits in this one's."""
@@ -295,9 +318,7 @@ class NarxModule(L.LightningModule):
 
     def configure_optimizers(self) -> Any:
         lr = self.hparams.lr
-        if self.rollout_mode and not self.network_frozen:
-            # fine-tuning starts from the one-step fit: smaller steps (a frozen network's
-            # effect path starts at zero and gets the full rate)
+        if self.rollout_mode:  # fine-tuning starts from a fitted model: smaller steps
             lr = self.hparams.get("rollout_lr") or 0.1 * lr
         trainable = [p for p in self.parameters() if p.requires_grad]
         optimizer = torch.optim.Adam(trainable, lr=lr, weight_decay=self.hparams.weight_decay)
