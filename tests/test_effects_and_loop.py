@@ -10,7 +10,7 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 
 from helpers import data_overrides, run_app, small_dataset
 from hysteresis_lab.analysis.correlation import correlation_tests
-from hysteresis_lab.analysis.diagnosis import diagnose
+from hysteresis_lab.analysis.diagnosis import diagnose, evidence_lags
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.effects.augment import augment, feature_context
 from hysteresis_lab.effects.base import FeatureContext
@@ -77,6 +77,36 @@ def test_declared_effect_explains_its_own_residual():
     ranked = diagnose(recs, residuals, ctx, declared=["creep"])
     assert "creep" not in [r.effect for r in ranked]
     assert not any(r.significant for r in ranked)
+
+
+def delayed(x: np.ndarray, samples: int) -> np.ndarray:
+    return np.concatenate([np.zeros(samples), x[:-samples]])
+
+
+def test_lagged_diagnosis_names_an_effect_seen_through_dynamics():
+    """Clipping that reaches the residual 40 samples late: the instantaneous test misnames it,
+    the distributed-lag one names saturation."""
+    recs = sines()
+    ctx = FeatureContext(FS, np.array([100.0]), 6.0)
+    rng = np.random.default_rng(0)
+    residuals = [(0.01 * delayed(r.u[:, 0] - np.clip(r.u[:, 0], -80, 80), 40)
+                  + 0.01 * rng.standard_normal(r.n_samples))[:, None] for r in recs]
+    lagged = diagnose(recs, residuals, ctx, [], lags=(0, 10, 20, 40))
+    assert lagged[0].effect == "saturation" and lagged[0].significant
+    assert diagnose(recs, residuals, ctx, [])[0].effect != "saturation"
+
+
+def test_lagged_baseline_absorbs_plain_dynamics():
+    """A residual that is only the input, delayed (linear dynamics the model lacks), is no
+    missing effect once the baseline has the same lags as the candidates."""
+    recs = sines()
+    ctx = FeatureContext(FS, np.array([100.0]), 6.0)
+    rng = np.random.default_rng(0)
+    residuals = [(0.002 * delayed(r.u[:, 0], 30) + 0.01 * rng.standard_normal(r.n_samples))[:, None]
+                 for r in recs]
+    assert not any(d.significant for d in diagnose(recs, residuals, ctx, [], lags=(0, 10, 20, 40)))
+    assert any(d.significant for d in diagnose(recs, residuals, ctx, []))  # what lags prevent
+    assert evidence_lags(10) == (0, 2, 5, 10, 20)
 
 
 def test_white_residual_has_no_significant_missing_effect():

@@ -7,8 +7,11 @@ all recordings, so an effect counts only when one law explains the residual ever
 effect that does not depend on the input (drift) gets coefficients per recording instead. Each
 recording is cut into contiguous blocks; every block is predicted by the fit on all the other
 blocks (of every recording), and the gain in held-out explained variance over the baseline is
-the evidence. Every recording weighs the same, however long; the score is the mean over
-recordings of the held-out gain.
+the evidence. A missing effect reaches the output through the system's dynamics, so the
+baseline and each input-dependent candidate enter with a few lags (``lags``, a distributed-lag
+regression; the loop spans twice the model's input window): the test then sees an effect with
+the phase the dynamics give it, and the baseline gets the same freedom. Every recording
+weighs the same, however long; the score is the mean over recordings of the held-out gain.
 
 Significance: a one-sided Wilcoxon signed-rank test that the held-out block gains are positive
 (spurious signals make held-out predictions worse, not better). Circularly shifted copies of
@@ -80,12 +83,24 @@ def _centre(x: np.ndarray) -> np.ndarray:
     return x - x.mean(axis=0)
 
 
+def _lagged_rows(x: np.ndarray, keep: np.ndarray, lags: Sequence[int]) -> np.ndarray:
+    """The rows ``keep`` of ``x`` (N x k) and of its copies delayed by each lag (zeros before
+    the start): (len(keep) x k * len(lags))."""
+    x = np.asarray(x, dtype=float).reshape(len(x), -1)
+    columns = []
+    for lag in lags:
+        rows = keep - lag
+        columns.append(np.where((rows >= 0)[:, None], x[np.maximum(rows, 0)], 0.0))
+    return np.column_stack(columns)
+
+
 def _prepare(
     recording: Recording,
     residual: np.ndarray,
     context: FeatureContext,
     declared: Sequence[str],
     max_points: int,
+    lags: Sequence[int],
 ) -> _Prepared:
     e = np.asarray(residual, dtype=float)[:, 0]
     keep = np.flatnonzero(np.isfinite(e))
@@ -93,7 +108,14 @@ def _prepare(
     base = [recording.u] + [get_effect(name).features(recording.u, context) for name in declared]
     e = _centre(e[keep])
     weight = 1.0 / (float(np.sqrt(e @ e)) or 1.0)
-    return _Prepared(e * weight, _centre(np.column_stack(base)[keep]) * weight, keep, weight)
+    design = _lagged_rows(np.column_stack(base), keep, lags)
+    return _Prepared(e * weight, _centre(design) * weight, keep, weight)
+
+
+def evidence_lags(nb: int) -> tuple[int, ...]:
+    """Lags (samples) of the distributed-lag diagnosis for a model with ``nb`` input lags:
+    0 to twice the input window, denser at the start."""
+    return tuple(sorted({0, nb // 5, nb // 2, nb, 2 * nb}))
 
 
 def _per_recording(signals: list[np.ndarray]) -> list[np.ndarray]:
@@ -187,11 +209,15 @@ def diagnose(
     alpha: float = 0.01,
     folds: int = 5,
     max_points: int = 20_000,
+    lags: Sequence[int] = (0,),
 ) -> list[EffectScore]:
-    """Score every candidate effect not yet declared; best first."""
+    """Score every candidate effect not yet declared; best first. ``lags``: delays (samples)
+    with which the baseline and the input-dependent candidates enter (see `evidence_lags`)."""
+    if not lags or min(lags) < 0:
+        raise ValueError(f"lags must be non-negative sample delays, got {list(lags)}.")
     names = [n for n in (candidates or available_effects()) if n not in declared]
     prepared = [
-        _prepare(rec, res, context, declared, max_points)
+        _prepare(rec, res, context, declared, max_points, lags)
         for rec, res in zip(recordings, residuals, strict=True)
     ]
     base = _standardised([p.base for p in prepared])
@@ -199,8 +225,10 @@ def diagnose(
     results = []
     for name in names:
         effect = get_effect(name)
+        # an input-independent trend gains nothing from delayed copies of itself
+        own_lags = lags if effect.predictable else (0,)
         evidence_signals = [
-            _centre(effect.evidence(rec.u, context)[p.keep]) * p.weight
+            _centre(_lagged_rows(effect.evidence(rec.u, context), p.keep, own_lags)) * p.weight
             for rec, p in zip(recordings, prepared, strict=True)
         ]
         if not effect.predictable:

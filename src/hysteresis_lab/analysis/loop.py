@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from hysteresis_lab.analysis.diagnosis import diagnose
+from hysteresis_lab.analysis.diagnosis import diagnose, evidence_lags
 from hysteresis_lab.analysis.report import diagnostics_figure, residual_analysis
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.effects.augment import feature_context
@@ -101,6 +101,7 @@ def run_loop(
             declared=effects,
             min_score=settings.min_score,
             alpha=settings.alpha,
+            lags=evidence_lags(result.window.nb),
         )
         analysis = residual_analysis(splits.test, result.evaluation.predictions, n_skip)
         write_json(analysis, round_dir / "residual_analysis.json")
