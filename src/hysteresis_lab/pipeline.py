@@ -75,9 +75,10 @@ def train_and_evaluate(
     """Fit the model ``model_cfg`` on ``data_cfg``'s data, score it on every test recording.
 
     ``warm_start``: a fitted network of the same architecture whose inputs are the first of
-    this model's (see `NarxModule.warm_start_from`); with free-run fine-tuning configured,
-    only that stage runs. ``refit``: with a warm start, ``"new_inputs"`` trains only the new
-    input channels' weights (`NarxModule.train_new_inputs_only`), ``"full"`` every weight.
+    this model's (see `NarxModule.warm_start_from`); both training stages run from it, and
+    it is kept when they do not beat it on validation. ``refit``: with a warm start,
+    ``"new_inputs"`` trains only the new input channels' weights
+    (`NarxModule.train_new_inputs_only`), ``"full"`` every weight.
     """
     model_cfg, data_cfg, trainer_cfg = map(plain_dict, (model_cfg, data_cfg, trainer_cfg))
     output_dir.mkdir(parents=True, exist_ok=True)
@@ -110,7 +111,7 @@ def train_and_evaluate(
         output_dir,
         logger=logger,
         callbacks=callbacks,
-        one_step=warm_start is None,
+        keep_start_unless_beaten=warm_start is not None,
     )
     model_path = save_model(trained.model, output_dir / "model")
     log.info("saved %s", model_path)

@@ -78,12 +78,76 @@ def fit(
     logger: TensorBoardLogger | None = None,
     callbacks: list[Any] | None = None,
     one_step: bool = True,
+    keep_start_unless_beaten: bool = False,
 ) -> TrainResult:
     """Fit ``model``; nets keep the checkpoint with the best validation loss.
 
     ``one_step=False`` skips the one-step stage when the model fine-tunes on the free-run
-    error anyway (``rollout_steps > 0``): for a model warm-started from a fitted one.
+    error anyway (``rollout_steps > 0``). ``keep_start_unless_beaten`` (a warm-started
+    refit): the weights ``model`` starts with are kept unless training beats them on the
+    validation free-run loss (one-step MSE without free-run fine-tuning).
     """
+    start = (
+        {k: v.detach().clone() for k, v in model.state_dict().items()}
+        if keep_start_unless_beaten and isinstance(model, L.LightningModule)
+        else None
+    )
+    result = _fit(model, datamodule, trainer_cfg, output_dir, logger, callbacks, one_step)
+    if start is not None:
+        _keep_start_unless_beaten(result.model, start, datamodule, trainer_cfg)
+    return result
+
+
+def _keep_start_unless_beaten(
+    model: L.LightningModule,
+    start: dict[str, torch.Tensor],
+    datamodule: WindowDataModule,
+    trainer_cfg: Mapping[str, Any],
+) -> None:
+    """Put the starting weights back when the trained ones are not better on validation."""
+    trained = {k: v.detach().clone() for k, v in model.state_dict().items()}
+    trained_loss = _selection_loss(model, datamodule, trainer_cfg)
+    model.load_state_dict(start)
+    start_loss = _selection_loss(model, datamodule, trainer_cfg)
+    if trained_loss < start_loss:
+        model.load_state_dict(trained)
+        log.info("refit: validation loss %.4e -> %.4e (scaled)", start_loss, trained_loss)
+    else:
+        log.info(
+            "refit did not beat the model it started from on validation (%.4e vs %.4e, "
+            "scaled): kept that model",
+            trained_loss,
+            start_loss,
+        )
+
+
+def _selection_loss(
+    model: L.LightningModule, datamodule: WindowDataModule, trainer_cfg: Mapping[str, Any]
+) -> float:
+    """Validation free-run MSE over ``rollout_steps`` segments, or the one-step MSE."""
+    steps = int(model.hparams.get("rollout_steps") or 0)
+    if steps == 0:
+        return _validation_mse(_scaled_predictor(model), datamodule)
+    settings = {**dict(trainer_cfg), "logger": False, "enable_checkpointing": False}
+    model.rollout_mode = True
+    try:
+        trainer = L.Trainer(**settings)
+        segments = SegmentDataModule(datamodule, steps)
+        return float(trainer.validate(model, datamodule=segments, verbose=False)[0]["val_loss"])
+    finally:
+        model.rollout_mode = False
+
+
+def _fit(
+    model: Any,
+    datamodule: WindowDataModule,
+    trainer_cfg: Mapping[str, Any],
+    output_dir: Path,
+    logger: TensorBoardLogger | None,
+    callbacks: list[Any] | None,
+    one_step: bool,
+) -> TrainResult:
+    """`fit` without the comparison with the starting weights."""
     datamodule.setup()
     start = time.perf_counter()
     if not isinstance(model, L.LightningModule):

@@ -25,6 +25,7 @@ from hysteresis_lab.analysis.diagnosis import diagnose, evidence_lags
 from hysteresis_lab.analysis.report import diagnostics_figure, residual_analysis
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.effects.augment import feature_context
+from hysteresis_lab.effects.registry import get_effect
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.evaluation.plots import loops_figure, save_figure
 from hysteresis_lab.evaluation.report import write_json
@@ -85,7 +86,7 @@ def run_loop(
             splits=splits,
             use_tensorboard=use_tensorboard,
             warm_start=_previous_network(results) if settings.warm_start else None,
-            refit=settings.refit,
+            refit=_refit_mode(settings.refit, effects[-1] if number else None),
         )
         results.append(result)
         n_skip = max(result.window.first_target, splits.n_init)
@@ -175,6 +176,15 @@ def _without_network_only_settings(model_cfg: Mapping[str, Any]) -> dict[str, An
         log.info("model '%s' is no network: %s ignored", cfg.get("name"), network_only)
         cfg = {k: v for k, v in cfg.items() if k not in network_only}
     return cfg
+
+
+def _refit_mode(refit: str, added: str | None) -> str:
+    """``refit``, except for an effect that enters through the input block: it changes what
+    the fitted network sees (the corrected input), so the network refits with it."""
+    if refit == "new_inputs" and added is not None and get_effect(added).block == "input":
+        log.info("'%s' corrects the network's input: the whole network refits", added)
+        return "full"
+    return refit
 
 
 def _previous_network(results: list[RunResult]) -> Any | None:

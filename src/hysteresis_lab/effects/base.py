@@ -24,11 +24,16 @@ class Effect:
     ``evidence`` is the set of candidate signals the diagnosis regresses the residual on
     (by default the same operators). ``predictable`` is False for effects that do not depend
     on the input (drift): a model can fit them one step ahead but not in free run.
+    ``block`` is where a network takes the operators in: ``"network"`` (extra inputs, or the
+    linear effect path with ``model.effect_path=linear``) or ``"input"`` (a static
+    nonlinearity ahead of the dynamics: each measured input becomes ``u + W @ operators``,
+    one weight per operator, and the network sees the corrected input).
     """
 
     name: ClassVar[str] = ""
     description: ClassVar[str] = ""
     predictable: ClassVar[bool] = True
+    block: ClassVar[str] = "network"
 
     def features(self, u: np.ndarray, ctx: FeatureContext) -> np.ndarray:
         raise NotImplementedError

@@ -99,10 +99,15 @@ class Drift(Effect):
 
 
 class Saturation(Effect):
-    """Saturation: the input clipped at 70-95 % of its range and the clipped-off excess."""
+    """Saturation: the clipped-off excess of the input over 70-95 % of its range.
+
+    Amplifier clipping happens ahead of the actuator's dynamics, so a network takes it in
+    through the input block: ``u - 1 * excess`` is the clipped input.
+    """
 
     name = "saturation"
     description = "saturation (clipped-input features)"
+    block = "input"
     fractions = np.array([0.7, 0.8, 0.9, 0.95])
 
     def features(self, u: np.ndarray, ctx: FeatureContext) -> np.ndarray:

@@ -25,6 +25,7 @@ import torch
 from torch import nn
 
 from hysteresis_lab.data.windows import Layout, WindowSpec, assemble
+from hysteresis_lab.effects.augment import context_from_dict
 from hysteresis_lab.effects.registry import get_effect
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.fast import input_lags
@@ -101,13 +102,30 @@ class NarxModule(L.LightningModule):
         self.net: nn.Module = nn.Identity()
         #: weights of the linear effect path, (ny, regressor) flat or (ny, features, L) sequence
         self.effect_weight: nn.Parameter | None = None
-        if effect_path == "linear" and self.n_base_inputs < nu:
-            effect_columns = self._effect_columns()
-            self.register_buffer("effect_mask", effect_columns.float(), persistent=False)
-            self.register_buffer("net_mask", (~effect_columns).float(), persistent=False)
-            shape = (ny, len(effect_columns)) if self.layout == "flat" else (
-                ny, len(effect_columns), self.window.seq_len)
-            self.effect_weight = nn.Parameter(torch.zeros(shape))
+        #: input block: base inputs += effect channels @ input_weight.T (scaled units)
+        self.input_weight: nn.Parameter | None = None
+        routes = self._channel_routes(effects, feature_context, effect_path)
+        self._routed = any(route in ("linear", "input") for route in routes)
+        if self._routed:
+            linear = torch.tensor([route == "linear" for route in routes])
+            to_input = torch.tensor([route == "input" for route in routes])
+            self.register_buffer("away_channels", linear | to_input, persistent=False)
+            self.register_buffer(
+                "net_mask", (~self._regressor_columns(linear | to_input)).float(), persistent=False
+            )
+            if linear.any():
+                effect_columns = self._regressor_columns(linear)
+                self.register_buffer("effect_mask", effect_columns.float(), persistent=False)
+                shape = (ny, len(effect_columns)) if self.layout == "flat" else (
+                    ny, len(effect_columns), self.window.seq_len)
+                self.effect_weight = nn.Parameter(torch.zeros(shape))
+            if to_input.any():
+                self.register_buffer(
+                    "input_channels", torch.nonzero(to_input).flatten(), persistent=False
+                )
+                self.input_weight = nn.Parameter(
+                    torch.zeros(self.n_base_inputs, int(to_input.sum()))
+                )
         self.loss_fn = nn.MSELoss()
         #: set by `hysteresis_lab.training` while fine-tuning on free-run segments
         self.rollout_mode = False
@@ -120,17 +138,57 @@ class NarxModule(L.LightningModule):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """Scaled regressors (layout of the class) -> scaled next output (B, ny)."""
-        if self.effect_weight is None:
+        if not self._routed:
             return self.net(x)
-        return self.net(x * self.net_mask) + self.effect_term(x)
+        network_input = x if self.input_weight is None else self._input_corrected(x)
+        out = self.net(network_input * self.net_mask)
+        return out if self.effect_weight is None else out + self.effect_term(x)
 
-    def _effect_columns(self) -> torch.Tensor:
-        """True for the regressor columns (flat) or features (sequence) of effect channels."""
-        channel = torch.arange(self.nu) >= self.n_base_inputs
+    def _channel_routes(
+        self, effects: Sequence[str], feature_context: dict[str, Any] | None, effect_path: str
+    ) -> list[str]:
+        """Where each input channel enters: "base" (measured), "network", "linear" (the linear
+        effect path) or "input" (the input block of effects with ``block = "input"``)."""
+        if self.n_base_inputs == self.nu or feature_context is None:
+            return ["base"] * self.nu
+        routes = ["base"] * self.n_base_inputs
+        ctx = context_from_dict(feature_context)
+        probe = np.zeros((2, self.n_base_inputs))
+        for name in effects:
+            effect = get_effect(name)
+            if effect.block not in ("network", "input"):
+                raise ConfigError(f"effect '{name}' has unknown block '{effect.block}'.")
+            route = "input" if effect.block == "input" else (
+                "linear" if effect_path == "linear" else "network")
+            routes += [route] * effect.features(probe, ctx).shape[1]
+        if len(routes) != self.nu:
+            raise ConfigError(
+                f"the effects {list(effects)} give {len(routes) - self.n_base_inputs} channels "
+                f"but the model has {self.nu - self.n_base_inputs} beyond the measured inputs."
+            )
+        return routes
+
+    def _regressor_columns(self, channels: torch.Tensor) -> torch.Tensor:
+        """True for the regressor columns (flat) or features (sequence) of ``channels``."""
         outputs = torch.zeros(self.ny, dtype=torch.bool)
         if self.layout == "sequence":
-            return torch.cat([channel, outputs])
-        return torch.cat([channel.repeat(self.window.nb), outputs.repeat(self.window.na)])
+            return torch.cat([channels, outputs])
+        return torch.cat([channels.repeat(self.window.nb), outputs.repeat(self.window.na)])
+
+    def _input_corrected(self, x: torch.Tensor) -> torch.Tensor:
+        """The input block on scaled regressors: every lag of the measured inputs gets
+        ``input_weight @`` the same lag of the input-block channels added."""
+        assert self.input_weight is not None
+        nu, base, w = self.nu, self.n_base_inputs, self.window
+        if self.layout == "flat":
+            u, rest = x[:, : w.nb * nu].reshape(len(x), w.nb, nu), x[:, w.nb * nu :]
+        else:
+            u, rest = x[..., :nu], x[..., nu:]
+        correction = u[..., self.input_channels] @ self.input_weight.T
+        u = torch.cat([u[..., :base] + correction, u[..., base:]], dim=-1)
+        if self.layout == "flat":
+            return torch.cat([u.reshape(len(x), -1), rest], dim=1)
+        return torch.cat([u, rest], dim=-1)
 
     def effect_term(self, x: torch.Tensor) -> torch.Tensor:
         """The linear effect path's output for scaled regressors ``x`` (B, ny)."""
@@ -140,14 +198,23 @@ class NarxModule(L.LightningModule):
         return torch.einsum("blf,yfl->by", x * self.effect_mask, self.effect_weight)
 
     def free_run_split(self, u_scaled: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-        """For free-run simulation: the inputs the network sees (effect channels zeroed) and
-        the linear effect path's output for every target sample (B, N, ny), or None.
+        """For free-run simulation: the inputs the network sees (input block applied, the
+        channels it does not see zeroed) and the linear effect path's output for every target
+        sample (B, N, ny), or None.
 
-        The effect path depends on the inputs alone, so it is computed once for all samples
-        and the network's free-run kernels stay unchanged.
+        Both depend on the inputs alone, so they are computed once for all samples and the
+        network's free-run kernels stay unchanged.
         """
-        if self.effect_weight is None:
+        if not self._routed:
             return u_scaled, None
+        network_inputs = u_scaled.copy()
+        if self.input_weight is not None:
+            gain = self.input_weight.detach().double().cpu().numpy()
+            channels = self.input_channels.cpu().numpy()
+            network_inputs[..., : self.n_base_inputs] += u_scaled[..., channels] @ gain.T
+        network_inputs[..., self.away_channels.cpu().numpy()] = 0.0
+        if self.effect_weight is None:
+            return network_inputs, None
         w = self.window
         batch, length, nu = u_scaled.shape
         term = np.zeros((batch, length, self.ny))
@@ -163,8 +230,6 @@ class NarxModule(L.LightningModule):
                              np.broadcast_to(y_zero, (len(u_past), w.na, self.ny)), self.layout)
                 out = self.effect_term(torch.as_tensor(x, device=self.effect_weight.device))
                 term[:, ks] = out.double().cpu().numpy().reshape(batch, len(ks), self.ny)
-        network_inputs = u_scaled.copy()
-        network_inputs[..., self.n_base_inputs :] = 0.0
         return network_inputs, term
 
     def scale_inputs(self, u_past: torch.Tensor, y_past: torch.Tensor) -> torch.Tensor:
@@ -223,9 +288,14 @@ class NarxModule(L.LightningModule):
         with torch.no_grad():
             for name, new in self.named_parameters():
                 before = old.get(name)
-                if before is None and name == "effect_weight":
-                    new.zero_()  # the linear effect path is new: it starts at zero
+                if before is None and name in ("effect_weight", "input_weight"):
+                    new.zero_()  # the linear effect path or input block is new: zero
                     self._new_entries[name] = torch.ones_like(new, dtype=torch.bool)
+                elif name == "input_weight" and before.shape[0] == new.shape[0]:
+                    new.zero_()  # the new effect's channels come after the old ones
+                    new[:, : before.shape[1]] = before
+                    self._new_entries[name] = torch.ones_like(new, dtype=torch.bool)
+                    self._new_entries[name][:, : before.shape[1]] = False
                 elif before is None:
                     raise ConfigError(f"cannot warm-start: '{name}' is not in the fitted model.")
                 elif before.shape == new.shape:
