@@ -291,15 +291,15 @@ class NarxModule(L.LightningModule):
                 if before is None and name in ("effect_weight", "input_weight"):
                     new.zero_()  # the linear effect path or input block is new: zero
                     self._new_entries[name] = torch.ones_like(new, dtype=torch.bool)
+                elif before is None:
+                    raise ConfigError(f"cannot warm-start: '{name}' is not in the fitted model.")
+                elif before.shape == new.shape:
+                    new.copy_(before)
                 elif name == "input_weight" and before.shape[0] == new.shape[0]:
                     new.zero_()  # the new effect's channels come after the old ones
                     new[:, : before.shape[1]] = before
                     self._new_entries[name] = torch.ones_like(new, dtype=torch.bool)
                     self._new_entries[name][:, : before.shape[1]] = False
-                elif before is None:
-                    raise ConfigError(f"cannot warm-start: '{name}' is not in the fitted model.")
-                elif before.shape == new.shape:
-                    new.copy_(before)
                 elif (
                     before.dim() >= 2
                     and before.shape[1] == len(positions)
