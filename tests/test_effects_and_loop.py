@@ -11,6 +11,7 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 from helpers import data_overrides, run_app, small_dataset
 from hysteresis_lab.analysis.correlation import correlation_tests
 from hysteresis_lab.analysis.diagnosis import diagnose, evidence_lags
+from hysteresis_lab.analysis.loop import LoopSettings
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.effects.augment import augment, feature_context
 from hysteresis_lab.effects.base import FeatureContext
@@ -184,3 +185,28 @@ def test_loop_gives_network_settings_only_to_networks():
         "name": "svm", "C": 1.0}
     assert _without_network_only_settings({"name": "lstm", **settings}) == {
         "name": "lstm", **settings}
+
+
+def test_loop_drops_an_effect_whose_refit_does_not_help(tmp_path):
+    """No refit takes 99 % off the validation loss: every significant candidate is tried,
+    rejected and dropped in turn, and the round-0 model stands."""
+    train, tests = small_dataset(tmp_path, effects={"creep": {"enabled": True}})
+    proc = run_app("loop", *data_overrides(train, tests), "model=ffnn", "loop.max_rounds=1",
+                   "loop.min_refit_gain=0.99", "trainer.max_epochs=3",
+                   "trainer.enable_progress_bar=false", "logger=none",
+                   f"hydra.run.dir={tmp_path}/loop")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    rounds = json.loads((tmp_path / "loop" / "loop_report.json").read_text())["rounds"]
+    significant = [d["effect"] for d in rounds[0]["diagnosis"] if d["significant"]]
+    assert significant and rounds[0]["added"] == significant[0]
+    assert [r.get("rejected") for r in rounds[1:]] == significant
+    for previous, attempt in zip(rounds, rounds[1:], strict=False):
+        assert attempt["effects"] == [previous["added"]]  # never on top of a rejected one
+        assert attempt["tests"] == rounds[0]["tests"]  # the round-0 model stands
+    assert rounds[-1]["added"] is None
+    assert "rejected" in (tmp_path / "loop" / "loop_report.md").read_text()
+
+
+def test_bad_refit_gain_is_a_config_error():
+    with pytest.raises(ConfigError, match="loop.min_refit_gain"):
+        LoopSettings(min_refit_gain=1.5)

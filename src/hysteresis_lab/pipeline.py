@@ -40,6 +40,7 @@ class RunResult:
     evaluation: Evaluation
     model: Any
     window: WindowSpec
+    improved: bool = True  # False: a warm-started refit kept its start (see training.fit)
 
 
 def plain_dict(cfg: Mapping[str, Any] | DictConfig) -> dict[str, Any]:
@@ -71,12 +72,14 @@ def train_and_evaluate(
     callbacks: list[Any] | None = None,
     warm_start: Any | None = None,
     refit: str = "full",
+    min_refit_gain: float = 0.0,
 ) -> RunResult:
     """Fit the model ``model_cfg`` on ``data_cfg``'s data, score it on every test recording.
 
     ``warm_start``: a fitted network of the same architecture whose inputs are the first of
     this model's (see `NarxModule.warm_start_from`); both training stages run from it, and
-    it is kept when they do not beat it on validation. ``refit``: with a warm start,
+    it is kept when they do not beat it on validation (by more than the share
+    ``min_refit_gain``). ``refit``: with a warm start,
     ``"new_inputs"`` trains only the new input channels' weights
     (`NarxModule.train_new_inputs_only`), ``"full"`` every weight.
     """
@@ -112,6 +115,7 @@ def train_and_evaluate(
         logger=logger,
         callbacks=callbacks,
         keep_start_unless_beaten=warm_start is not None,
+        min_gain=min_refit_gain,
     )
     model_path = save_model(trained.model, output_dir / "model")
     log.info("saved %s", model_path)
@@ -160,7 +164,9 @@ def train_and_evaluate(
         units["y"],
         output_dir,
     )
-    return RunResult(document, trained.val_mse, evaluation, trained.model, datamodule.window)
+    return RunResult(
+        document, trained.val_mse, evaluation, trained.model, datamodule.window, trained.improved
+    )
 
 
 def _write_figures(

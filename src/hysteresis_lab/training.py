@@ -32,6 +32,8 @@ class TrainResult:
     val_mse: float
     train_seconds: float
     checkpoint: Path | None = None
+    #: False when a warm-started refit did not beat its start and the start was kept
+    improved: bool = True
 
 
 def model_layout(model_cfg: Mapping[str, Any]) -> str:
@@ -79,13 +81,15 @@ def fit(
     callbacks: list[Any] | None = None,
     one_step: bool = True,
     keep_start_unless_beaten: bool = False,
+    min_gain: float = 0.0,
 ) -> TrainResult:
     """Fit ``model``; nets keep the checkpoint with the best validation loss.
 
     ``one_step=False`` skips the one-step stage when the model fine-tunes on the free-run
     error anyway (``rollout_steps > 0``). ``keep_start_unless_beaten`` (a warm-started
     refit): the weights ``model`` starts with are kept unless training beats them on the
-    validation free-run loss (one-step MSE without free-run fine-tuning).
+    validation free-run loss (one-step MSE without free-run fine-tuning) by more than the
+    share ``min_gain``.
     """
     start = (
         {k: v.detach().clone() for k, v in model.state_dict().items()}
@@ -94,7 +98,9 @@ def fit(
     )
     result = _fit(model, datamodule, trainer_cfg, output_dir, logger, callbacks, one_step)
     if start is not None:
-        _keep_start_unless_beaten(result.model, start, datamodule, trainer_cfg)
+        result.improved = _keep_start_unless_beaten(
+            result.model, start, datamodule, trainer_cfg, min_gain
+        )
     return result
 
 
@@ -103,22 +109,25 @@ def _keep_start_unless_beaten(
     start: dict[str, torch.Tensor],
     datamodule: WindowDataModule,
     trainer_cfg: Mapping[str, Any],
-) -> None:
-    """Put the starting weights back when the trained ones are not better on validation."""
+    min_gain: float,
+) -> bool:
+    """Put the starting weights back when the trained ones do not beat them on validation by
+    more than the share ``min_gain``; True when the trained ones were kept."""
     trained = {k: v.detach().clone() for k, v in model.state_dict().items()}
     trained_loss = _selection_loss(model, datamodule, trainer_cfg)
     model.load_state_dict(start)
     start_loss = _selection_loss(model, datamodule, trainer_cfg)
-    if trained_loss < start_loss:
+    if trained_loss < (1.0 - min_gain) * start_loss:
         model.load_state_dict(trained)
         log.info("refit: validation loss %.4e -> %.4e (scaled)", start_loss, trained_loss)
-    else:
-        log.info(
-            "refit did not beat the model it started from on validation (%.4e vs %.4e, "
-            "scaled): kept that model",
-            trained_loss,
-            start_loss,
-        )
+        return True
+    log.info(
+        "refit did not beat the model it started from on validation (%.4e vs %.4e, scaled): "
+        "kept that model",
+        trained_loss,
+        start_loss,
+    )
+    return False
 
 
 def _selection_loss(

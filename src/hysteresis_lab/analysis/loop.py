@@ -3,7 +3,9 @@
 Each round trains the model with the effects declared so far, scores it on the test
 recordings in both modes, analyses the free-run residuals and ranks the effects the model
 does not declare yet (`hysteresis_lab.analysis.diagnosis`). The top significant one is added
-and the next round refits, until nothing significant remains or ``max_rounds`` is reached.
+and the next round refits, until nothing significant remains or ``max_rounds`` effects are
+added. A refit that does not beat the model it started from on validation is rejected: the
+effect is dropped, the last model stands and the next significant effect is tried.
 With ``warm_start`` a refit starts from the previous round's network with the new effect's
 input weights at zero (nested models: it begins exactly where the last round ended); with
 ``refit="new_inputs"`` (the default) it trains only those weights, so everything the last
@@ -13,6 +15,7 @@ effect brings, not the spread between two fits.
 
 from __future__ import annotations
 
+import itertools
 import logging
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -21,10 +24,11 @@ from typing import Any
 
 import numpy as np
 
-from hysteresis_lab.analysis.diagnosis import diagnose, evidence_lags
+from hysteresis_lab.analysis.diagnosis import EffectScore, diagnose, evidence_lags
 from hysteresis_lab.analysis.report import diagnostics_figure, residual_analysis
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.effects.augment import feature_context
+from hysteresis_lab.effects.base import FeatureContext
 from hysteresis_lab.effects.registry import get_effect
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.evaluation.plots import loops_figure, save_figure
@@ -48,11 +52,18 @@ class LoopSettings:
     warm_start: bool = True  # refit from the previous round's network (new inputs at zero)
     #: after a warm start: "new_inputs" trains only the added effect's input weights, "full" all
     refit: str = "new_inputs"
+    #: share of the validation loss a refit must take off to be kept (0: any improvement)
+    min_refit_gain: float = 0.0
 
     def __post_init__(self) -> None:
         if self.refit not in REFITS:
             raise ConfigError(
                 f"unknown loop.refit '{self.refit}'. Fix: loop.refit=one of {list(REFITS)}."
+            )
+        if not 0.0 <= self.min_refit_gain < 1.0:
+            raise ConfigError(
+                f"loop.min_refit_gain={self.min_refit_gain} must lie in [0, 1). Fix: e.g. "
+                "loop.min_refit_gain=0.02 (a refit must take 2 % off the validation loss)."
             )
         if self.max_rounds < 0:
             raise ConfigError(f"loop.max_rounds={self.max_rounds} must be >= 0.")
@@ -73,71 +84,58 @@ def run_loop(
     effects = list(model_cfg.get("effects") or [])
     context = feature_context(splits.train)
     rounds: list[dict[str, Any]] = []
-    results: list[RunResult] = []
-    for number in range(settings.max_rounds + 1):
-        log.info("=== loop round %d: effects %s ===", number, effects or "none")
+    kept: list[RunResult] = []  # the rounds whose model stands
+    diagnosis: list[EffectScore] = []
+    tried: set[str] = set()  # effects tried on the current model
+    trying: str | None = None
+    for number in itertools.count():
+        round_effects = effects + ([trying] if trying else [])
+        log.info("=== loop round %d: effects %s ===", number, round_effects or "none")
         round_dir = output_dir / f"round_{number}"
         result = train_and_evaluate(
-            {**model_cfg, "effects": list(effects)},
+            {**model_cfg, "effects": round_effects},
             data_cfg,
             trainer_cfg,
             round_dir,
             seed=seed,
             splits=splits,
             use_tensorboard=use_tensorboard,
-            warm_start=_previous_network(results) if settings.warm_start else None,
-            refit=_refit_mode(settings.refit, effects[-1] if number else None),
+            warm_start=_previous_network(kept) if settings.warm_start else None,
+            refit=_refit_mode(settings.refit, trying),
+            min_refit_gain=settings.min_refit_gain,
         )
-        results.append(result)
-        n_skip = max(result.window.first_target, splits.n_init)
-        residuals = []
-        for rec in splits.test:
-            e = rec.y - result.evaluation.predictions[rec.name]["free_run"]
-            e[:n_skip] = np.nan
-            residuals.append(e)
-        diagnosis = diagnose(
-            splits.test,
-            residuals,
-            context,
-            declared=effects,
-            min_score=settings.min_score,
-            alpha=settings.alpha,
-            lags=evidence_lags(result.window.nb),
-        )
-        analysis = residual_analysis(splits.test, result.evaluation.predictions, n_skip)
-        write_json(analysis, round_dir / "residual_analysis.json")
-        figure = diagnostics_figure(splits.test, result.evaluation.predictions, n_skip)
-        save_figure(figure, round_dir / "residual_diagnostics.png")
-        if use_tensorboard:
-            _log_round_to_tensorboard(round_dir / "tensorboard", figure, diagnosis, number)
-        tests = {
-            name: {k: m[k] for k in ("rmse_free_run", "rmse_one_step", "r2_free_run")}
-            for name, m in result.document["tests"].items()
-        }
-        entry: dict[str, Any] = {
-            "effects": list(effects),
-            "tests": tests,
-            "mean_rmse_free_run": result.document["mean"]["rmse_free_run"],
-            "mean_rmse_one_step": result.document["mean"]["rmse_one_step"],
-            "diagnosis": [d.to_dict() for d in diagnosis],
-            "added": None,
-        }
+        entry = _round_entry(round_effects, result)
         rounds.append(entry)
-        top = next((d for d in diagnosis if d.significant), None)
+        if trying is not None and not result.improved:
+            entry["rejected"] = trying
+            entry["note"] = (
+                f"the refit with '{trying}' did not beat the last model on validation: "
+                f"'{trying}' dropped, the last model stands"
+            )
+        else:
+            effects, tried = round_effects, set()
+            kept.append(result)
+            diagnosis = _diagnose_round(
+                result, splits, context, effects, settings, round_dir, use_tensorboard, number
+            )
+            entry["diagnosis"] = [d.to_dict() for d in diagnosis]
+        top = next((d for d in diagnosis if d.significant and d.effect not in tried), None)
         if top is None:
-            entry["note"] = "no significant missing effect"
+            entry.setdefault("note", "no significant missing effect")
             break
         if not top.predictable:
-            entry["note"] = (
+            entry.setdefault("note", (
                 f"top effect '{top.effect}' does not depend on the input: it cannot be "
                 "predicted in free run, so it is reported, not added"
+            ))
+            break
+        if len(kept) > settings.max_rounds:
+            entry.setdefault(
+                "note", f"loop.max_rounds={settings.max_rounds} reached; next: {top.effect}"
             )
             break
-        if number == settings.max_rounds:
-            entry["note"] = f"loop.max_rounds={settings.max_rounds} reached; next: {top.effect}"
-            break
-        entry["added"] = top.effect
-        effects.append(top.effect)
+        entry["added"] = trying = top.effect
+        tried.add(top.effect)
     report = {
         "units": {"y": splits.test[0].y_units},
         "data": splits.name,
@@ -146,7 +144,7 @@ def run_loop(
     }
     write_json(report, output_dir / "loop_report.json")
     (output_dir / "loop_report.md").write_text(loop_markdown(report))
-    before, after = results[0], results[-1]
+    before, after = kept[0], kept[-1]
     predictions = {
         rec.name: {
             "before": before.evaluation.predictions[rec.name]["free_run"],
@@ -159,7 +157,7 @@ def run_loop(
             splits.test,
             predictions,
             title=f"free run before ({rounds[0]['effects'] or 'no effects'}) and "
-            f"after ({rounds[-1]['effects']})",
+            f"after ({effects})",
         ),
         output_dir / "loops_before_after.png",
     )
@@ -176,6 +174,59 @@ def _without_network_only_settings(model_cfg: Mapping[str, Any]) -> dict[str, An
         log.info("model '%s' is no network: %s ignored", cfg.get("name"), network_only)
         cfg = {k: v for k, v in cfg.items() if k not in network_only}
     return cfg
+
+
+def _round_entry(effects: list[str], result: RunResult) -> dict[str, Any]:
+    """A round of ``loop_report.json``: its effects and errors (diagnosis and decision follow)."""
+    tests = {
+        name: {k: m[k] for k in ("rmse_free_run", "rmse_one_step", "r2_free_run")}
+        for name, m in result.document["tests"].items()
+    }
+    return {
+        "effects": list(effects),
+        "tests": tests,
+        "mean_rmse_free_run": result.document["mean"]["rmse_free_run"],
+        "mean_rmse_one_step": result.document["mean"]["rmse_one_step"],
+        "diagnosis": [],
+        "added": None,
+    }
+
+
+def _diagnose_round(
+    result: RunResult,
+    splits: DatasetSplits,
+    context: FeatureContext,
+    effects: list[str],
+    settings: LoopSettings,
+    round_dir: Path,
+    use_tensorboard: bool,
+    number: int,
+) -> list[EffectScore]:
+    """Residual analysis (JSON, figure, TensorBoard) and the ranked diagnosis of a round."""
+    n_skip = max(result.window.first_target, splits.n_init)
+    residuals = []
+    for rec in splits.test:
+        e = rec.y - result.evaluation.predictions[rec.name]["free_run"]
+        e[:n_skip] = np.nan
+        residuals.append(e)
+    diagnosis = diagnose(
+        splits.test,
+        residuals,
+        context,
+        declared=effects,
+        min_score=settings.min_score,
+        alpha=settings.alpha,
+        lags=evidence_lags(result.window.nb),
+    )
+    write_json(
+        residual_analysis(splits.test, result.evaluation.predictions, n_skip),
+        round_dir / "residual_analysis.json",
+    )
+    figure = diagnostics_figure(splits.test, result.evaluation.predictions, n_skip)
+    save_figure(figure, round_dir / "residual_diagnostics.png")
+    if use_tensorboard:
+        _log_round_to_tensorboard(round_dir / "tensorboard", figure, diagnosis, number)
+    return diagnosis
 
 
 def _refit_mode(refit: str, added: str | None) -> str:
@@ -233,6 +284,10 @@ def loop_markdown(report: dict[str, Any]) -> str:
             f"({100 * (last - first) / first:+.1f} %).",
         ]
     for i, r in enumerate(rounds):
+        if r.get("rejected"):
+            lines += ["", f"## Round {i}: {r['rejected']} rejected", "", f"- {r['note']}"]
+            lines.append(f"- next: {r['added']}" if r["added"] else "- nothing else to try")
+            continue
         lines += ["", f"## Round {i}: diagnosis", ""]
         lines += [
             f"- {'**' if d['significant'] else ''}{d['effect']}"
