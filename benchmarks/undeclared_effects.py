@@ -80,6 +80,14 @@ def verdict(row: dict, sizes: dict[str, float], predictable: bool) -> str:
     return f"PASS: cut >= {CUT_PCT:.0f} % on {acting}; no other test > {WORSE_PCT:.0f} % worse"
 
 
+def change_pct(before: dict, after: dict) -> dict[str, float]:
+    """Free-run RMSE change per test recording, in percent."""
+    return {
+        test: 100 * (after["tests"][test]["rmse_free_run"] / m["rmse_free_run"] - 1)
+        for test, m in before["tests"].items()
+    }
+
+
 def run_case(name: str, args: argparse.Namespace) -> dict:
     block, declared, expected = CASES[name]
     overrides = [f"data.effects.{block}.enabled=true", *CASE_DATA.get(name, [])]
@@ -102,10 +110,10 @@ def run_case(name: str, args: argparse.Namespace) -> dict:
            "significant": top["significant"], "added": first["added"], "seconds": seconds}
     if len(report["rounds"]) > 1:
         after = report["rounds"][1]
-        row["change_pct"] = {
-            test: 100 * (after["tests"][test]["rmse_free_run"] / m["rmse_free_run"] - 1)
-            for test, m in first["tests"].items()
-        }
+        row["change_pct"] = change_pct(first, after)
+        if after.get("rejected"):  # the loop kept round 0; what the refit would have done:
+            row["rejected"] = after["rejected"]
+            row["rejected_refit_change_pct"] = change_pct(first, after["rejected_refit"])
     sizes = effect_size(block)
     row["effect_size_um"] = sizes
     row["verdict"] = verdict(row, sizes, get_effect(expected).predictable)

@@ -203,8 +203,16 @@ def test_loop_drops_an_effect_whose_refit_does_not_help(tmp_path):
     for previous, attempt in zip(rounds, rounds[1:], strict=False):
         assert attempt["effects"] == [previous["added"]]  # never on top of a rejected one
         assert attempt["tests"] == rounds[0]["tests"]  # the round-0 model stands
+        loss = attempt["refit_validation_loss"]
+        assert not loss["refit"] < 0.01 * loss["start"]  # rejected by the rule, not by chance
+        refit = attempt["rejected_refit"]  # what the refit itself did, scored on the tests
+        assert refit["tests"].keys() == attempt["tests"].keys()
+        assert refit["tests"] != attempt["tests"]
     assert rounds[-1]["added"] is None
-    assert "rejected" in (tmp_path / "loop" / "loop_report.md").read_text()
+    report = (tmp_path / "loop" / "loop_report.md").read_text()
+    assert "rejected" in report
+    refit_mean = rounds[1]["rejected_refit"]["mean_rmse_free_run"]
+    assert f"-> {refit_mean:.4g}" in report
 
 
 def test_bad_refit_gain_is_a_config_error():

@@ -26,7 +26,7 @@ from hysteresis_lab.evaluation.evaluate import Evaluation, evaluate_model
 from hysteresis_lab.evaluation.plots import loops_figure, residuals_figure, save_figure
 from hysteresis_lab.evaluation.report import metrics_document, write_json
 from hysteresis_lab.models.io import save_model
-from hysteresis_lab.training import build_model, fit, model_layout
+from hysteresis_lab.training import TrainResult, build_model, fit, model_layout
 
 log = logging.getLogger(__name__)
 
@@ -41,6 +41,10 @@ class RunResult:
     model: Any
     window: WindowSpec
     improved: bool = True  # False: a warm-started refit kept its start (see training.fit)
+    #: a warm-started refit's validation loss: {"start": x, "refit": x}
+    refit_validation: dict[str, float] | None = None
+    #: the metrics document of a refit that lost to its start (what it would have done)
+    rejected_refit: dict[str, Any] | None = None
 
 
 def plain_dict(cfg: Mapping[str, Any] | DictConfig) -> dict[str, Any]:
@@ -127,7 +131,15 @@ def train_and_evaluate(
             "train_seconds": trained.train_seconds,
         }
         write_json(document, output_dir / "metrics.json")
-        return RunResult(document, trained.val_mse, Evaluation(), trained.model, datamodule.window)
+        return RunResult(
+            document,
+            trained.val_mse,
+            Evaluation(),
+            trained.model,
+            datamodule.window,
+            trained.improved,
+            trained.refit_validation,
+        )
     evaluation = evaluate_model(
         trained.model,
         data.test,
@@ -137,6 +149,15 @@ def train_and_evaluate(
         device=evaluation_device(trainer_cfg),
     )
     units = {"u": data.test[0].u_units, "y": data.test[0].y_units}
+    rejected_refit = (
+        _score_rejected_refit(
+            trained, data, datamodule.window, trainer_cfg, n_steps, units, str(model_cfg["name"])
+        )
+        if trained.rejected_state is not None
+        else None
+    )
+    if rejected_refit is not None:
+        write_json(rejected_refit, output_dir / "rejected_refit_metrics.json")
     document = metrics_document(
         str(model_cfg["name"]),
         units,
@@ -165,7 +186,48 @@ def train_and_evaluate(
         output_dir,
     )
     return RunResult(
-        document, trained.val_mse, evaluation, trained.model, datamodule.window, trained.improved
+        document,
+        trained.val_mse,
+        evaluation,
+        trained.model,
+        datamodule.window,
+        trained.improved,
+        trained.refit_validation,
+        rejected_refit,
+    )
+
+
+def _score_rejected_refit(
+    trained: TrainResult,
+    data: DatasetSplits,
+    window: WindowSpec,
+    trainer_cfg: Mapping[str, Any],
+    n_steps: int | None,
+    units: dict[str, str],
+    model_name: str,
+) -> dict[str, Any]:
+    """Test metrics of a refit that lost to its start on validation, so that a report can show
+    what it would have done; the start's weights are back in place afterwards."""
+    model = trained.model
+    kept = {k: v.detach().clone() for k, v in model.state_dict().items()}
+    model.load_state_dict(trained.rejected_state)
+    try:
+        evaluation = evaluate_model(
+            model.eval(),
+            data.test,
+            window,
+            n_init=data.n_init,
+            n_steps=n_steps,
+            device=evaluation_device(trainer_cfg),
+        )
+    finally:
+        model.load_state_dict(kept)
+    return metrics_document(
+        model_name,
+        units,
+        evaluation.metrics,
+        trained.train_seconds,
+        extra={"rejected_refit": True, "validation_loss": trained.refit_validation},
     )
 
 

@@ -34,6 +34,10 @@ class TrainResult:
     checkpoint: Path | None = None
     #: False when a warm-started refit did not beat its start and the start was kept
     improved: bool = True
+    #: a warm-started refit's validation loss: {"start": x, "refit": x} (selection loss)
+    refit_validation: dict[str, float] | None = None
+    #: the refit's own weights when it lost to its start (kept for reporting what it did)
+    rejected_state: dict[str, torch.Tensor] | None = None
 
 
 def model_layout(model_cfg: Mapping[str, Any]) -> str:
@@ -98,36 +102,37 @@ def fit(
     )
     result = _fit(model, datamodule, trainer_cfg, output_dir, logger, callbacks, one_step)
     if start is not None:
-        result.improved = _keep_start_unless_beaten(
-            result.model, start, datamodule, trainer_cfg, min_gain
-        )
+        _keep_start_unless_beaten(result, start, datamodule, trainer_cfg, min_gain)
     return result
 
 
 def _keep_start_unless_beaten(
-    model: L.LightningModule,
+    result: TrainResult,
     start: dict[str, torch.Tensor],
     datamodule: WindowDataModule,
     trainer_cfg: Mapping[str, Any],
     min_gain: float,
-) -> bool:
+) -> None:
     """Put the starting weights back when the trained ones do not beat them on validation by
-    more than the share ``min_gain``; True when the trained ones were kept."""
+    more than the share ``min_gain``; records the verdict and both losses in ``result``."""
+    model = result.model
     trained = {k: v.detach().clone() for k, v in model.state_dict().items()}
     trained_loss = _selection_loss(model, datamodule, trainer_cfg)
     model.load_state_dict(start)
     start_loss = _selection_loss(model, datamodule, trainer_cfg)
-    if trained_loss < (1.0 - min_gain) * start_loss:
+    result.refit_validation = {"start": start_loss, "refit": trained_loss}
+    result.improved = trained_loss < (1.0 - min_gain) * start_loss
+    if result.improved:
         model.load_state_dict(trained)
         log.info("refit: validation loss %.4e -> %.4e (scaled)", start_loss, trained_loss)
-        return True
+        return
+    result.rejected_state = trained
     log.info(
         "refit did not beat the model it started from on validation (%.4e vs %.4e, scaled): "
         "kept that model",
         trained_loss,
         start_loss,
     )
-    return False
 
 
 def _selection_loss(

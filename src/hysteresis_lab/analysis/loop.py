@@ -177,18 +177,27 @@ def _without_network_only_settings(model_cfg: Mapping[str, Any]) -> dict[str, An
 
 
 def _round_entry(effects: list[str], result: RunResult) -> dict[str, Any]:
-    """A round of ``loop_report.json``: its effects and errors (diagnosis and decision follow)."""
+    """A round of ``loop_report.json``: its effects and errors (diagnosis and decision follow).
+    A refit that lost to its start adds ``rejected_refit``: what it would have scored."""
+    entry: dict[str, Any] = {"effects": list(effects), **_scores(result.document)}
+    entry.update(diagnosis=[], added=None)
+    if result.refit_validation is not None:
+        entry["refit_validation_loss"] = result.refit_validation
+    if result.rejected_refit is not None:
+        entry["rejected_refit"] = _scores(result.rejected_refit)
+    return entry
+
+
+def _scores(document: Mapping[str, Any]) -> dict[str, Any]:
+    """Per-test and mean errors of a metrics document, as the report shows them."""
     tests = {
         name: {k: m[k] for k in ("rmse_free_run", "rmse_one_step", "r2_free_run")}
-        for name, m in result.document["tests"].items()
+        for name, m in document["tests"].items()
     }
     return {
-        "effects": list(effects),
         "tests": tests,
-        "mean_rmse_free_run": result.document["mean"]["rmse_free_run"],
-        "mean_rmse_one_step": result.document["mean"]["rmse_one_step"],
-        "diagnosis": [],
-        "added": None,
+        "mean_rmse_free_run": document["mean"]["rmse_free_run"],
+        "mean_rmse_one_step": document["mean"]["rmse_one_step"],
     }
 
 
@@ -286,6 +295,7 @@ def loop_markdown(report: dict[str, Any]) -> str:
     for i, r in enumerate(rounds):
         if r.get("rejected"):
             lines += ["", f"## Round {i}: {r['rejected']} rejected", "", f"- {r['note']}"]
+            lines += _rejected_refit_lines(r, unit)
             lines.append(f"- next: {r['added']}" if r["added"] else "- nothing else to try")
             continue
         lines += ["", f"## Round {i}: diagnosis", ""]
@@ -296,3 +306,29 @@ def loop_markdown(report: dict[str, Any]) -> str:
         ]
         lines.append(f"- added: {r['added']}" + (f" ({r['note']})" if r.get("note") else ""))
     return "\n".join(lines) + "\n"
+
+
+def _rejected_refit_lines(entry: Mapping[str, Any], unit: str) -> list[str]:
+    """What a rejected refit would have done: its validation loss and free-run test errors
+    beside those of the model that stands."""
+    refit = entry.get("rejected_refit")
+    if refit is None:
+        return []
+    lines = []
+    loss = entry.get("refit_validation_loss")
+    if loss:
+        lines.append(
+            f"- validation loss (scaled): last model {loss['start']:.4g}, refit {loss['refit']:.4g}"
+        )
+    lines.append(f"- the refit's free-run RMSE [{unit}] beside the last model's (not kept):")
+    for name, stands in entry["tests"].items():
+        before, after = stands["rmse_free_run"], refit["tests"][name]["rmse_free_run"]
+        lines.append(f"  - {name}: {before:.4g} -> {after:.4g} ({_change(before, after)})")
+    before, after = entry["mean_rmse_free_run"], refit["mean_rmse_free_run"]
+    lines.append(f"  - mean: {before:.4g} -> {after:.4g} ({_change(before, after)})")
+    return lines
+
+
+def _change(before: float, after: float) -> str:
+    """Relative change as a signed percentage."""
+    return f"{100 * (after - before) / before:+.1f} %" if before else "n/a"
