@@ -142,7 +142,10 @@ def test_loop_writes_its_report(tmp_path):
         assert {"effect", "score", "significant", "evidence"} <= set(entry["diagnosis"][0])
     if len(rounds) == 2:
         assert rounds[1]["effects"] == [rounds[0]["added"]]
-        assert (tmp_path / "loop" / "round_1" / "checkpoints_free_run").is_dir()
+        chosen = tmp_path / "loop" / "round_1" / f"refit_lr_{rounds[1]['refit_lr']:.0e}"
+        assert (chosen / "checkpoints_free_run").is_dir()  # each refit rate in its own folder
+        if not rounds[1].get("rejected"):  # the diagnosis sits beside the chosen refit
+            assert (chosen / "residual_diagnostics.png").is_file()
     assert (tmp_path / "loop" / "loop_report.md").read_text().startswith("# Residual loop")
     assert (tmp_path / "loop" / "loops_before_after.png").is_file()
     assert (tmp_path / "loop" / "round_0" / "residual_diagnostics.png").is_file()
@@ -180,7 +183,8 @@ def test_model_with_effects_trains_saves_and_evaluates(model, tmp_path):
 def test_loop_gives_network_settings_only_to_networks():
     from hysteresis_lab.analysis.loop import _without_network_only_settings
 
-    settings = {"rollout_steps": 200, "rollout_epochs": 5, "effect_path": "linear"}
+    settings = {"rollout_steps": 200, "rollout_epochs": 5, "effect_path": "linear",
+                "refit_lr": 1e-4}
     assert _without_network_only_settings({"name": "svm", "C": 1.0, **settings}) == {
         "name": "svm", "C": 1.0}
     assert _without_network_only_settings({"name": "lstm", **settings}) == {
@@ -205,6 +209,10 @@ def test_loop_drops_an_effect_whose_refit_does_not_help(tmp_path):
         assert attempt["tests"] == rounds[0]["tests"]  # the round-0 model stands
         loss = attempt["refit_validation_loss"]
         assert not loss["refit"] < 0.01 * loss["start"]  # rejected by the rule, not by chance
+        tried = attempt["refit_candidates"]  # one refit per rate; the best on validation goes on
+        assert [c["refit_lr"] for c in tried] == pytest.approx([1e-4, 1e-3])  # lr 1e-3 x factors
+        assert attempt["refit_lr"] == min(tried, key=lambda c: c["validation_loss"])["refit_lr"]
+        assert loss["refit"] == min(c["validation_loss"] for c in tried)
         refit = attempt["rejected_refit"]  # what the refit itself did, scored on the tests
         assert refit["tests"].keys() == attempt["tests"].keys()
         assert refit["tests"] != attempt["tests"]
@@ -218,3 +226,7 @@ def test_loop_drops_an_effect_whose_refit_does_not_help(tmp_path):
 def test_bad_refit_gain_is_a_config_error():
     with pytest.raises(ConfigError, match="loop.min_refit_gain"):
         LoopSettings(min_refit_gain=1.5)
+    with pytest.raises(ConfigError, match="loop.refit_lr_factors"):
+        LoopSettings(refit_lr_factors=[])
+    with pytest.raises(ConfigError, match="loop.refit_lr_factors"):
+        LoopSettings(refit_lr_factors=[0.1, -1.0])

@@ -53,7 +53,8 @@ def old_entries(model, fitted) -> dict[str, torch.Tensor]:
 )
 def test_refit_trains_only_the_new_inputs(name, effect_path, fine_tune, splits, trained,
                                           tmp_path):
-    model, fitted, augmented, dm_aug = grown_model(name, splits, trained, effect_path)
+    lr = CONFIGS[name].get("lr", 1e-3)  # a short test: refit at the full rate
+    model, fitted, augmented, dm_aug = grown_model(name, splits, trained, effect_path, refit_lr=lr)
     if fine_tune:
         model.hparams["rollout_steps"], model.hparams["rollout_epochs"] = 40, 2
     model.train_new_inputs_only()
@@ -96,3 +97,19 @@ def test_new_inputs_only_needs_a_warm_start_that_added_inputs(splits, trained):
 def test_unknown_refit_is_a_config_error():
     with pytest.raises(ConfigError, match="loop.refit=one of"):
         LoopSettings(refit="everything")
+
+
+@pytest.mark.parametrize(("refit_lr", "expected"), [(None, 1e-4), (3e-5, 3e-5)])
+def test_a_refit_fine_tunes_at_the_refit_learning_rate(refit_lr, expected, splits, trained):
+    """A refit starts from a fitted network: Adam at the full training rate throws it off its
+    minimum in the first steps, so it trains at ``refit_lr`` (default lr / 10)."""
+    model, *_ = grown_model("ffnn", splits, trained, lr=1e-3, lr_schedule="none",
+                            refit_lr=refit_lr)
+    assert model.configure_optimizers().param_groups[0]["lr"] == pytest.approx(expected)
+    fresh = build_model({**CONFIGS["ffnn"], "lr": 1e-3, "lr_schedule": "none"}, trained["ffnn"][1])
+    assert fresh.configure_optimizers().param_groups[0]["lr"] == pytest.approx(1e-3)
+
+
+def test_bad_refit_learning_rate_is_a_config_error(trained):
+    with pytest.raises(ConfigError, match="model.refit_lr"):
+        build_model({**CONFIGS["ffnn"], "refit_lr": -1.0}, trained["ffnn"][1])

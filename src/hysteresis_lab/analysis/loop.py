@@ -39,6 +39,9 @@ from hysteresis_lab.pipeline import RunResult, train_and_evaluate
 
 log = logging.getLogger(__name__)
 
+#: model settings only networks take (besides the ``rollout_*`` ones)
+NETWORK_ONLY = ("effect_path", "refit_lr")
+
 REFITS = ("new_inputs", "full")
 
 
@@ -54,8 +57,18 @@ class LoopSettings:
     refit: str = "new_inputs"
     #: share of the validation loss a refit must take off to be kept (0: any improvement)
     min_refit_gain: float = 0.0
+    #: a refit runs at each of these multiples of ``model.lr`` and the one with the lowest
+    #: validation free-run loss goes on to the keep-or-reject test (``model.refit_lr``, when
+    #: set, is the only rate tried)
+    refit_lr_factors: tuple[float, ...] = (0.1, 1.0)
 
     def __post_init__(self) -> None:
+        self.refit_lr_factors = tuple(float(f) for f in self.refit_lr_factors)
+        if not self.refit_lr_factors or min(self.refit_lr_factors) <= 0:
+            raise ConfigError(
+                f"loop.refit_lr_factors={list(self.refit_lr_factors)} must be a non-empty list "
+                "of positive numbers. Fix: e.g. loop.refit_lr_factors=[0.1,1.0]."
+            )
         if self.refit not in REFITS:
             raise ConfigError(
                 f"unknown loop.refit '{self.refit}'. Fix: loop.refit=one of {list(REFITS)}."
@@ -91,20 +104,23 @@ def run_loop(
     for number in itertools.count():
         round_effects = effects + ([trying] if trying else [])
         log.info("=== loop round %d: effects %s ===", number, round_effects or "none")
-        round_dir = output_dir / f"round_{number}"
-        result = train_and_evaluate(
+        warm_start = _previous_network(kept) if settings.warm_start else None
+        result, round_dir, refit_lr, losses = _fit_round(
             {**model_cfg, "effects": round_effects},
             data_cfg,
             trainer_cfg,
-            round_dir,
-            seed=seed,
-            splits=splits,
-            use_tensorboard=use_tensorboard,
-            warm_start=_previous_network(kept) if settings.warm_start else None,
-            refit=_refit_mode(settings.refit, trying),
-            min_refit_gain=settings.min_refit_gain,
+            splits,
+            output_dir / f"round_{number}",
+            settings,
+            warm_start,
+            _refit_mode(settings.refit, trying),
+            seed,
+            use_tensorboard,
         )
         entry = _round_entry(round_effects, result)
+        if refit_lr is not None:
+            entry["refit_lr"] = refit_lr
+            entry["refit_candidates"] = losses
         rounds.append(entry)
         if trying is not None and not result.improved:
             entry["rejected"] = trying
@@ -166,10 +182,10 @@ def run_loop(
 
 
 def _without_network_only_settings(model_cfg: Mapping[str, Any]) -> dict[str, Any]:
-    """Free-run fine-tuning (on by default in the loop) and ``effect_path`` are network
-    settings; a model that is no network (the SVM) skips them."""
+    """Free-run fine-tuning (on by default in the loop), ``effect_path`` and ``refit_lr`` are
+    network settings; a model that is no network (the SVM) skips them."""
     cfg = dict(model_cfg)
-    network_only = [k for k in cfg if k.startswith("rollout_") or k == "effect_path"]
+    network_only = [k for k in cfg if k.startswith("rollout_") or k in NETWORK_ONLY]
     if network_only and not issubclass(get_model_class(str(cfg.get("name"))), NarxModule):
         log.info("model '%s' is no network: %s ignored", cfg.get("name"), network_only)
         cfg = {k: v for k, v in cfg.items() if k not in network_only}
@@ -236,6 +252,61 @@ def _diagnose_round(
     if use_tensorboard:
         _log_round_to_tensorboard(round_dir / "tensorboard", figure, diagnosis, number)
     return diagnosis
+
+
+def _fit_round(
+    model_cfg: dict[str, Any],
+    data_cfg: Mapping[str, Any],
+    trainer_cfg: Mapping[str, Any],
+    splits: DatasetSplits,
+    round_dir: Path,
+    settings: LoopSettings,
+    warm_start: Any | None,
+    refit: str,
+    seed: int,
+    use_tensorboard: bool,
+) -> tuple[RunResult, Path, float | None, list[dict[str, float]]]:
+    """Fit a round's model. A refit (``warm_start``) runs at every rate of `_refit_rates`,
+    each in its own folder; the one with the lowest validation loss is returned with its
+    folder, its rate and every rate's loss (the test recordings play no part in the choice).
+    """
+    rates = _refit_rates(model_cfg, settings) if warm_start is not None else [None]
+    runs = []
+    for rate in rates:
+        run_dir = round_dir if len(rates) == 1 else round_dir / f"refit_lr_{rate:.0e}"
+        result = train_and_evaluate(
+            {**model_cfg, **({"refit_lr": rate} if rate else {})},
+            data_cfg,
+            trainer_cfg,
+            run_dir,
+            seed=seed,
+            splits=splits,
+            use_tensorboard=use_tensorboard,
+            warm_start=warm_start,
+            refit=refit,
+            min_refit_gain=settings.min_refit_gain,
+        )
+        runs.append((result, run_dir, rate))
+    result, run_dir, rate = min(runs, key=lambda run: _refit_loss(run[0]))
+    losses = [
+        {"refit_lr": r, "validation_loss": _refit_loss(res)} for res, _, r in runs if r is not None
+    ]
+    return result, run_dir, rate, losses
+
+
+def _refit_rates(model_cfg: Mapping[str, Any], settings: LoopSettings) -> list[float]:
+    """The learning rates a refit runs at: ``model.refit_lr`` if set, else the loop's
+    multiples of ``model.lr``."""
+    if model_cfg.get("refit_lr") is not None:
+        return [float(model_cfg["refit_lr"])]
+    lr = float(model_cfg.get("lr", 1e-3))
+    return [factor * lr for factor in settings.refit_lr_factors]
+
+
+def _refit_loss(result: RunResult) -> float:
+    """The validation loss a refit reached (its own weights, kept or not)."""
+    loss = result.refit_validation
+    return float(loss["refit"]) if loss else float("inf")
 
 
 def _refit_mode(refit: str, added: str | None) -> str:

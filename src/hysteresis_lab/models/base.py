@@ -56,6 +56,7 @@ class NarxModule(L.LightningModule):
         rollout_steps: int = 0,
         rollout_epochs: int = 10,
         rollout_lr: float | None = None,
+        refit_lr: float | None = None,
         effect_path: str = "network",
         n_base_inputs: int | None = None,
     ) -> None:
@@ -74,6 +75,11 @@ class NarxModule(L.LightningModule):
                 f"simulation-error fine-tuning needs rollout_steps >= 0 (0: off), rollout_epochs "
                 f">= 1 and a positive rollout_lr (got {rollout_steps}, {rollout_epochs}, "
                 f"{rollout_lr}). Fix: e.g. model.rollout_steps=200 model.rollout_epochs=10."
+            )
+        if refit_lr is not None and not refit_lr > 0:
+            raise ConfigError(
+                f"model.refit_lr must be positive or null (got {refit_lr}). Fix: e.g. "
+                "model.refit_lr=1e-4, or null for lr / 10."
             )
         for name in effects:
             get_effect(name)  # unknown names fail here, listing the catalogue
@@ -388,6 +394,8 @@ class NarxModule(L.LightningModule):
 
     def configure_optimizers(self) -> Any:
         lr = self.hparams.lr
+        if getattr(self, "_new_entries", None):  # a refit from a fitted (warm-start) network
+            lr = self.hparams.get("refit_lr") or 0.1 * lr
         if self.rollout_mode:  # fine-tuning starts from a fitted model: smaller steps
             lr = self.hparams.get("rollout_lr") or 0.1 * lr
         trainable = [p for p in self.parameters() if p.requires_grad]
