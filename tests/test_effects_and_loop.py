@@ -230,3 +230,18 @@ def test_bad_refit_gain_is_a_config_error():
         LoopSettings(refit_lr_factors=[])
     with pytest.raises(ConfigError, match="loop.refit_lr_factors"):
         LoopSettings(refit_lr_factors=[0.1, -1.0])
+
+
+def test_loop_runs_with_the_svm(tmp_path):
+    """No network to warm-start: each round fits the SVM once, with the round's effects."""
+    train, tests = small_dataset(tmp_path, effects={"creep": {"enabled": True}})
+    proc = run_app("loop", *data_overrides(train, tests), "model=svm", "model.n_components=100",
+                   "model.max_samples=1000", "loop.max_rounds=1", "logger=none",
+                   f"hydra.run.dir={tmp_path}/loop")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    rounds = json.loads((tmp_path / "loop" / "loop_report.json").read_text())["rounds"]
+    assert all("refit_candidates" not in r for r in rounds)
+    assert (tmp_path / "loop" / "round_0" / "metrics.json").is_file()
+    if rounds[0]["added"]:
+        assert rounds[1]["effects"] == [rounds[0]["added"]]
+        assert (tmp_path / "loop" / "round_1" / "metrics.json").is_file()

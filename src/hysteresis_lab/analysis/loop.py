@@ -366,10 +366,10 @@ def loop_markdown(report: dict[str, Any]) -> str:
     for i, r in enumerate(rounds):
         if r.get("rejected"):
             lines += ["", f"## Round {i}: {r['rejected']} rejected", "", f"- {r['note']}"]
-            lines += _rejected_refit_lines(r, unit)
+            lines += _refit_rate_lines(r) + _rejected_refit_lines(r, unit)
             lines.append(f"- next: {r['added']}" if r["added"] else "- nothing else to try")
             continue
-        lines += ["", f"## Round {i}: diagnosis", ""]
+        lines += ["", f"## Round {i}: diagnosis", ""] + _refit_rate_lines(r)
         lines += [
             f"- {'**' if d['significant'] else ''}{d['effect']}"
             f"{'**' if d['significant'] else ''}: score {d['score']:.3f}, p {d['p_value']:.3f}"
@@ -377,6 +377,16 @@ def loop_markdown(report: dict[str, Any]) -> str:
         ]
         lines.append(f"- added: {r['added']}" + (f" ({r['note']})" if r.get("note") else ""))
     return "\n".join(lines) + "\n"
+
+
+def _refit_rate_lines(entry: Mapping[str, Any]) -> list[str]:
+    """The learning rate a refit was chosen at and every tried rate's validation loss."""
+    if entry.get("refit_lr") is None:
+        return []
+    tried = ", ".join(
+        f"{c['refit_lr']:.0e}: {c['validation_loss']:.4g}" for c in entry["refit_candidates"]
+    )
+    return [f"- refit learning rate {entry['refit_lr']:.0e} (validation loss per rate: {tried})"]
 
 
 def _rejected_refit_lines(entry: Mapping[str, Any], unit: str) -> list[str]:
