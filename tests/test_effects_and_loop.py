@@ -142,7 +142,7 @@ def test_loop_writes_its_report(tmp_path):
         assert {"effect", "score", "significant", "evidence"} <= set(entry["diagnosis"][0])
     if len(rounds) == 2:
         assert rounds[1]["effects"] == [rounds[0]["added"]]
-        chosen = tmp_path / "loop" / "round_1" / f"refit_lr_{rounds[1]['refit_lr']:.0e}"
+        chosen = tmp_path / "loop" / "round_1" / f"refit_lr_{rounds[1]['refit_lr']:.3g}"
         assert (chosen / "checkpoints_free_run").is_dir()  # each refit rate in its own folder
         if not rounds[1].get("rejected"):  # the diagnosis sits beside the chosen refit
             assert (chosen / "residual_diagnostics.png").is_file()

@@ -273,7 +273,7 @@ def _fit_round(
     rates = _refit_rates(model_cfg, settings) if warm_start is not None else [None]
     runs = []
     for rate in rates:
-        run_dir = round_dir if len(rates) == 1 else round_dir / f"refit_lr_{rate:.0e}"
+        run_dir = round_dir if len(rates) == 1 else round_dir / f"refit_lr_{rate:.3g}"
         result = train_and_evaluate(
             {**model_cfg, **({"refit_lr": rate} if rate else {})},
             data_cfg,
