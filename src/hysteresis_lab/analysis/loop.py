@@ -15,9 +15,10 @@ effect brings, not the spread between two fits.
 
 from __future__ import annotations
 
+import functools
 import itertools
 import logging
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -101,21 +102,26 @@ def run_loop(
     diagnosis: list[EffectScore] = []
     tried: set[str] = set()  # effects tried on the current model
     trying: str | None = None
+    fit_model = functools.partial(
+        train_and_evaluate,
+        data_cfg=data_cfg,
+        trainer_cfg=trainer_cfg,
+        seed=seed,
+        splits=splits,
+        use_tensorboard=use_tensorboard,
+        min_refit_gain=settings.min_refit_gain,
+    )
     for number in itertools.count():
         round_effects = effects + ([trying] if trying else [])
         log.info("=== loop round %d: effects %s ===", number, round_effects or "none")
         warm_start = _previous_network(kept) if settings.warm_start else None
         result, round_dir, refit_lr, losses = _fit_round(
+            fit_model,
             {**model_cfg, "effects": round_effects},
-            data_cfg,
-            trainer_cfg,
-            splits,
             output_dir / f"round_{number}",
-            settings,
-            warm_start,
-            _refit_mode(settings.refit, trying),
-            seed,
-            use_tensorboard,
+            _refit_rates(model_cfg, settings) if warm_start is not None else [None],
+            warm_start=warm_start,
+            refit=_refit_mode(settings.refit, trying),
         )
         entry = _round_entry(round_effects, result)
         if refit_lr is not None:
@@ -255,37 +261,22 @@ def _diagnose_round(
 
 
 def _fit_round(
+    fit_model: Callable[..., RunResult],
     model_cfg: dict[str, Any],
-    data_cfg: Mapping[str, Any],
-    trainer_cfg: Mapping[str, Any],
-    splits: DatasetSplits,
     round_dir: Path,
-    settings: LoopSettings,
-    warm_start: Any | None,
-    refit: str,
-    seed: int,
-    use_tensorboard: bool,
+    rates: list[float] | list[None],
+    **fit_options: Any,
 ) -> tuple[RunResult, Path, float | None, list[dict[str, float]]]:
-    """Fit a round's model. A refit (``warm_start``) runs at every rate of `_refit_rates`,
-    each in its own folder; the one with the lowest validation loss is returned with its
-    folder, its rate and every rate's loss (the test recordings play no part in the choice).
-    """
-    rates = _refit_rates(model_cfg, settings) if warm_start is not None else [None]
+    """Fit a round's model with ``fit_model`` (`train_and_evaluate` bound to the loop's data
+    and settings) once per refit learning rate in ``rates`` (``[None]``: no refit, one fit),
+    each in its own folder when there are several; the one with the lowest validation loss
+    is returned with its folder, its rate and every rate's loss (the test recordings play no
+    part in the choice)."""
     runs = []
     for rate in rates:
         run_dir = round_dir if len(rates) == 1 else round_dir / f"refit_lr_{rate:.3g}"
-        result = train_and_evaluate(
-            {**model_cfg, **({"refit_lr": rate} if rate else {})},
-            data_cfg,
-            trainer_cfg,
-            run_dir,
-            seed=seed,
-            splits=splits,
-            use_tensorboard=use_tensorboard,
-            warm_start=warm_start,
-            refit=refit,
-            min_refit_gain=settings.min_refit_gain,
-        )
+        refit_lr = {"refit_lr": rate} if rate is not None else {}
+        result = fit_model(model_cfg={**model_cfg, **refit_lr}, output_dir=run_dir, **fit_options)
         runs.append((result, run_dir, rate))
     result, run_dir, rate = min(runs, key=lambda run: _refit_loss(run[0]))
     losses = [
@@ -358,11 +349,8 @@ def loop_markdown(report: dict[str, Any]) -> str:
     )
     if len(rounds) > 1:
         first, last = rounds[0]["mean_rmse_free_run"], rounds[-1]["mean_rmse_free_run"]
-        lines += [
-            "",
-            f"Mean free-run RMSE {first:.4g} -> {last:.4g} {unit} "
-            f"({100 * (last - first) / first:+.1f} %).",
-        ]
+        change = _change(first, last)
+        lines += ["", f"Mean free-run RMSE {first:.4g} -> {last:.4g} {unit} ({change})."]
     for i, r in enumerate(rounds):
         if r.get("rejected"):
             lines += ["", f"## Round {i}: {r['rejected']} rejected", "", f"- {r['note']}"]
