@@ -16,6 +16,8 @@ The identification data is the study's multisine plus full-amplitude sines betwe
 frequencies (``--train-sines``; the multisine alone never drives the full-amplitude loops of
 the test sines, so a model trained on it mostly shows its own extrapolation error), and the
 networks are fine-tuned on their free-run error (``--rollout-steps``).
+Each case also reports, per test where the effect acts, the RMSE cut that taking the effect's
+own output off the round-0 error would give (``benchmarks/effect_ceiling.py``).
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from effect_ceiling import ceiling  # the script beside this one
 
 from hysteresis_lab.effects.registry import get_effect
 from hysteresis_lab.sim.default_dataset import make_default_dataset
@@ -116,6 +119,10 @@ def run_case(name: str, args: argparse.Namespace) -> dict:
             row["rejected_refit_change_pct"] = change_pct(first, after["rejected_refit"])
     sizes = effect_size(block)
     row["effect_size_um"] = sizes
+    # the most that taking the effect's own output off the round-0 error could cut, per test
+    row["effect_share_max_cut_pct"] = {
+        r["test"]: r["max_cut_pct"] for r in ceiling(out, block, 0) if sizes[r["test"]] > ACTS_UM
+    }
     row["verdict"] = verdict(row, sizes, get_effect(expected).predictable)
     return row
 
