@@ -119,7 +119,7 @@ def run_case(name: str, args: argparse.Namespace) -> dict:
             row["rejected_refit_change_pct"] = change_pct(first, after["rejected_refit"])
     sizes = effect_size(block)
     row["effect_size_um"] = sizes
-    # the most that taking the effect's own output off the round-0 error could cut, per test
+    # the cut that taking the effect's own output off the round-0 error would give, per test
     row["effect_share_max_cut_pct"] = {
         r["test"]: r["max_cut_pct"] for r in ceiling(out, block, 0) if sizes[r["test"]] > ACTS_UM
     }
