@@ -29,11 +29,9 @@ import subprocess
 import time
 from pathlib import Path
 
-import numpy as np
 from effect_ceiling import ceiling  # the script beside this one
 
 from hysteresis_lab.effects.registry import get_effect
-from hysteresis_lab.sim.default_dataset import make_default_dataset
 
 log = logging.getLogger("undeclared_effects")
 
@@ -51,17 +49,6 @@ TRAIN_SINES = "[0.3,3,30,75,125,175,225,275,350,425,475]"
 ACTS_UM = 0.05  # an effect "acts" on a test where it moves the noise-free output by more (RMS)
 WORSE_PCT = 5.0  # no other test may get worse than this
 CUT_PCT = 30.0  # the gain required where the effect acts
-
-
-def effect_size(block: str) -> dict[str, float]:
-    """RMS change (µm) of each noise-free test output when ``block`` is switched on."""
-    quiet = {"noise": {"enabled": False}, "quantisation": {"enabled": False}}
-    with_it = make_default_dataset(effects={**quiet, block: {"enabled": True}})
-    without = make_default_dataset(effects={**quiet, block: {"enabled": False}})
-    return {
-        a.name: float(np.sqrt(np.mean((a.y - b.y) ** 2)))
-        for a, b in zip(with_it.test, without.test, strict=True)
-    }
 
 
 def verdict(row: dict, sizes: dict[str, float], predictable: bool) -> str:
@@ -117,11 +104,13 @@ def run_case(name: str, args: argparse.Namespace) -> dict:
         if after.get("rejected"):  # the loop kept round 0; what the refit would have done:
             row["rejected"] = after["rejected"]
             row["rejected_refit_change_pct"] = change_pct(first, after["rejected_refit"])
-    sizes = effect_size(block)
+    # per test: the effect's size and the cut that taking its own output off the round-0
+    # error would give
+    shares = ceiling(out, block, 0)
+    sizes = {r["test"]: r["effect_size_um"] for r in shares}
     row["effect_size_um"] = sizes
-    # the cut that taking the effect's own output off the round-0 error would give, per test
     row["effect_share_max_cut_pct"] = {
-        r["test"]: r["max_cut_pct"] for r in ceiling(out, block, 0) if sizes[r["test"]] > ACTS_UM
+        r["test"]: r["max_cut_pct"] for r in shares if sizes[r["test"]] > ACTS_UM
     }
     row["verdict"] = verdict(row, sizes, get_effect(expected).predictable)
     return row
