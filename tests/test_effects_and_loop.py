@@ -110,6 +110,33 @@ def test_lagged_baseline_absorbs_plain_dynamics():
     assert evidence_lags(10) == (0, 2, 5, 10, 20)
 
 
+def hold(seconds: float = 3.0) -> Recording:
+    n = int(seconds * FS)
+    return Recording(u=np.zeros(n), y=np.zeros(n), fs=FS, name="hold")
+
+
+def test_drift_is_named_where_the_input_is_held():
+    """A slow trend on a recording that holds the input is drift; on a moving input a trend
+    is not tested (it cannot be told from slow input-driven error), and the entry says what
+    to record."""
+    ctx = FeatureContext(FS, np.array([100.0]), 6.0)
+    rng = np.random.default_rng(2)
+    recs = [*sines(), hold()]
+    t = np.arange(recs[-1].n_samples) / FS
+    residuals = [0.01 * rng.standard_normal((r.n_samples, 1)) for r in recs]
+    quiet = diagnose(recs, residuals, ctx, [])
+    assert not any(d.significant for d in quiet)  # a held recording with noise only
+    residuals[-1] = residuals[-1] + 0.02 * t[:, None] + 0.01 * np.sin(t / 2)[:, None]
+    ranked = diagnose(recs, residuals, ctx, [])
+    assert ranked[0].effect == "drift" and ranked[0].significant and ranked[0].tested
+    assert "1 of 4 recordings that hold the input" in ranked[0].evidence
+    assert "3 of 4 recordings that move the input" in ranked[1].evidence
+    # a trend on moving recordings only: drift is not tested there
+    trending = [e + 0.02 * np.arange(len(e))[:, None] / FS for e in residuals[:3]]
+    drift = next(d for d in diagnose(recs[:3], trending, ctx, []) if d.effect == "drift")
+    assert not drift.tested and not drift.significant and "test_hold_s" in drift.evidence
+
+
 def test_white_residual_has_no_significant_missing_effect():
     recs = sines()
     ctx = FeatureContext(FS, np.array([100.0]), 6.0)
@@ -146,14 +173,19 @@ def test_loop_writes_its_report(tmp_path):
         assert (chosen / "checkpoints_free_run").is_dir()  # each refit rate in its own folder
         if not rounds[1].get("rejected"):  # the diagnosis sits beside the chosen refit
             assert (chosen / "residual_diagnostics.png").is_file()
-    assert (tmp_path / "loop" / "loop_report.md").read_text().startswith("# Residual loop")
+    markdown = (tmp_path / "loop" / "loop_report.md").read_text()
+    assert markdown.startswith("# Residual loop")
+    # no test recording holds the input: drift is listed as not tested, with the fix
+    drift = next(d for d in rounds[0]["diagnosis"] if d["effect"] == "drift")
+    assert not drift["tested"] and not drift["significant"]
+    assert "- drift: not tested (no test recording holds the input constant" in markdown
     assert (tmp_path / "loop" / "loops_before_after.png").is_file()
     assert (tmp_path / "loop" / "round_0" / "residual_diagnostics.png").is_file()
     events = EventAccumulator(str(tmp_path / "loop" / "round_0" / "tensorboard")).Reload()
     assert "loop/residual_diagnostics" in events.Tags()["images"]
     scored = {tag.rsplit("/", 1)[-1] for tag in events.Tags()["scalars"]
               if tag.startswith("loop/diagnosis_score/")}
-    assert scored == {d["effect"] for d in rounds[0]["diagnosis"]}
+    assert scored == {d["effect"] for d in rounds[0]["diagnosis"] if d["tested"]}
 
 
 @pytest.mark.parametrize(

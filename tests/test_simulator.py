@@ -289,3 +289,21 @@ def test_training_sines_can_stay_below_the_test_amplitude():
     assert np.max(np.abs(data.test[3].u)) == pytest.approx(100.0, rel=1e-3)
     with pytest.raises(ConfigError, match="train_sine_amplitude"):
         make_default_dataset(max_test_samples=400, train_sines=[3.0], train_sine_amplitude=150.0)
+
+
+def test_hold_recording_ends_the_test_set_and_shows_drift():
+    base = make_default_dataset(max_test_samples=400)
+    held = make_default_dataset(max_test_samples=400, test_hold_s=0.5)
+    assert [r.name for r in held.test] == [r.name for r in base.test] + ["hold_0.5s"]
+    for a, b in zip(held.test[:-1], base.test, strict=True):
+        np.testing.assert_array_equal(a.y, b.y)  # the sines are unchanged
+    assert held.test[-1].n_samples == 400  # truncated like the sines
+    quiet = {"noise": {"enabled": False}, "quantisation": {"enabled": False}}
+    short = {"n_train": 2_000, "test_frequencies": (500.0,), "test_hold_s": 0.5}
+    still = make_default_dataset(effects=quiet, **short).test[-1]
+    drifting = make_default_dataset(effects={**quiet, "drift": {"enabled": True}}, **short).test[-1]
+    assert still.n_samples == int(0.5 * FS) and not np.any(still.u)
+    assert np.ptp(still.y) < 1e-9  # held at rest, nothing the input drives moves
+    assert np.ptp(drifting.y) > 0.001  # 4 nm/s plus the slow oscillation
+    with pytest.raises(ConfigError, match="test_hold_s"):
+        make_default_dataset(max_test_samples=400, test_hold_s=-1.0)

@@ -13,6 +13,12 @@ regression; the loop spans twice the model's input window): the test then sees a
 the phase the dynamics give it, and the baseline gets the same freedom. Every recording
 weighs the same, however long; the score is the mean over recordings of the held-out gain.
 
+Each effect is tested on the recordings that can show it. An input-dependent effect: those
+whose input moves. An input-independent one (drift): those that hold the input constant — on
+a moving input a trend per recording cannot be told apart from slow input-driven error (a
+creep transient, a slow hysteresis error) and held out it takes up whichever is there. With no
+such recording the effect is reported as not tested, with what to record.
+
 Significance: a one-sided Wilcoxon signed-rank test that the held-out block gains are positive
 (spurious signals make held-out predictions worse, not better). Circularly shifted copies of
 the candidate signals are no null here: the study's test signals are periodic, and a shifted
@@ -46,6 +52,7 @@ class EffectScore:
     significant: bool
     evidence: str
     predictable: bool = True
+    tested: bool = True  # False: no recording can show the effect (see ``evidence``)
 
     def to_dict(self) -> dict:
         return {
@@ -55,6 +62,7 @@ class EffectScore:
             "significant": self.significant,
             "evidence": self.evidence,
             "predictable": self.predictable,
+            "tested": self.tested,
         }
 
 
@@ -101,15 +109,20 @@ def _prepare(
     declared: Sequence[str],
     max_points: int,
     lags: Sequence[int],
+    held: bool = False,
 ) -> _Prepared:
+    """``held``: the input is constant, so the baseline has nothing to regress on (its
+    de-meaned columns would be round-off, which standardising would blow up)."""
     e = np.asarray(residual, dtype=float)[:, 0]
     keep = np.flatnonzero(np.isfinite(e))
     keep = keep[:: max(1, len(keep) // max_points)]
     base = [recording.u] + [get_effect(name).features(recording.u, context) for name in declared]
     e = _centre(e[keep])
     weight = 1.0 / (float(np.sqrt(e @ e)) or 1.0)
-    design = _lagged_rows(np.column_stack(base), keep, lags)
-    return _Prepared(e * weight, _centre(design) * weight, keep, weight)
+    design = _centre(_lagged_rows(np.column_stack(base), keep, lags))
+    if held:
+        design = np.zeros_like(design)
+    return _Prepared(e * weight, design * weight, keep, weight)
 
 
 def evidence_lags(nb: int) -> tuple[int, ...]:
@@ -199,6 +212,26 @@ def _gains(base_blocks: Sequence[_Block], full_blocks: Sequence[_Block]) -> _Gai
     return _Gains(float(np.mean(per_recording)), p_value)
 
 
+def _holds_input(recording: Recording, context: FeatureContext) -> bool:
+    """Whether the recording holds every input constant (within 1e-6 of its range)."""
+    span = np.ptp(np.asarray(recording.u, dtype=float), axis=0)
+    return bool(np.all(span <= 1e-6 * np.maximum(context.u_amplitude, 1e-12)))
+
+
+def _not_tested(name: str, description: str, predictable: bool) -> EffectScore:
+    """The entry of an effect no recording can show."""
+    if predictable:
+        why = "no test recording moves the input"
+    else:
+        why = (
+            "no test recording holds the input constant; on a moving input a trend cannot be "
+            "told from slow input-driven error. Fix: add a recording with the input held (on "
+            "the simulator: data.splits.test_hold_s=10)"
+        )
+    evidence = f"{description}: not tested: {why}"
+    return EffectScore(name, 0.0, 1.0, False, evidence, predictable, tested=False)
+
+
 def diagnose(
     recordings: list[Recording],
     residuals: list[np.ndarray],
@@ -216,30 +249,44 @@ def diagnose(
     if not lags or min(lags) < 0:
         raise ValueError(f"lags must be non-negative sample delays, got {list(lags)}.")
     names = [n for n in (candidates or available_effects()) if n not in declared]
+    held = [_holds_input(rec, context) for rec in recordings]
     prepared = [
-        _prepare(rec, res, context, declared, max_points, lags)
-        for rec, res in zip(recordings, residuals, strict=True)
+        _prepare(rec, res, context, declared, max_points, lags, hold)
+        for rec, res, hold in zip(recordings, residuals, held, strict=True)
     ]
-    base = _standardised([p.base for p in prepared])
-    base_blocks = _blocks(prepared, base, folds)
+    baselines: dict[tuple[int, ...], tuple[list[np.ndarray], list[_Block]]] = {}
     results = []
     for name in names:
         effect = get_effect(name)
+        # input-dependent: where the input moves; input-independent: where it is held
+        tested = tuple(i for i, h in enumerate(held) if h != effect.predictable)
+        if not tested:
+            results.append(_not_tested(name, effect.description, effect.predictable))
+            continue
+        if tested not in baselines:
+            base = _standardised([prepared[i].base for i in tested])
+            baselines[tested] = base, _blocks([prepared[i] for i in tested], base, folds)
+        base, base_blocks = baselines[tested]
         # an input-independent trend gains nothing from delayed copies of itself
         own_lags = lags if effect.predictable else (0,)
         evidence_signals = [
-            _centre(_lagged_rows(effect.evidence(rec.u, context), p.keep, own_lags)) * p.weight
-            for rec, p in zip(recordings, prepared, strict=True)
+            _centre(_lagged_rows(effect.evidence(recordings[i].u, context), prepared[i].keep,
+                                 own_lags)) * prepared[i].weight
+            for i in tested
         ]
         if not effect.predictable:
             evidence_signals = _per_recording(evidence_signals)
         signals = _standardised(evidence_signals)
         full = [np.column_stack([b, s]) for b, s in zip(base, signals, strict=True)]
-        gains = _gains(base_blocks, _blocks(prepared, full, folds))
+        gains = _gains(base_blocks, _blocks([prepared[i] for i in tested], full, folds))
         significant = gains.score >= min_score and gains.p_value <= alpha
+        where = "" if len(tested) == len(recordings) else (
+            f" on the {len(tested)} of {len(recordings)} recordings that "
+            + ("move the input" if effect.predictable else "hold the input constant")
+        )
         evidence = (
             f"{effect.description}: explains {100 * gains.score:.1f} % of the residual variance "
-            f"of held-out blocks beyond the input and the declared effects "
+            f"of held-out blocks beyond the input and the declared effects{where} "
             f"(one-sided Wilcoxon over {len(base_blocks)} blocks: p = {gains.p_value:.2g})"
         )
         results.append(

@@ -319,12 +319,13 @@ def _previous_network(results: list[RunResult]) -> Any | None:
 def _log_round_to_tensorboard(
     log_dir: Path, figure: Any, diagnosis: list[Any], number: int
 ) -> None:
-    """Residual diagnostics figure and every effect's score, beside the round's training logs."""
+    """Residual diagnostics figure and every tested effect's score, beside the round's
+    training logs."""
     from torch.utils.tensorboard import SummaryWriter
 
     with SummaryWriter(log_dir=str(log_dir)) as writer:
         writer.add_figure("loop/residual_diagnostics", figure, global_step=number, close=False)
-        for d in diagnosis:
+        for d in (d for d in diagnosis if d.tested):
             writer.add_scalar(f"loop/diagnosis_score/{d.effect}", d.score, global_step=number)
 
 
@@ -358,13 +359,17 @@ def loop_markdown(report: dict[str, Any]) -> str:
             lines.append(f"- next: {r['added']}" if r["added"] else "- nothing else to try")
             continue
         lines += ["", f"## Round {i}: diagnosis", ""] + _refit_rate_lines(r)
-        lines += [
-            f"- {'**' if d['significant'] else ''}{d['effect']}"
-            f"{'**' if d['significant'] else ''}: score {d['score']:.3f}, p {d['p_value']:.3f}"
-            for d in r["diagnosis"]
-        ]
+        lines += [_diagnosis_line(d) for d in r["diagnosis"]]
         lines.append(f"- added: {r['added']}" + (f" ({r['note']})" if r.get("note") else ""))
     return "\n".join(lines) + "\n"
+
+
+def _diagnosis_line(d: Mapping[str, Any]) -> str:
+    """One effect of a round's diagnosis: its score and p-value, or why it was not tested."""
+    if not d.get("tested", True):
+        return f"- {d['effect']}: not tested ({d['evidence'].split('not tested: ', 1)[-1]})"
+    bold = "**" if d["significant"] else ""
+    return f"- {bold}{d['effect']}{bold}: score {d['score']:.3f}, p {d['p_value']:.3g}"
 
 
 def _refit_rate_lines(entry: Mapping[str, Any]) -> list[str]:

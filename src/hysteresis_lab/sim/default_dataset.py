@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
+from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.signals import multisine, sine
@@ -17,6 +18,7 @@ from hysteresis_lab.sim.positioner import simulate_recording
 
 log = logging.getLogger(__name__)
 
+HOLD_STREAM = 1  # seed stream of the hold recording (apart from the sines' seeds)
 TEST_FREQUENCIES_HZ = (0.1, 1, 10, 50, 100, 150, 200, 250, 300, 400, 450, 500)
 
 
@@ -26,6 +28,16 @@ def sine_name(frequency: float) -> str:
 
 def _sine_signal(frequency: float, fs: float, amplitude: float) -> np.ndarray:
     return sine(frequency, fs=fs, amplitude=amplitude, n_periods=1.0 if frequency < 1.0 else 2.0)
+
+
+def _hold_recording(
+    seconds: float, fs: float, config: PositionerConfig, seed: int, max_samples: int | None
+) -> Recording:
+    """The input held at 0 V for ``seconds`` from rest (its own noise stream)."""
+    n = int(round(seconds * fs))
+    u = np.zeros(min(n, max_samples) if max_samples else n)
+    hold_seed = int(np.random.default_rng((seed, HOLD_STREAM)).integers(0, 2**31))
+    return simulate_recording(u, fs, config, seed=hold_seed, name=f"hold_{seconds:g}s")
 
 
 def make_default_dataset(
@@ -38,6 +50,7 @@ def make_default_dataset(
     max_test_samples: int | None = None,
     train_sines: Sequence[float] = (),
     train_sine_amplitude: float | None = None,
+    test_hold_s: float = 0.0,
 ) -> DatasetSplits:
     """Multisine (500 lines, 0-500 Hz, ±amplitude, ``n_train`` samples) and sine test sets.
 
@@ -47,6 +60,8 @@ def make_default_dataset(
     set (the study trains on the multisine alone, whose many small lines never drive the
     full-amplitude, high-rate loops of the test sines), of ``train_sine_amplitude`` (default:
     the test amplitude; less keeps identification inside the amplifier's linear range).
+    ``test_hold_s`` > 0 adds a test recording that holds the input at 0 V that long: the
+    metrology test for drift, the one recording on which nothing the input drives moves.
     """
     if isinstance(effects, DictConfig):
         effects = OmegaConf.to_container(effects, resolve=True)  # type: ignore[assignment]
@@ -54,6 +69,11 @@ def make_default_dataset(
         raise ConfigError(
             f"train_sine_amplitude={train_sine_amplitude} V must lie in (0, {amplitude:g}] V. "
             "Fix: data.splits.train_sine_amplitude=null (the test amplitude) or a smaller value."
+        )
+    if not test_hold_s >= 0:
+        raise ConfigError(
+            f"test_hold_s={test_hold_s} s must be >= 0. "
+            "Fix: data.splits.test_hold_s=0 (no hold recording) or a duration, e.g. 10."
         )
     overlap = sorted(set(map(float, train_sines)) & set(map(float, test_frequencies)))
     if overlap:
@@ -78,6 +98,8 @@ def make_default_dataset(
         tests.append(
             simulate_recording(u, fs, config, seed=int(rec_seed), name=sine_name(frequency))
         )
+    if test_hold_s > 0:
+        tests.append(_hold_recording(test_hold_s, fs, config, seed, max_test_samples))
     return DatasetSplits(
         name="default",
         train=train,
