@@ -111,8 +111,10 @@ def test_lagged_baseline_absorbs_plain_dynamics():
 
 
 def hold(seconds: float = 3.0) -> Recording:
+    """The input held at 0 V, with a little measurement noise (about 0.04 V peak to peak)."""
     n = int(seconds * FS)
-    return Recording(u=np.zeros(n), y=np.zeros(n), fs=FS, name="hold")
+    u = 0.005 * np.random.default_rng(3).standard_normal(n)
+    return Recording(u=u, y=np.zeros(n), fs=FS, name="hold")
 
 
 def test_drift_is_named_where_the_input_is_held():

@@ -41,6 +41,9 @@ from hysteresis_lab.effects.registry import available_effects, get_effect
 
 log = logging.getLogger(__name__)
 
+#: an input whose peak-to-peak stays within this share of its amplitude counts as held
+HELD_SPAN = 1e-3
+
 
 @dataclass
 class EffectScore:
@@ -213,9 +216,10 @@ def _gains(base_blocks: Sequence[_Block], full_blocks: Sequence[_Block]) -> _Gai
 
 
 def _holds_input(recording: Recording, context: FeatureContext) -> bool:
-    """Whether the recording holds every input constant (within 1e-6 of its range)."""
+    """Whether the recording holds every input constant: its peak-to-peak within 0.1 % of the
+    training input's amplitude (a measured hold keeps a little noise)."""
     span = np.ptp(np.asarray(recording.u, dtype=float), axis=0)
-    return bool(np.all(span <= 1e-6 * np.maximum(context.u_amplitude, 1e-12)))
+    return bool(np.all(span <= HELD_SPAN * np.maximum(context.u_amplitude, 1e-12)))
 
 
 def _not_tested(name: str, description: str, predictable: bool) -> EffectScore:
