@@ -10,8 +10,8 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 
 from helpers import data_overrides, run_app, small_dataset
 from hysteresis_lab.analysis.correlation import correlation_tests
-from hysteresis_lab.analysis.diagnosis import diagnose, evidence_lags
-from hysteresis_lab.analysis.loop import LoopSettings
+from hysteresis_lab.analysis.diagnosis import EffectScore, diagnose, evidence_lags
+from hysteresis_lab.analysis.loop import LoopSettings, next_effect
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.effects.augment import augment, feature_context
 from hysteresis_lab.effects.base import FeatureContext
@@ -139,6 +139,20 @@ def test_drift_is_named_where_the_input_is_held():
     assert not drift.tested and not drift.significant and "test_hold_s" in drift.evidence
 
 
+def test_loop_reports_drift_and_adds_the_next_effect():
+    """A significant input-independent effect is reported, never added; the loop takes the
+    next significant effect that free run can predict."""
+    ranked = [
+        EffectScore("drift", 0.9, 1e-6, True, "trend", predictable=False),
+        EffectScore("creep", 0.2, 1e-4, True, "slow filters"),
+        EffectScore("rate", 0.01, 0.5, False, "rate"),
+    ]
+    top, reported = next_effect(ranked, tried=set())
+    assert top is not None and top.effect == "creep" and reported == ["drift"]
+    top, reported = next_effect(ranked, tried={"creep"})
+    assert top is None and reported == ["drift"]
+
+
 def test_white_residual_has_no_significant_missing_effect():
     recs = sines()
     ctx = FeatureContext(FS, np.array([100.0]), 6.0)
@@ -180,7 +194,7 @@ def test_loop_writes_its_report(tmp_path):
     # no test recording holds the input: drift is listed as not tested, with the fix
     drift = next(d for d in rounds[0]["diagnosis"] if d["effect"] == "drift")
     assert not drift["tested"] and not drift["significant"]
-    assert "- drift: not tested (no test recording holds the input constant" in markdown
+    assert "- drift (not tested): " in markdown and "data.splits.test_hold_s=10" in markdown
     assert (tmp_path / "loop" / "loops_before_after.png").is_file()
     assert (tmp_path / "loop" / "round_0" / "residual_diagnostics.png").is_file()
     events = EventAccumulator(str(tmp_path / "loop" / "round_0" / "tensorboard")).Reload()

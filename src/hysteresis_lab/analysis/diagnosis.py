@@ -50,7 +50,9 @@ class EffectScore:
     """Evidence for one candidate effect."""
 
     effect: str
-    score: float  # mean over recordings: held-out share of residual variance beyond the baseline
+    #: mean over the recordings it is tested on: held-out share of the residual variance
+    #: beyond the baseline
+    score: float
     p_value: float
     significant: bool
     evidence: str

@@ -18,7 +18,7 @@ from __future__ import annotations
 import functools
 import itertools
 import logging
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -141,15 +141,12 @@ def run_loop(
                 result, splits, context, effects, settings, round_dir, use_tensorboard, number
             )
             entry["diagnosis"] = [d.to_dict() for d in diagnosis]
-        top = next((d for d in diagnosis if d.significant and d.effect not in tried), None)
+        top, reported = next_effect(diagnosis, tried)
+        if reported:
+            entry["reported"] = reported
         if top is None:
-            entry.setdefault("note", "no significant missing effect")
-            break
-        if not top.predictable:
-            entry.setdefault("note", (
-                f"top effect '{top.effect}' does not depend on the input: it cannot be "
-                "predicted in free run, so it is reported, not added"
-            ))
+            entry.setdefault("note", "no significant missing effect" + (
+                " that depends on the input" if reported else ""))
             break
         if len(kept) > settings.max_rounds:
             entry.setdefault(
@@ -185,6 +182,17 @@ def run_loop(
     )
     log.info("\n%s", loop_markdown(report))
     return report
+
+
+def next_effect(
+    diagnosis: Sequence[EffectScore], tried: set[str]
+) -> tuple[EffectScore | None, list[str]]:
+    """The significant effect to add next (best first, not yet tried on this model) and the
+    significant ones that do not depend on the input: free run cannot predict those, so
+    they are reported, never added, and the loop goes on with the next."""
+    candidates = [d for d in diagnosis if d.significant and d.effect not in tried]
+    reported = [d.effect for d in candidates if not d.predictable]
+    return next((d for d in candidates if d.predictable), None), reported
 
 
 def _without_network_only_settings(model_cfg: Mapping[str, Any]) -> dict[str, Any]:
@@ -360,6 +368,11 @@ def loop_markdown(report: dict[str, Any]) -> str:
             continue
         lines += ["", f"## Round {i}: diagnosis", ""] + _refit_rate_lines(r)
         lines += [_diagnosis_line(d) for d in r["diagnosis"]]
+        if r.get("reported"):
+            lines.append(
+                f"- reported, not added: {', '.join(r['reported'])} (does not depend on the "
+                "input: free run cannot predict it; no gain is claimed)"
+            )
         lines.append(f"- added: {r['added']}" + (f" ({r['note']})" if r.get("note") else ""))
     return "\n".join(lines) + "\n"
 
@@ -367,7 +380,7 @@ def loop_markdown(report: dict[str, Any]) -> str:
 def _diagnosis_line(d: Mapping[str, Any]) -> str:
     """One effect of a round's diagnosis: its score and p-value, or why it was not tested."""
     if not d.get("tested", True):
-        return f"- {d['effect']}: not tested ({d['evidence'].split('not tested: ', 1)[-1]})"
+        return f"- {d['effect']} (not tested): {d['evidence']}"
     bold = "**" if d["significant"] else ""
     return f"- {bold}{d['effect']}{bold}: score {d['score']:.3f}, p {d['p_value']:.3g}"
 
