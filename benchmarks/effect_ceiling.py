@@ -51,7 +51,10 @@ def round_model(run: Path, number: int) -> Path:
     chosen = entry.get("refit_lr")
     candidates = sorted(folder.glob("refit_lr_*/model.ckpt"))
     if chosen is not None:
-        candidates = [c for c in candidates if np.isclose(float(c.parent.name[9:]), chosen)]
+        candidates = [
+            c for c in candidates
+            if np.isclose(float(c.parent.name.removeprefix("refit_lr_")), chosen)
+        ]
     if not candidates:
         raise SystemExit(f"no model.ckpt for round {number} under {folder}")
     return candidates[0]

@@ -116,17 +116,17 @@ def _prepare(
     lags: Sequence[int],
     held: bool = False,
 ) -> _Prepared:
-    """``held``: the input is constant, so the baseline has nothing to regress on (its
-    de-meaned columns would be round-off, which standardising would blow up)."""
+    """``held``: the input is constant, so the baseline has nothing to regress on and gets no
+    columns (de-meaned, they would be round-off, which standardising would blow up)."""
     e = np.asarray(residual, dtype=float)[:, 0]
     keep = np.flatnonzero(np.isfinite(e))
     keep = keep[:: max(1, len(keep) // max_points)]
-    base = [recording.u] + [get_effect(name).features(recording.u, context) for name in declared]
     e = _centre(e[keep])
     weight = 1.0 / (float(np.sqrt(e @ e)) or 1.0)
-    design = _centre(_lagged_rows(np.column_stack(base), keep, lags))
     if held:
-        design = np.zeros_like(design)
+        return _Prepared(e * weight, np.empty((len(keep), 0)), keep, weight)
+    base = [recording.u] + [get_effect(name).features(recording.u, context) for name in declared]
+    design = _centre(_lagged_rows(np.column_stack(base), keep, lags))
     return _Prepared(e * weight, design * weight, keep, weight)
 
 

@@ -379,7 +379,7 @@ def loop_markdown(report: dict[str, Any]) -> str:
 
 def _diagnosis_line(d: Mapping[str, Any]) -> str:
     """One effect of a round's diagnosis: its score and p-value, or why it was not tested."""
-    if not d.get("tested", True):
+    if not d["tested"]:
         return f"- {d['effect']} (not tested): {d['evidence']}"
     bold = "**" if d["significant"] else ""
     return f"- {bold}{d['effect']}{bold}: score {d['score']:.3f}, p {d['p_value']:.3g}"
