@@ -269,6 +269,14 @@ def test_loop_drops_an_effect_whose_refit_does_not_help(tmp_path):
     assert "rejected" in report
     refit_mean = rounds[1]["rejected_refit"]["mean_rmse_free_run"]
     assert f"-> {refit_mean:.4g}" in report
+    # the rejected refit's own weights are saved beside its start's: evaluated again, they
+    # give the errors the report shows for it
+    chosen = tmp_path / "loop" / "round_1" / f"refit_lr_{rounds[1]['refit_lr']:.3g}"
+    again = run_app("evaluate", f"checkpoint={chosen / 'rejected_refit_model.ckpt'}",
+                    *data_overrides(train, tests), f"hydra.run.dir={tmp_path}/eval", "plots=false")
+    assert again.returncode == 0, again.stderr[-3000:]
+    fresh = json.loads((tmp_path / "eval" / "metrics.json").read_text())["mean"]
+    assert fresh["rmse_free_run"] == pytest.approx(refit_mean, rel=1e-6)
 
 
 def test_bad_refit_gain_is_a_config_error():

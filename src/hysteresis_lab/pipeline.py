@@ -8,7 +8,8 @@ final metrics as hparams).
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -29,6 +30,10 @@ from hysteresis_lab.models.io import save_model
 from hysteresis_lab.training import TrainResult, build_model, fit, model_layout
 
 log = logging.getLogger(__name__)
+
+#: where a warm-started refit that lost to its start on validation leaves its own weights
+#: (beside ``rejected_refit_metrics.json``; ``model.ckpt`` holds the start it lost to)
+REJECTED_REFIT_MODEL = "rejected_refit_model"
 
 
 @dataclass
@@ -158,6 +163,8 @@ def train_and_evaluate(
     )
     if rejected_refit is not None:
         write_json(rejected_refit, output_dir / "rejected_refit_metrics.json")
+        with _weights(trained.model, trained.rejected_state):
+            log.info("saved %s", save_model(trained.model, output_dir / REJECTED_REFIT_MODEL))
     document = metrics_document(
         str(model_cfg["name"]),
         units,
@@ -208,10 +215,7 @@ def _score_rejected_refit(
 ) -> dict[str, Any]:
     """Test metrics of a refit that lost to its start on validation, so that a report can show
     what it would have done; the start's weights are back in place afterwards."""
-    model = trained.model
-    kept = {k: v.detach().clone() for k, v in model.state_dict().items()}
-    model.load_state_dict(trained.rejected_state)
-    try:
+    with _weights(trained.model, trained.rejected_state) as model:
         evaluation = evaluate_model(
             model.eval(),
             data.test,
@@ -220,8 +224,6 @@ def _score_rejected_refit(
             n_steps=n_steps,
             device=evaluation_device(trainer_cfg),
         )
-    finally:
-        model.load_state_dict(kept)
     return metrics_document(
         model_name,
         units,
@@ -229,6 +231,17 @@ def _score_rejected_refit(
         trained.train_seconds,
         extra={"rejected_refit": True, "validation_loss": trained.refit_validation},
     )
+
+
+@contextmanager
+def _weights(model: torch.nn.Module, state: Mapping[str, torch.Tensor]) -> Iterator[Any]:
+    """``model`` with the weights ``state`` for the duration of the block; its own after."""
+    own = {k: v.detach().clone() for k, v in model.state_dict().items()}
+    model.load_state_dict(state)
+    try:
+        yield model
+    finally:
+        model.load_state_dict(own)
 
 
 def _write_figures(

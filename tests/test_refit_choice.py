@@ -1,0 +1,52 @@
+"""benchmarks/refit_choice.py: a loop run's refits scored on sines between the test frequencies."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+import pytest
+
+from helpers import REPO, run_app
+
+sys.path.insert(0, str(REPO / "benchmarks"))
+from refit_choice import check_splits, refit_choices  # noqa: E402
+
+#: a small simulator run: a short multisine, two short test sines
+SMALL_DEFAULT = ["data=default", "+data.splits.n_train=4000", "+data.splits.max_test_samples=3000",
+                 "+data.splits.test_frequencies=[10,50]"]
+
+
+def test_refit_choice_scores_the_start_and_every_refit(tmp_path):
+    """Every refit is rejected (no refit takes 99 % off): the script scores the start and each
+    rate's own saved weights on the check sines and names the one they prefer."""
+    run = tmp_path / "loop"
+    proc = run_app("loop", *SMALL_DEFAULT, "model=ffnn", "loop.max_rounds=1",
+                   "loop.min_refit_gain=0.99", "trainer.max_epochs=2", "model.rollout_epochs=1",
+                   "trainer.enable_progress_bar=false", "logger=none", f"hydra.run.dir={run}")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    rounds = json.loads((run / "loop_report.json").read_text())["rounds"]
+    results = refit_choices(run, [20.0, 70.0])
+    assert [r["round"] for r in results] == list(range(1, len(rounds)))
+    for result, entry in zip(results, rounds[1:], strict=True):
+        start, *refits = result["candidates"]
+        assert start["refit_lr"] is None and start["kept"]  # every refit was rejected
+        assert result["loop_keeps"] is None
+        assert [c["refit_lr"] for c in refits] == [c["refit_lr"] for c in entry["refit_candidates"]]
+        assert all(c["model"].endswith("rejected_refit_model.ckpt") for c in refits)
+        for candidate in result["candidates"]:
+            assert list(candidate["check_rmse"]) == ["sine_20Hz", "sine_70Hz"]
+        # the refits' own weights, not the start's they lost to
+        assert all(c["check_rmse"] != start["check_rmse"] for c in refits)
+        best = min(result["candidates"], key=lambda c: c["check_mean"])
+        assert result["check_prefers"] == best["refit_lr"]
+
+
+def test_refit_choice_refuses_training_sines_and_measured_data():
+    simulator = {"effects": {}, "splits": {
+        "_target_": "hysteresis_lab.sim.default_dataset.make_default_dataset",
+        "train_sines": [30.0]}}
+    with pytest.raises(SystemExit, match="training sines"):
+        check_splits(simulator, [30.0, 70.0])
+    with pytest.raises(SystemExit, match="simulator"):
+        check_splits({"splits": {}}, [30.0])
