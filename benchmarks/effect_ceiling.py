@@ -28,9 +28,11 @@ from typing import Any
 import numpy as np
 from omegaconf import OmegaConf
 
+from hysteresis_lab.analysis.loop import refit_dir
 from hysteresis_lab.data.factory import build_splits
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.effects.augment import for_model
+from hysteresis_lab.evaluation.metrics import rmse
 from hysteresis_lab.evaluation.predict import free_run
 from hysteresis_lab.models.io import load_model
 
@@ -48,16 +50,11 @@ def round_model(run: Path, number: int) -> Path:
     if not 0 <= number < len(rounds):
         raise SystemExit(f"{run} has rounds 0-{len(rounds) - 1}; --round {number} is not one.")
     entry = rounds[number]
-    chosen = entry.get("refit_lr")
-    candidates = sorted(folder.glob("refit_lr_*/model.ckpt"))
-    if chosen is not None:
-        candidates = [
-            c for c in candidates
-            if np.isclose(float(c.parent.name.removeprefix("refit_lr_")), chosen)
-        ]
-    if not candidates:
+    several = len(entry.get("refit_candidates") or []) > 1
+    path = refit_dir(folder, entry.get("refit_lr"), several) / "model.ckpt"
+    if not path.exists():
         raise SystemExit(f"no model.ckpt for round {number} under {folder}")
-    return candidates[0]
+    return path
 
 
 def effect_contribution(data_cfg: dict[str, Any], block: str) -> dict[str, np.ndarray]:
@@ -80,7 +77,7 @@ def effect_contribution(data_cfg: dict[str, Any], block: str) -> dict[str, np.nd
 
 
 def _rmse(rec: Recording, prediction: np.ndarray, skip: int) -> float:
-    return float(np.sqrt(np.mean((rec.y - prediction)[skip:, 0] ** 2)))
+    return rmse(rec.y[skip:], prediction[skip:])
 
 
 def ceiling(

@@ -24,8 +24,11 @@ from typing import Any
 import numpy as np
 from omegaconf import OmegaConf
 
+from hysteresis_lab.analysis.loop import refit_dir
 from hysteresis_lab.data.factory import build_splits
+from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.effects.augment import for_model
+from hysteresis_lab.evaluation.metrics import rmse
 from hysteresis_lab.evaluation.predict import free_run
 from hysteresis_lab.models.io import load_model
 from hysteresis_lab.pipeline import REJECTED_REFIT_MODEL
@@ -37,7 +40,7 @@ log = logging.getLogger("refit_choice")
 CHECK_FREQUENCIES = (0.2, 2.0, 20.0, 70.0, 120.0, 170.0, 220.0, 270.0, 340.0, 420.0, 470.0)
 
 
-def check_splits(data_cfg: dict[str, Any], frequencies: list[float]) -> list[Any]:
+def check_splits(data_cfg: dict[str, Any], frequencies: list[float]) -> DatasetSplits:
     """The run's simulator, its test sines replaced by sines at ``frequencies``."""
     splits_cfg = data_cfg.get("splits") or {}
     if not str(splits_cfg.get("_target_", "")).endswith("make_default_dataset"):
@@ -52,7 +55,7 @@ def check_splits(data_cfg: dict[str, Any], frequencies: list[float]) -> list[Any
             f"{clash} Hz are training sines of this run. Fix: --frequencies without them."
         )
     splits_cfg = {**splits_cfg, "test_frequencies": frequencies, "test_hold_s": 0}
-    return build_splits({**data_cfg, "splits": splits_cfg}).test
+    return build_splits({**data_cfg, "splits": splits_cfg})
 
 
 def round_candidates(run: Path, number: int, entry: dict[str, Any]) -> list[dict[str, Any]]:
@@ -70,7 +73,7 @@ def round_candidates(run: Path, number: int, entry: dict[str, Any]) -> list[dict
     folder = run / f"round_{number}"
     candidates = []
     for rate, loss in losses.items():
-        rate_folder = folder / f"refit_lr_{rate:.3g}" if len(losses) > 1 else folder
+        rate_folder = refit_dir(folder, rate, several=len(losses) > 1)
         rejected = rate_folder / f"{REJECTED_REFIT_MODEL}.ckpt"
         if not rejected.exists() and not loss < start_loss:
             raise SystemExit(
@@ -86,14 +89,15 @@ def round_candidates(run: Path, number: int, entry: dict[str, Any]) -> list[dict
     return candidates
 
 
-def check_sine_rmse(model_path: Path, recordings: list[Any]) -> dict[str, float]:
-    """Whole-recording free-run RMSE per check sine (after the initial outputs)."""
+def check_sine_rmse(model_path: Path, check: DatasetSplits) -> dict[str, float]:
+    """Whole-recording free-run RMSE per check sine (after the initial outputs, as the tests
+    are scored)."""
     model = load_model(model_path)
-    predictions = free_run(model, for_model(model, recordings), model.window)
-    skip = model.window.first_target
+    predictions = free_run(model, for_model(model, check.test), model.window)
+    skip = max(model.window.first_target, check.n_init)
     return {
-        rec.name: float(np.sqrt(np.mean((rec.y - p)[skip:, 0] ** 2)))
-        for rec, p in zip(recordings, predictions, strict=True)
+        rec.name: rmse(rec.y[skip:], p[skip:])
+        for rec, p in zip(check.test, predictions, strict=True)
     }
 
 
@@ -103,7 +107,7 @@ def refit_choices(run: Path, frequencies: list[float]) -> list[dict[str, Any]]:
     if not (config.is_file() and report.is_file()):
         raise SystemExit(f"{run} is not a finished hysteresis-lab-loop run folder.")
     data_cfg = OmegaConf.to_container(OmegaConf.load(config), resolve=True)["data"]
-    recordings = check_splits(data_cfg, frequencies)
+    check = check_splits(data_cfg, frequencies)
     rounds = json.loads(report.read_text())["rounds"]
     standing = run / "round_0" / "model.ckpt"
     results = []
@@ -111,11 +115,10 @@ def refit_choices(run: Path, frequencies: list[float]) -> list[dict[str, Any]]:
         candidates = round_candidates(run, number, entry)
         start = {"refit_lr": None, "validation_loss": entry["refit_validation_loss"]["start"],
                  "kept": bool(entry.get("rejected")), "model": standing}
-        for candidate in [start, *candidates]:
-            candidate["check_rmse"] = check_sine_rmse(candidate["model"], recordings)
-            candidate["check_mean"] = float(np.mean(list(candidate["check_rmse"].values())))
-            candidate["model"] = str(candidate["model"])
         everything = [start, *candidates]
+        for candidate in everything:
+            candidate["check_rmse"] = check_sine_rmse(candidate["model"], check)
+            candidate["check_mean"] = float(np.mean(list(candidate["check_rmse"].values())))
         results.append({
             "round": number,
             "effects": entry["effects"],
@@ -124,7 +127,7 @@ def refit_choices(run: Path, frequencies: list[float]) -> list[dict[str, Any]]:
             "check_prefers": min(everything, key=lambda c: c["check_mean"])["refit_lr"],
         })
         if not entry.get("rejected"):
-            standing = Path(next(c["model"] for c in candidates if c["kept"]))
+            standing = next(c["model"] for c in candidates if c["kept"])
     return results
 
 
@@ -147,7 +150,7 @@ def main() -> None:
                      c["validation_loss"], c["check_mean"], sines, "  <- loop" if c["kept"] else "")
         agree = "agree" if result["loop_keeps"] == result["check_prefers"] else "DISAGREE"
         log.info("  check sines prefer %s: %s", _name(result["check_prefers"]), agree)
-    (args.run / "refit_choice.json").write_text(json.dumps(results, indent=1))
+    (args.run / "refit_choice.json").write_text(json.dumps(results, indent=1, default=str))
 
 
 if __name__ == "__main__":

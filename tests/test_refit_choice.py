@@ -33,7 +33,7 @@ def test_refit_choice_scores_the_start_and_every_refit(tmp_path):
         assert start["refit_lr"] is None and start["kept"]  # every refit was rejected
         assert result["loop_keeps"] is None
         assert [c["refit_lr"] for c in refits] == [c["refit_lr"] for c in entry["refit_candidates"]]
-        assert all(c["model"].endswith("rejected_refit_model.ckpt") for c in refits)
+        assert all(c["model"].name == "rejected_refit_model.ckpt" for c in refits)
         for candidate in result["candidates"]:
             assert list(candidate["check_rmse"]) == ["sine_20Hz", "sine_70Hz"]
         # the refits' own weights, not the start's they lost to

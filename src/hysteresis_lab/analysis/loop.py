@@ -282,7 +282,7 @@ def _fit_round(
     part in the choice)."""
     runs = []
     for rate in rates:
-        run_dir = round_dir if len(rates) == 1 else round_dir / f"refit_lr_{rate:.3g}"
+        run_dir = refit_dir(round_dir, rate, several=len(rates) > 1)
         refit_lr = {"refit_lr": rate} if rate is not None else {}
         result = fit_model(model_cfg={**model_cfg, **refit_lr}, output_dir=run_dir, **fit_options)
         runs.append((result, run_dir, rate))
@@ -291,6 +291,12 @@ def _fit_round(
         {"refit_lr": r, "validation_loss": _refit_loss(res)} for res, _, r in runs if r is not None
     ]
     return result, run_dir, rate, losses
+
+
+def refit_dir(round_dir: Path, rate: float | None, several: bool) -> Path:
+    """Where a round's fit at ``rate`` lands: its own ``refit_lr_<rate>`` folder when the round
+    tried ``several`` rates, else the round's folder."""
+    return round_dir / f"refit_lr_{rate:.3g}" if several else round_dir
 
 
 def _refit_rates(model_cfg: Mapping[str, Any], settings: LoopSettings) -> list[float]:
