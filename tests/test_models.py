@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import lightning as L
 import numpy as np
 import pytest
 import torch
@@ -41,6 +42,36 @@ def test_training_lowers_the_loss(name, splits, trained):
 
     before = mse(untrained) if name != "svm" else float(np.mean(target**2))
     assert mse(model) < 0.7 * before
+
+
+class _StepLosses(L.Callback):
+    """Records every training step's loss and batch size, per epoch."""
+
+    def __init__(self) -> None:
+        self.epochs: list[list[tuple[float, int]]] = []
+
+    def on_train_epoch_start(self, trainer, pl_module) -> None:
+        self.epochs.append([])
+
+    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
+        self.epochs[-1].append((float(outputs["loss"]), len(batch[0])))
+
+
+def test_logged_training_loss_is_the_last_epochs_weighted_mean(splits):
+    dm = datamodule_for("ffnn", splits)
+    steps = _StepLosses()
+    trainer = L.Trainer(**{**TRAINER, "max_epochs": 2}, logger=False,
+                        enable_checkpointing=False, callbacks=[steps])
+    trainer.fit(build_model(CONFIGS["ffnn"], dm), datamodule=dm)
+
+    def weighted_mean(rows: list[tuple[float, int]]) -> float:
+        return sum(loss * size for loss, size in rows) / sum(size for _, size in rows)
+
+    sizes = {size for _, size in steps.epochs[-1]}
+    assert len(sizes) == 2  # a short last batch: an unweighted mean would differ
+    logged = float(trainer.callback_metrics["train_loss"])
+    assert logged == pytest.approx(weighted_mean(steps.epochs[-1]), rel=1e-5)
+    assert logged != pytest.approx(weighted_mean(steps.epochs[0] + steps.epochs[1]), rel=1e-3)
 
 
 def test_study_architectures_have_the_published_structure():

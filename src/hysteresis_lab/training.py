@@ -13,7 +13,7 @@ from typing import Any
 import lightning as L
 import numpy as np
 import torch
-from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint
+from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint, TQDMProgressBar
 from lightning.pytorch.loggers import TensorBoardLogger
 
 from hysteresis_lab.data.datamodules import WindowDataModule
@@ -22,6 +22,9 @@ from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.registry import get_model_class
 
 log = logging.getLogger(__name__)
+
+#: batches between progress-bar refreshes (one per batch costs a small network ~10 % of its time)
+PROGRESS_BAR_REFRESH_BATCHES = 20
 
 
 @dataclass
@@ -145,7 +148,7 @@ def _selection_loss(
     settings = {**dict(trainer_cfg), "logger": False, "enable_checkpointing": False}
     model.rollout_mode = True
     try:
-        trainer = L.Trainer(**settings)
+        trainer = _trainer(settings)
         segments = SegmentDataModule(datamodule, steps)
         return float(trainer.validate(model, datamodule=segments, verbose=False)[0]["val_loss"])
     finally:
@@ -200,16 +203,27 @@ def _fit_one_step(
     all_callbacks: list[Any] = [checkpoint, *(callbacks or [])]
     if logger is not None:
         all_callbacks.append(LearningRateMonitor(logging_interval="epoch"))
-    trainer = L.Trainer(
-        **dict(trainer_cfg),
+    trainer = _trainer(
+        trainer_cfg,
+        all_callbacks,
         logger=logger if logger is not None else False,
-        callbacks=all_callbacks,
         default_root_dir=str(output_dir),
     )
     trainer.fit(model, datamodule=datamodule)
     best, val_mse = _restore_best(model, checkpoint)
     log.info("best validation MSE %.4e (scaled); checkpoint %s", val_mse, best)
     return best, val_mse
+
+
+def _trainer(
+    settings: Mapping[str, Any], callbacks: list[Any] | None = None, **kwargs: Any
+) -> L.Trainer:
+    """A Lightning Trainer from the ``trainer`` config; its progress bar, when enabled,
+    refreshes every `PROGRESS_BAR_REFRESH_BATCHES` batches."""
+    callbacks = list(callbacks or [])
+    if settings.get("enable_progress_bar", True):
+        callbacks.append(TQDMProgressBar(refresh_rate=PROGRESS_BAR_REFRESH_BATCHES))
+    return L.Trainer(**dict(settings), callbacks=callbacks, **kwargs)
 
 
 def _best_checkpoint(directory: Path) -> ModelCheckpoint:
@@ -285,11 +299,8 @@ def _fine_tune_free_run(
             if logger is not None
             else False
         )
-        trainer = L.Trainer(
-            **settings,
-            logger=stage_logger,
-            callbacks=[checkpoint],
-            default_root_dir=str(output_dir),
+        trainer = _trainer(
+            settings, [checkpoint], logger=stage_logger, default_root_dir=str(output_dir)
         )
         starting_loss = float(
             trainer.validate(model, datamodule=segments, verbose=False)[0]["val_loss"]

@@ -366,31 +366,41 @@ class NarxModule(L.LightningModule):
         return u_part + [w.nb * nu + j for j in range(w.na * ny)]
 
     # ------------------------------------------------------------------ training
-    def _step(self, batch: tuple[torch.Tensor, torch.Tensor], stage: str) -> torch.Tensor:
+    def _loss(self, batch: tuple[torch.Tensor, torch.Tensor]) -> torch.Tensor:
         """One-step loss on (regressors, target) windows, or in ``rollout_mode`` the free-run
         loss on (u, y) segments."""
         if self.rollout_mode:
             u, y = batch
             start = self.window.first_target
-            loss = self.loss_fn(self.simulate_scaled(u, y), y[:, start:])
-        else:
-            x, target = batch
-            loss = self.loss_fn(self(x), target)
+            return self.loss_fn(self.simulate_scaled(u, y), y[:, start:])
+        x, target = batch
+        return self.loss_fn(self(x), target)
+
+    def training_step(self, batch: Any, batch_idx: int) -> torch.Tensor:
+        loss = self._loss(batch)
+        # The epoch's batch-size-weighted mean, logged once in `on_train_epoch_end`: a
+        # `self.log` per step costs Lightning ~0.4 ms, a fifth of a small network's step.
+        size = batch[0].shape[0]
+        self._train_loss_sum = self._train_loss_sum + loss.detach().float() * size
+        self._train_loss_count += size
+        return loss
+
+    def on_train_epoch_start(self) -> None:
+        self._train_loss_sum = torch.zeros((), device=self.device)
+        self._train_loss_count = 0
+
+    def on_train_epoch_end(self) -> None:
+        if self._train_loss_count:
+            mean = self._train_loss_sum / self._train_loss_count
+            self.log("train_loss", mean, on_step=False, on_epoch=True, prog_bar=True)
+
+    def validation_step(self, batch: Any, batch_idx: int) -> torch.Tensor:
+        loss = self._loss(batch)
         self.log(
-            f"{stage}_loss",
-            loss,
-            on_step=False,
-            on_epoch=True,
-            prog_bar=True,
+            "val_loss", loss, on_step=False, on_epoch=True, prog_bar=True,
             batch_size=batch[0].shape[0],
         )
         return loss
-
-    def training_step(self, batch: Any, batch_idx: int) -> torch.Tensor:
-        return self._step(batch, "train")
-
-    def validation_step(self, batch: Any, batch_idx: int) -> torch.Tensor:
-        return self._step(batch, "val")
 
     def configure_optimizers(self) -> Any:
         lr = self.hparams.lr
