@@ -32,6 +32,7 @@ from hysteresis_lab.analysis.loop import refit_dir
 from hysteresis_lab.data.factory import build_splits
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.effects.augment import for_model
+from hysteresis_lab.evaluation.evaluate import scoring_start
 from hysteresis_lab.evaluation.metrics import rmse
 from hysteresis_lab.evaluation.predict import free_run
 from hysteresis_lab.models.io import load_model
@@ -76,36 +77,47 @@ def effect_contribution(data_cfg: dict[str, Any], block: str) -> dict[str, np.nd
     return {name: on[name] - off[name] for name in on}
 
 
-def _rmse(rec: Recording, prediction: np.ndarray, skip: int) -> float:
-    return rmse(rec.y[skip:], prediction[skip:])
+def run_data_config(run: Path) -> dict[str, Any]:
+    """The ``data`` config of a hysteresis-lab-loop run folder."""
+    config = run / ".hydra" / "config.yaml"
+    if not config.is_file():
+        raise SystemExit(
+            f"{run} is not a hysteresis-lab-loop run folder (no {config}). Fix: pass the folder "
+            "a loop run wrote, e.g. outputs/undeclared/drift from benchmarks/undeclared_effects.py."
+        )
+    return OmegaConf.to_container(OmegaConf.load(config), resolve=True)["data"]
+
+
+def free_run_rmse(model: Any, recordings: list[Recording], n_init: int) -> dict[str, float]:
+    """Free-run RMSE per recording, scored from `scoring_start` as the tests are."""
+    predictions = free_run(model, for_model(model, recordings), model.window)
+    skip = scoring_start(model.window, n_init)
+    return {
+        rec.name: rmse(rec.y[skip:], p[skip:])
+        for rec, p in zip(recordings, predictions, strict=True)
+    }
 
 
 def ceiling(
     run: Path, block: str, number: int, clip_input: float | None = None
 ) -> list[dict[str, float | str]]:
     """Per test recording: the model's free-run error and the effect's share of it."""
-    config = run / ".hydra" / "config.yaml"
-    if not config.is_file():
-        raise SystemExit(
-            f"{run} is not a hysteresis-lab-loop run folder (no {config}). Fix: pass a case folder "
-            "that benchmarks/undeclared_effects.py wrote, e.g. outputs/undeclared/drift."
-        )
-    cfg = OmegaConf.to_container(OmegaConf.load(config), resolve=True)
-    data_cfg = cfg["data"]
+    data_cfg = run_data_config(run)
     if block not in data_cfg["effects"]:
         raise SystemExit(f"unknown simulator block '{block}': one of {list(data_cfg['effects'])}")
     splits = build_splits(data_cfg)
     model = load_model(round_model(run, number))
     predictions = free_run(model, for_model(model, splits.test), model.window)
+    clipped_rmse = {}
     if clip_input is not None:
         clipped = [
             dataclasses.replace(r, u=np.clip(r.u, -clip_input, clip_input)) for r in splits.test
         ]
-        clipped_predictions = free_run(model, for_model(model, clipped), model.window)
+        clipped_rmse = free_run_rmse(model, clipped, splits.n_init)
     contribution = effect_contribution(data_cfg, block)
-    skip = max(model.window.first_target, splits.n_init)
+    skip = scoring_start(model.window, splits.n_init)
     rows = []
-    for position, (rec, prediction) in enumerate(zip(splits.test, predictions, strict=True)):
+    for rec, prediction in zip(splits.test, predictions, strict=True):
         e = (rec.y - prediction)[skip:, 0]
         whole = contribution[rec.name]
         d = whole[skip:]
@@ -116,7 +128,7 @@ def ceiling(
         corr = float(e @ d) / norm if acts else float("nan")
         row = {
             "test": rec.name,
-            "rmse_free_run": _rmse(rec, prediction, skip),
+            "rmse_free_run": rmse(rec.y[skip:], prediction[skip:]),
             "effect_rms": float(np.sqrt(np.mean(d**2))),
             # RMS over the whole recording, not de-meaned: where the effect acts (> 0.05 um)
             "effect_size_um": float(np.sqrt(np.mean(whole**2))),
@@ -124,7 +136,7 @@ def ceiling(
             "max_cut_pct": float(100 * (1 - np.sqrt(1 - corr**2))),
         }
         if clip_input is not None:
-            row["rmse_clipped_input"] = _rmse(rec, clipped_predictions[position], skip)
+            row["rmse_clipped_input"] = clipped_rmse[rec.name]
         rows.append(row)
     return rows
 

@@ -22,14 +22,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from omegaconf import OmegaConf
+from effect_ceiling import free_run_rmse, run_data_config  # the script beside this one
 
 from hysteresis_lab.analysis.loop import refit_dir
 from hysteresis_lab.data.factory import build_splits
 from hysteresis_lab.data.splits import DatasetSplits
-from hysteresis_lab.effects.augment import for_model
-from hysteresis_lab.evaluation.metrics import rmse
-from hysteresis_lab.evaluation.predict import free_run
 from hysteresis_lab.models.io import load_model
 from hysteresis_lab.pipeline import REJECTED_REFIT_MODEL
 
@@ -89,25 +86,12 @@ def round_candidates(run: Path, number: int, entry: dict[str, Any]) -> list[dict
     return candidates
 
 
-def check_sine_rmse(model_path: Path, check: DatasetSplits) -> dict[str, float]:
-    """Whole-recording free-run RMSE per check sine (after the initial outputs, as the tests
-    are scored)."""
-    model = load_model(model_path)
-    predictions = free_run(model, for_model(model, check.test), model.window)
-    skip = max(model.window.first_target, check.n_init)
-    return {
-        rec.name: rmse(rec.y[skip:], p[skip:])
-        for rec, p in zip(check.test, predictions, strict=True)
-    }
-
-
 def refit_choices(run: Path, frequencies: list[float]) -> list[dict[str, Any]]:
     """Per refit round: the start and every refit, scored on the check sines."""
-    config, report = run / ".hydra" / "config.yaml", run / "loop_report.json"
-    if not (config.is_file() and report.is_file()):
-        raise SystemExit(f"{run} is not a finished hysteresis-lab-loop run folder.")
-    data_cfg = OmegaConf.to_container(OmegaConf.load(config), resolve=True)["data"]
-    check = check_splits(data_cfg, frequencies)
+    report = run / "loop_report.json"
+    check = check_splits(run_data_config(run), frequencies)
+    if not report.is_file():
+        raise SystemExit(f"{run} has no loop_report.json: the loop did not finish. Rerun it.")
     rounds = json.loads(report.read_text())["rounds"]
     standing = run / "round_0" / "model.ckpt"
     results = []
@@ -117,7 +101,8 @@ def refit_choices(run: Path, frequencies: list[float]) -> list[dict[str, Any]]:
                  "kept": bool(entry.get("rejected")), "model": standing}
         everything = [start, *candidates]
         for candidate in everything:
-            candidate["check_rmse"] = check_sine_rmse(candidate["model"], check)
+            model = load_model(candidate["model"])
+            candidate["check_rmse"] = free_run_rmse(model, check.test, check.n_init)
             candidate["check_mean"] = float(np.mean(list(candidate["check_rmse"].values())))
         results.append({
             "round": number,

@@ -269,22 +269,23 @@ def diagnose(
         if not tested:
             results.append(_not_tested(name, effect.description, effect.predictable))
             continue
+        shown = [prepared[i] for i in tested]
         if tested not in baselines:
-            base = _standardised([prepared[i].base for i in tested])
-            baselines[tested] = base, _blocks([prepared[i] for i in tested], base, folds)
+            base = _standardised([p.base for p in shown])
+            baselines[tested] = base, _blocks(shown, base, folds)
         base, base_blocks = baselines[tested]
         # an input-independent trend gains nothing from delayed copies of itself
         own_lags = lags if effect.predictable else (0,)
         evidence_signals = [
-            _centre(_lagged_rows(effect.evidence(recordings[i].u, context), prepared[i].keep,
-                                 own_lags)) * prepared[i].weight
-            for i in tested
+            _centre(_lagged_rows(effect.evidence(recordings[i].u, context), p.keep, own_lags))
+            * p.weight
+            for i, p in zip(tested, shown, strict=True)
         ]
         if not effect.predictable:
             evidence_signals = _per_recording(evidence_signals)
         signals = _standardised(evidence_signals)
         full = [np.column_stack([b, s]) for b, s in zip(base, signals, strict=True)]
-        gains = _gains(base_blocks, _blocks([prepared[i] for i in tested], full, folds))
+        gains = _gains(base_blocks, _blocks(shown, full, folds))
         significant = gains.score >= min_score and gains.p_value <= alpha
         where = "" if len(tested) == len(recordings) else (
             f" on the {len(tested)} of {len(recordings)} recordings that "

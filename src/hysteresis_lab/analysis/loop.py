@@ -32,6 +32,7 @@ from hysteresis_lab.effects.augment import feature_context
 from hysteresis_lab.effects.base import FeatureContext
 from hysteresis_lab.effects.registry import get_effect
 from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.evaluation.evaluate import scoring_start
 from hysteresis_lab.evaluation.plots import loops_figure, save_figure
 from hysteresis_lab.evaluation.report import write_json
 from hysteresis_lab.models.base import NarxModule
@@ -242,7 +243,7 @@ def _diagnose_round(
     number: int,
 ) -> list[EffectScore]:
     """Residual analysis (JSON, figure, TensorBoard) and the ranked diagnosis of a round."""
-    n_skip = max(result.window.first_target, splits.n_init)
+    n_skip = scoring_start(result.window, splits.n_init)
     residuals = []
     for rec in splits.test:
         e = rec.y - result.evaluation.predictions[rec.name]["free_run"]

@@ -24,6 +24,12 @@ class Evaluation:
     predictions: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
 
 
+def scoring_start(window: WindowSpec, n_init: int = 0) -> int:
+    """The first scored sample of a recording: every mode takes the samples before it (the
+    model's window, at least ``n_init``) from the measurement as initial conditions."""
+    return max(window.first_target, n_init)
+
+
 def evaluate_model(
     model: Any,
     recordings: list[Recording],
@@ -34,8 +40,8 @@ def evaluate_model(
 ) -> Evaluation:
     """One-step-ahead prediction, free-run simulation and (optionally) n-step prediction.
 
-    Scores skip ``max(window.first_target, n_init)`` samples at the start of each recording
-    (the initial conditions every mode takes from the measurement).
+    Scores start at `scoring_start` (the initial conditions every mode takes from the
+    measurement are not scored).
     """
     modes: dict[str, list[np.ndarray]] = {
         "one_step": one_step(model, recordings, window),
@@ -43,7 +49,7 @@ def evaluate_model(
     }
     if n_steps:
         modes[f"{int(n_steps)}_step"] = n_step(model, recordings, window, int(n_steps))
-    n_skip = max(window.first_target, n_init)
+    n_skip = scoring_start(window, n_init)
     result = Evaluation()
     for position, rec in enumerate(recordings):
         result.predictions[rec.name] = {mode: preds[position] for mode, preds in modes.items()}
