@@ -124,7 +124,11 @@ def run_case(name: str, args: argparse.Namespace) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES))
-    parser.add_argument("--epochs", type=int, default=20)
+    parser.add_argument(
+        "--epochs", type=int, default=20,
+        help="one-step epochs of each fit (20 for speed; the study's 100 leave the round-0 "
+        "network holding more of creep and the second mode: see README)",
+    )
     parser.add_argument("--rollout-steps", type=int, default=200)
     parser.add_argument("--rollout-epochs", type=int, default=5)
     parser.add_argument("--train-sines", default=TRAIN_SINES, help="Hydra list, or [] for none")
