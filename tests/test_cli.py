@@ -67,6 +67,11 @@ def test_evaluate_reproduces_the_training_metrics(trained_run, csv_data, tmp_pat
         (["+model.neuronz=5"], "has no parameter(s) ['neuronz']"),
         (["data.train=/nonexistent/file.csv"], "no such file"),
         (["data.window.na=-1"], "window na=-1 is invalid"),
+        (["model.lr=abc"], "model.lr='abc' must be a number. Fix: model.lr=0.001"),
+        (["seed=abc"], "seed='abc' must be a number"),
+        (["model.effects=creep"], "model.effects='creep' must be a list"),
+        (["plots=maybe"], "plots='maybe' must be true or false. Fix: plots=true"),
+        (["model=lstm", "model.lr=x"], "model.lr='x' must be a number"),
     ],
 )
 def test_bad_input_gives_a_clear_error(csv_data, tmp_path, overrides, message):
@@ -76,6 +81,18 @@ def test_bad_input_gives_a_clear_error(csv_data, tmp_path, overrides, message):
     output = proc.stderr + proc.stdout
     assert message in output
     assert "Traceback" not in output
+
+
+def test_a_loop_override_of_the_wrong_type_stops_before_any_fit(csv_data, tmp_path):
+    """A truthy string must not pass for ``true``: the loop stops before round 0."""
+    proc = run_app("loop", *data_overrides(*csv_data), "loop.warm_start=maybe",
+                   "loop.alpha=abc", f"hydra.run.dir={tmp_path}", *QUIET)
+    output = proc.stderr + proc.stdout
+    assert proc.returncode == 2, output[-3000:]
+    assert "loop.warm_start='maybe' must be true or false" in output
+    assert "loop.alpha='abc' must be a number. Fix: loop.alpha=0.01" in output
+    assert "Traceback" not in output
+    assert not (tmp_path / "round_0").exists()
 
 
 def test_evaluate_errors(trained_run, csv_data, tmp_path):

@@ -279,13 +279,17 @@ def test_loop_drops_an_effect_whose_refit_does_not_help(tmp_path):
     assert fresh["rmse_free_run"] == pytest.approx(refit_mean, rel=1e-6)
 
 
-def test_bad_refit_gain_is_a_config_error():
+def test_bad_loop_settings_are_config_errors():
     with pytest.raises(ConfigError, match="loop.min_refit_gain"):
         LoopSettings(min_refit_gain=1.5)
     with pytest.raises(ConfigError, match="loop.refit_lr_factors"):
         LoopSettings(refit_lr_factors=[])
     with pytest.raises(ConfigError, match="loop.refit_lr_factors"):
         LoopSettings(refit_lr_factors=[0.1, -1.0])
+    with pytest.raises(ConfigError, match=r"loop.alpha=2 must lie in \(0, 1\)"):
+        LoopSettings(alpha=2)
+    with pytest.raises(ConfigError, match="loop.min_score=-0.1 must lie in"):
+        LoopSettings(min_score=-0.1)
 
 
 def test_loop_runs_with_the_svm(tmp_path):

@@ -80,6 +80,16 @@ class LoopSettings:
                 f"loop.min_refit_gain={self.min_refit_gain} must lie in [0, 1). Fix: e.g. "
                 "loop.min_refit_gain=0.02 (a refit must take 2 % off the validation loss)."
             )
+        if not 0.0 < self.alpha < 1.0:
+            raise ConfigError(
+                f"loop.alpha={self.alpha} must lie in (0, 1): it is the significance level of "
+                "the diagnosis. Fix: e.g. loop.alpha=0.01."
+            )
+        if not 0.0 <= self.min_score < 1.0:
+            raise ConfigError(
+                f"loop.min_score={self.min_score} must lie in [0, 1): it is a share of the "
+                "residual variance. Fix: e.g. loop.min_score=0.05."
+            )
         if self.max_rounds < 0:
             raise ConfigError(f"loop.max_rounds={self.max_rounds} must be >= 0.")
 

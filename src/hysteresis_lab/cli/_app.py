@@ -9,6 +9,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TypeVar
 
+from omegaconf import DictConfig
+
+from hysteresis_lab.cli._overrides import check_override_types
 from hysteresis_lab.errors import HysteresisLabError
 
 log = logging.getLogger("hysteresis_lab")
@@ -28,11 +31,14 @@ def config_dir() -> str:
 
 
 def report_errors(task: Callable[..., T]) -> Callable[..., T]:
-    """Turn a `HysteresisLabError` into one logged line and exit status 2 (no traceback)."""
+    """Check the overrides' types (`check_override_types`), then run ``task``; turn a
+    `HysteresisLabError` into one logged line and exit status 2 (no traceback)."""
 
     @functools.wraps(task)
     def wrapper(*args, **kwargs):
         try:
+            if args and isinstance(args[0], DictConfig):
+                check_override_types(args[0])
             return task(*args, **kwargs)
         except HysteresisLabError as exc:
             log.error("%s", exc)

@@ -33,6 +33,7 @@ def run(cfg: DictConfig) -> dict:
             f"unknown loop setting(s) {sorted(unknown)}. Valid: "
             f"{sorted(LoopSettings.__dataclass_fields__)}."
         )
+    loop_settings = LoopSettings(**settings)  # checked before any data is built
     output_dir = Path(HydraConfig.get().runtime.output_dir)
     data_cfg = OmegaConf.to_container(cfg.data, resolve=True)
     return run_loop(
@@ -41,7 +42,7 @@ def run(cfg: DictConfig) -> dict:
         OmegaConf.to_container(cfg.trainer, resolve=True),
         build_splits(data_cfg),
         output_dir,
-        LoopSettings(**settings),
+        loop_settings,
         seed=cfg.seed,
         use_tensorboard=bool(cfg.logger.enabled),
     )

@@ -1,0 +1,112 @@
+"""Check that command-line overrides keep the type of the packaged value they replace.
+
+The configs are plain YAML, so OmegaConf takes ``model.lr=abc`` or ``loop.warm_start=maybe``
+as strings and the mistake surfaces later as a traceback deep inside a library (or, worse, a
+truthy string silently counts as ``true``). Before a command does any work, every value an
+override changed is compared with the value the packaged configs give the same key (composed
+with the same group choices: ``model=lstm``, ``experiment=paper`` ...): a number must stay a
+number, a switch ``true``/``false``, a list a list, a group of settings a group. Keys whose
+packaged value is ``null`` or a string are not checked (their type is open).
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+from hydra import compose
+from hydra.core.hydra_config import HydraConfig
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.core.override_parser.types import OverrideType
+from omegaconf import DictConfig, ListConfig, OmegaConf
+
+from hysteresis_lab.errors import ConfigError
+
+log = logging.getLogger(__name__)
+
+#: keys whose packaged value is a number but which also take other types (Lightning's
+#: ``devices`` takes "auto" or a list of device indices)
+OPEN_KEYS = frozenset({"trainer.devices"})
+
+
+def _kind(value: Any) -> str | None:
+    """The type an override must keep, in words; None where any type goes."""
+    if isinstance(value, bool):
+        return "true or false"
+    if isinstance(value, int | float):
+        return "a number"
+    if isinstance(value, list | ListConfig):
+        return "a list"
+    if isinstance(value, dict | DictConfig):
+        return "a group of settings"
+    return None
+
+
+def _fix(key: str, reference: Any) -> str:
+    if isinstance(reference, DictConfig):
+        first = next(iter(reference), "name")
+        return f"set one of its settings, e.g. {key}.{first}=..."
+    if isinstance(reference, ListConfig):
+        return f"{key}=[a,b] (brackets even for one item: {key}=[a])"
+    if isinstance(reference, bool):
+        return f"{key}={str(reference).lower()} (true or false)"
+    return f"{key}={reference}"
+
+
+def type_mismatches(cfg: DictConfig, reference: DictConfig, keys: list[str]) -> list[str]:
+    """One message per key of ``keys`` whose value in ``cfg`` is not of the type its value in
+    ``reference`` (the packaged config) has."""
+    problems = []
+    for key in keys:
+        if key in OPEN_KEYS:
+            continue
+        expected = _kind(OmegaConf.select(reference, key, default=None))
+        value = OmegaConf.select(cfg, key, default=None)
+        if expected is None or value is None or _kind(value) == expected:
+            continue
+        if isinstance(value, DictConfig | ListConfig):
+            value = OmegaConf.to_container(value)
+        fix = _fix(key, OmegaConf.select(reference, key))
+        problems.append(f"{key}={value!r} must be {expected}. Fix: {fix}")
+    return problems
+
+
+def check_override_types(cfg: DictConfig) -> None:
+    """Raise `ConfigError` naming every override of the running Hydra app that changed a
+    value's type. Does nothing outside a Hydra app."""
+    if not HydraConfig.initialized():
+        return
+    hydra_cfg = HydraConfig.get()
+    choices = {
+        group: choice
+        for group, choice in hydra_cfg.runtime.choices.items()
+        if not group.startswith("hydra/")
+    }
+    parsed = OverridesParser.create().parse_overrides(list(hydra_cfg.overrides.task))
+    keys = [
+        o.key_or_group
+        for o in parsed
+        if o.type == OverrideType.CHANGE
+        and o.package is None
+        and o.key_or_group not in choices
+        and not o.key_or_group.startswith("hydra.")
+    ]
+    if not keys:
+        return
+    selections = [
+        f"{group}={choice}"
+        for group, choice in choices.items()
+        if choice is not None and "@" not in group
+    ]
+    # the search path as the command set it (experiment=best_<study> lives on it)
+    search_path = [o for o in hydra_cfg.overrides.hydra if o.startswith("hydra.searchpath")]
+    try:
+        reference = compose(
+            config_name=hydra_cfg.job.config_name, overrides=selections + search_path
+        )
+    except Exception as exc:  # no reference, no check: never block a run the app accepted
+        log.debug("override types not checked: the packaged config did not compose (%s)", exc)
+        return
+    problems = type_mismatches(cfg, reference, keys)
+    if problems:
+        raise ConfigError("invalid override(s): " + "; ".join(problems))
