@@ -6,7 +6,8 @@ truthy string silently counts as ``true``). Before a command does any work, ever
 override changed is compared with the value the packaged configs give the same key (composed
 with the same group choices: ``model=lstm``, ``experiment=paper`` ...): a number must stay a
 number, a switch ``true``/``false``, a list a list, a group of settings a group. Keys whose
-packaged value is ``null`` or a string are not checked (their type is open).
+packaged value is a string, or ``null`` (bar those in `NULLABLE_NUMBERS`), are not checked
+(their type is open).
 """
 
 from __future__ import annotations
@@ -24,6 +25,11 @@ from hysteresis_lab.errors import ConfigError
 
 log = logging.getLogger(__name__)
 
+#: keys whose packaged value is null (off / automatic) but which take a number when set
+NULLABLE_NUMBERS = frozenset({
+    "n_step", "model.rollout_lr", "model.refit_lr", "trainer.gradient_clip_val", "data.fs",
+    "data.splits.train_sine_amplitude",
+})
 #: keys whose packaged value is a number but which also take other types (Lightning's
 #: ``devices`` takes "auto" or a list of device indices)
 OPEN_KEYS = frozenset({"trainer.devices"})
@@ -60,14 +66,18 @@ def type_mismatches(cfg: DictConfig, reference: DictConfig, keys: list[str]) -> 
     for key in keys:
         if key in OPEN_KEYS:
             continue
-        expected = _kind(OmegaConf.select(reference, key, default=None))
+        packaged = OmegaConf.select(reference, key, default=None)
         value = OmegaConf.select(cfg, key, default=None)
+        if packaged is None and key in NULLABLE_NUMBERS:
+            if value is not None and _kind(value) != "a number":
+                problems.append(f"{key}={value!r} must be a number or null. Fix: e.g. {key}=null")
+            continue
+        expected = _kind(packaged)
         if expected is None or value is None or _kind(value) == expected:
             continue
         if isinstance(value, DictConfig | ListConfig):
             value = OmegaConf.to_container(value)
-        fix = _fix(key, OmegaConf.select(reference, key))
-        problems.append(f"{key}={value!r} must be {expected}. Fix: {fix}")
+        problems.append(f"{key}={value!r} must be {expected}. Fix: {_fix(key, packaged)}")
     return problems
 
 

@@ -1,0 +1,55 @@
+"""Overrides must keep the type of the packaged value they replace (`cli._overrides`)."""
+
+from __future__ import annotations
+
+from omegaconf import DictConfig, OmegaConf
+
+from hysteresis_lab.cli._overrides import type_mismatches
+
+PACKAGED = OmegaConf.create({
+    "seed": 0,
+    "n_step": None,
+    "plots": True,
+    "model": {"lr": 1e-3, "effects": [], "lr_schedule": "cosine"},
+    "trainer": {"devices": 1},
+    "data": {"effects": {"creep": {"enabled": True}}},
+})
+
+
+def overridden(**values) -> DictConfig:
+    cfg = OmegaConf.create(OmegaConf.to_container(PACKAGED))
+    for key, value in values.items():
+        OmegaConf.update(cfg, key.replace("__", "."), value, merge=False)
+    return cfg
+
+
+def test_values_of_the_packaged_type_pass():
+    cfg = overridden(seed=3, model__lr=5, n_step=100, plots=False, model__effects=["creep"],
+                     model__lr_schedule="plateau", trainer__devices="auto")
+    keys = ["seed", "model.lr", "n_step", "plots", "model.effects", "model.lr_schedule",
+            "trainer.devices"]
+    assert type_mismatches(cfg, PACKAGED, keys) == []
+
+
+def test_each_changed_type_is_named_with_its_fix():
+    cfg = overridden(seed="abc", model__lr=True, n_step="x", plots="maybe",
+                     model__effects="creep", data__effects__creep=True)
+    problems = type_mismatches(
+        cfg, PACKAGED, ["seed", "model.lr", "n_step", "plots", "model.effects",
+                        "data.effects.creep"],
+    )
+    assert problems == [
+        "seed='abc' must be a number. Fix: seed=0",
+        "model.lr=True must be a number. Fix: model.lr=0.001",
+        "n_step='x' must be a number or null. Fix: e.g. n_step=null",
+        "plots='maybe' must be true or false. Fix: plots=true (true or false)",
+        "model.effects='creep' must be a list. Fix: model.effects=[a,b] (brackets even for one "
+        "item: model.effects=[a])",
+        "data.effects.creep=True must be a group of settings. Fix: set one of its settings, e.g. "
+        "data.effects.creep.enabled=...",
+    ]
+
+
+def test_only_the_overridden_keys_are_checked():
+    cfg = overridden(seed="abc")
+    assert type_mismatches(cfg, PACKAGED, ["model.lr"]) == []
