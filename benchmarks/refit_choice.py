@@ -89,9 +89,10 @@ def round_candidates(run: Path, number: int, entry: dict[str, Any]) -> list[dict
 def refit_choices(run: Path, frequencies: list[float]) -> list[dict[str, Any]]:
     """Per refit round: the start and every refit, scored on the check sines."""
     report = run / "loop_report.json"
-    check = check_splits(run_data_config(run), frequencies)
+    data_cfg = run_data_config(run)  # says plainly when the folder is no loop run at all
     if not report.is_file():
         raise SystemExit(f"{run} has no loop_report.json: the loop did not finish. Rerun it.")
+    check = check_splits(data_cfg, frequencies)
     rounds = json.loads(report.read_text())["rounds"]
     standing = run / "round_0" / "model.ckpt"
     results = []

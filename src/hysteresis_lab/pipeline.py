@@ -154,17 +154,16 @@ def train_and_evaluate(
         device=evaluation_device(trainer_cfg),
     )
     units = {"u": data.test[0].u_units, "y": data.test[0].y_units}
-    rejected_refit = (
-        _score_rejected_refit(
-            trained, data, datamodule.window, trainer_cfg, n_steps, units, str(model_cfg["name"])
-        )
-        if trained.rejected_state is not None
-        else None
-    )
-    if rejected_refit is not None:
+    rejected_refit = None
+    if trained.rejected_state is not None:
+        # the refit's own weights for the scoring and the save; the kept start's afterwards
+        with _weights(trained.model, trained.rejected_state) as rejected:
+            rejected_refit = _score_rejected_refit(
+                rejected, trained, data, datamodule.window, trainer_cfg, n_steps, units,
+                str(model_cfg["name"]),
+            )
+            log.info("saved %s", save_model(rejected, output_dir / REJECTED_REFIT_MODEL))
         write_json(rejected_refit, output_dir / "rejected_refit_metrics.json")
-        with _weights(trained.model, trained.rejected_state):
-            log.info("saved %s", save_model(trained.model, output_dir / REJECTED_REFIT_MODEL))
     document = metrics_document(
         str(model_cfg["name"]),
         units,
@@ -205,6 +204,7 @@ def train_and_evaluate(
 
 
 def _score_rejected_refit(
+    model: torch.nn.Module,
     trained: TrainResult,
     data: DatasetSplits,
     window: WindowSpec,
@@ -213,17 +213,16 @@ def _score_rejected_refit(
     units: dict[str, str],
     model_name: str,
 ) -> dict[str, Any]:
-    """Test metrics of a refit that lost to its start on validation, so that a report can show
-    what it would have done; the start's weights are back in place afterwards."""
-    with _weights(trained.model, trained.rejected_state) as model:
-        evaluation = evaluate_model(
-            model.eval(),
-            data.test,
-            window,
-            n_init=data.n_init,
-            n_steps=n_steps,
-            device=evaluation_device(trainer_cfg),
-        )
+    """Test metrics of a refit that lost to its start on validation (``model``, holding the
+    refit's weights), so that a report can show what it would have done."""
+    evaluation = evaluate_model(
+        model.eval(),
+        data.test,
+        window,
+        n_init=data.n_init,
+        n_steps=n_steps,
+        device=evaluation_device(trainer_cfg),
+    )
     return metrics_document(
         model_name,
         units,
