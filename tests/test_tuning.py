@@ -7,6 +7,8 @@ import os
 import signal
 import socket
 import sqlite3
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -15,7 +17,7 @@ import pytest
 from optuna.trial import TrialState
 
 from helpers import data_overrides, popen_app, run_app, small_dataset
-from hysteresis_lab.tuning.bookkeeping import DISCARDED, PID, counted
+from hysteresis_lab.tuning.bookkeeping import DISCARDED, PID, counted, discard_stale
 
 
 @pytest.fixture(scope="module")
@@ -126,6 +128,28 @@ def test_sigkill_mid_trial_loses_no_completed_trial(tmp_path, csv_data):
     assert by_number[killed_during].user_attrs.get(DISCARDED) == "worker died"
     done = counted_trials(study)
     assert len(done) == 3 and all(t.state == TrialState.COMPLETE for t in done)
+
+
+def test_a_worker_dead_right_after_asking_is_seen_dead_at_once(tmp_path):
+    """The trial's first write already names its worker: a worker that dies before doing
+    anything else leaves a trial the next worker discards at once, not after the grace."""
+    url = f"sqlite:///{tmp_path}/study.db"
+    optuna.create_study(study_name="s", storage=url)
+    script = (
+        "import os, optuna\n"
+        "from hysteresis_lab.tuning.bookkeeping import ask_claimed\n"
+        f"ask_claimed(optuna.load_study(study_name='s', storage='{url}'))\n"
+        "os._exit(0)\n"
+    )
+    subprocess.run([sys.executable, "-c", script], check=True, timeout=120)
+    study = optuna.load_study(study_name="s", storage=url)
+    (orphan,) = study.get_trials()
+    assert orphan.state == TrialState.RUNNING
+
+    assert discard_stale(study, grace_s=3600.0) == 1
+    (orphan,) = study.get_trials()
+    assert orphan.state == TrialState.FAIL
+    assert orphan.user_attrs[DISCARDED] == "worker died"
 
 
 @pytest.mark.parametrize(

@@ -13,6 +13,7 @@ import os
 import socket
 import threading
 import time
+from datetime import datetime
 
 import optuna
 from optuna.trial import TrialState
@@ -23,11 +24,32 @@ HOST, PID, HEARTBEAT, DISCARDED = "worker_host", "worker_pid", "heartbeat", "dis
 FINISHED = (TrialState.COMPLETE, TrialState.PRUNED, TrialState.FAIL)
 
 
-def claim(trial: optuna.trial.Trial) -> None:
-    """Mark a freshly asked trial as this process's."""
-    trial.set_user_attr(HOST, socket.gethostname())
-    trial.set_user_attr(PID, os.getpid())
-    trial.set_user_attr(HEARTBEAT, time.time())
+def ask_claimed(study: optuna.Study) -> optuna.trial.Trial:
+    """Start a trial that names this worker from its first write.
+
+    ``study.ask()`` followed by setting the worker attributes leaves a window in which a
+    killed worker leaves a running trial nobody can tell is dead until its grace period
+    runs out; creating the trial from a template writes state and worker in one
+    transaction, so there is no such window.
+    """
+    template = optuna.trial.FrozenTrial(
+        number=-1,
+        state=TrialState.RUNNING,
+        value=None,
+        datetime_start=datetime.now(),
+        datetime_complete=None,
+        params={},
+        distributions={},
+        user_attrs={HOST: socket.gethostname(), PID: os.getpid(), HEARTBEAT: time.time()},
+        system_attrs={},
+        intermediate_values={},
+        trial_id=-1,
+    )
+    # The public API has no "create a running trial with attributes"; these are the steps of
+    # Study.ask, which also drops the trial cache so the sampler sees the latest results.
+    study._thread_local.cached_all_trials = None  # noqa: SLF001
+    trial_id = study._storage.create_new_trial(study._study_id, template_trial=template)  # noqa: SLF001
+    return optuna.trial.Trial(study, trial_id)
 
 
 def counted(trial: optuna.trial.FrozenTrial) -> bool:

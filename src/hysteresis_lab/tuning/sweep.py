@@ -129,8 +129,7 @@ def run_sweep(
         finished, running = bookkeeping.progress(study)
         if finished + running >= settings.n_trials:
             break
-        trial = study.ask()
-        bookkeeping.claim(trial)
+        trial = bookkeeping.ask_claimed(study)
         if bookkeeping.is_surplus(study, trial, settings.n_trials):
             bookkeeping.discard(study, trial, "surplus: another worker took the last slot")
             break
