@@ -83,6 +83,17 @@ def test_bad_input_gives_a_clear_error(csv_data, tmp_path, overrides, message):
     assert "Traceback" not in output
 
 
+@pytest.mark.parametrize("epochs", ["0", "-1", "null"])
+def test_a_training_length_that_trains_nothing_or_forever_is_refused(csv_data, tmp_path, epochs):
+    proc = run_app("train", *data_overrides(*csv_data), f"trainer.max_epochs={epochs}",
+                   f"hydra.run.dir={tmp_path}", *QUIET)
+    output = proc.stderr + proc.stdout
+    assert proc.returncode == 2, output[-3000:]
+    assert "must be a whole number >= 1" in output and "Fix: e.g. trainer.max_epochs=100" in output
+    assert "Traceback" not in output
+    assert not list(tmp_path.rglob("*.ckpt"))
+
+
 def test_a_loop_override_of_the_wrong_type_stops_before_any_fit(csv_data, tmp_path):
     """A truthy string must not pass for ``true``: the loop stops before round 0."""
     proc = run_app("loop", *data_overrides(*csv_data), "loop.warm_start=maybe",

@@ -98,6 +98,12 @@ def fit(
     validation free-run loss (one-step MSE without free-run fine-tuning) by more than the
     share ``min_gain``.
     """
+    epochs = trainer_cfg.get("max_epochs")
+    if isinstance(model, L.LightningModule) and (epochs is None or int(epochs) < 1):
+        raise ConfigError(
+            f"trainer.max_epochs={epochs} must be a whole number >= 1 (0 trains nothing, -1 "
+            "never stops). Fix: e.g. trainer.max_epochs=100 (the study's)."
+        )
     start = (
         {k: v.detach().clone() for k, v in model.state_dict().items()}
         if keep_start_unless_beaten and isinstance(model, L.LightningModule)
