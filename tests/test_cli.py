@@ -106,6 +106,18 @@ def test_a_loop_override_of_the_wrong_type_stops_before_any_fit(csv_data, tmp_pa
     assert not (tmp_path / "round_0").exists()
 
 
+@pytest.mark.parametrize("app", ["train", "loop"])
+def test_no_test_recordings_stops_before_training(csv_data, tmp_path, app):
+    csv_train = data_overrides(*csv_data)[:2]  # data=csv and data.train, no data.test
+    proc = run_app(app, *csv_train, "data.test=[]", "trainer.max_epochs=1",
+                   f"hydra.run.dir={tmp_path}", *QUIET)
+    output = proc.stderr + proc.stdout
+    assert proc.returncode == 2, output[-3000:]
+    assert "has no test recordings to evaluate on. Fix: give some with data.test=" in output
+    assert "Traceback" not in output
+    assert not list(tmp_path.rglob("*.ckpt")), "it trained before saying so"
+
+
 def test_evaluate_errors(trained_run, csv_data, tmp_path):
     missing = run_app("evaluate", f"checkpoint={tmp_path}/nothing.ckpt",
                       *data_overrides(*csv_data), f"hydra.run.dir={tmp_path}")
