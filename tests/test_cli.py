@@ -106,14 +106,24 @@ def test_a_loop_override_of_the_wrong_type_stops_before_any_fit(csv_data, tmp_pa
     assert not (tmp_path / "round_0").exists()
 
 
-@pytest.mark.parametrize("app", ["train", "loop"])
-def test_no_test_recordings_stops_before_training(csv_data, tmp_path, app):
+@pytest.mark.parametrize(
+    ("app", "overrides", "message"),
+    [
+        ("train", ["data.test=[]"], "has no test recordings to evaluate on. Fix: give some"),
+        ("loop", ["data.test=[]"], "has no test recordings to evaluate on. Fix: give some"),
+        ("train", ["n_step=0"], "n_step=0 must be a whole number >= 1"),
+    ],
+)
+def test_an_evaluation_that_cannot_run_stops_before_training(
+    csv_data, tmp_path, app, overrides, message
+):
     csv_train = data_overrides(*csv_data)[:2]  # data=csv and data.train, no data.test
-    proc = run_app(app, *csv_train, "data.test=[]", "trainer.max_epochs=1",
+    test = [] if "data.test=[]" in overrides else data_overrides(*csv_data)[2:]
+    proc = run_app(app, *csv_train, *test, *overrides, "trainer.max_epochs=1",
                    f"hydra.run.dir={tmp_path}", *QUIET)
     output = proc.stderr + proc.stdout
     assert proc.returncode == 2, output[-3000:]
-    assert "has no test recordings to evaluate on. Fix: give some with data.test=" in output
+    assert message in output
     assert "Traceback" not in output
     assert not list(tmp_path.rglob("*.ckpt")), "it trained before saying so"
 

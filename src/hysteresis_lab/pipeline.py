@@ -23,7 +23,7 @@ from hysteresis_lab.data.factory import build_datamodule, build_splits
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.effects.augment import augment_splits, context_to_dict
-from hysteresis_lab.errors import DataError
+from hysteresis_lab.errors import ConfigError, DataError
 from hysteresis_lab.evaluation.evaluate import Evaluation, evaluate_model
 from hysteresis_lab.evaluation.plots import loops_figure, residuals_figure, save_figure
 from hysteresis_lab.evaluation.report import metrics_document, write_json
@@ -98,12 +98,8 @@ def train_and_evaluate(
     L.seed_everything(seed, workers=True, verbose=False)
     effects = list(model_cfg.get("effects") or [])
     data, context = augment_splits(splits or build_splits(data_cfg), effects)
-    if evaluate and not data.test:  # say so before training, not after it
-        raise DataError(
-            "has no test recordings to evaluate on.",
-            source=f"data set '{data.name}'",
-            fix="give some with data.test=[a.csv,b.csv], or train only with evaluate=false",
-        )
+    if evaluate:
+        _check_evaluation_settings(data, n_steps)
     datamodule = build_datamodule(data_cfg, model_layout(model_cfg), seed=seed, splits=data)
     extra = (
         {"feature_context": context_to_dict(context),
@@ -208,6 +204,21 @@ def train_and_evaluate(
         trained.refit_validation,
         rejected_refit,
     )
+
+
+def _check_evaluation_settings(data: DatasetSplits, n_steps: int | None) -> None:
+    """Fail before training, not after it, when the evaluation cannot run."""
+    if not data.test:
+        raise DataError(
+            "has no test recordings to evaluate on.",
+            source=f"data set '{data.name}'",
+            fix="give some with data.test=[a.csv,b.csv], or train only with evaluate=false",
+        )
+    if n_steps is not None and int(n_steps) < 1:
+        raise ConfigError(
+            f"n_step={n_steps} must be a whole number >= 1 (or null: no n-step scores). "
+            "Fix: e.g. n_step=100."
+        )
 
 
 def _score_rejected_refit(

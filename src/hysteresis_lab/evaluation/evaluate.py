@@ -47,7 +47,7 @@ def evaluate_model(
         "one_step": one_step(model, recordings, window),
         "free_run": free_run(model, recordings, window, device=device),
     }
-    if n_steps:
+    if n_steps is not None:
         modes[f"{int(n_steps)}_step"] = n_step(model, recordings, window, int(n_steps))
     n_skip = scoring_start(window, n_init)
     result = Evaluation()
