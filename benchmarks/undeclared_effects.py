@@ -92,6 +92,7 @@ def run_case(name: str, args: argparse.Namespace) -> dict:
         "loop.max_rounds=1", f"trainer.max_epochs={args.epochs}",
         f"model.rollout_steps={args.rollout_steps}", f"model.rollout_epochs={args.rollout_epochs}",
         f"data.splits.train_sines={args.train_sines}", f"model.effect_path={args.effect_path}",
+        f"loop.significance={args.significance}",
         "trainer.enable_progress_bar=false",
         "logger=none", f"hydra.run.dir={out}", *overrides,
     ]
@@ -134,6 +135,8 @@ def main() -> None:
     parser.add_argument("--train-sines", default=TRAIN_SINES, help="Hydra list, or [] for none")
     parser.add_argument("--effect-path", default="network", choices=["network", "linear"],
                         help="how effect operators enter the network (model.effect_path)")
+    parser.add_argument("--significance", default="pooled", choices=["pooled", "per_recording"],
+                        help="how the diagnosis tests significance (loop.significance)")
     parser.add_argument("--root", type=Path, default=Path("outputs/undeclared"))
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")

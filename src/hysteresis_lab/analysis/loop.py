@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from hysteresis_lab.analysis.diagnosis import EffectScore, diagnose, evidence_lags
+from hysteresis_lab.analysis.diagnosis import TESTS, EffectScore, diagnose, evidence_lags
 from hysteresis_lab.analysis.report import diagnostics_figure, residual_analysis
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.effects.augment import feature_context
@@ -54,6 +54,8 @@ class LoopSettings:
     max_rounds: int = 3
     min_score: float = 0.05
     alpha: float = 0.01
+    #: how the diagnosis tests significance: "pooled" or "per_recording" (`diagnosis.TESTS`)
+    significance: str = "pooled"
     warm_start: bool = True  # refit from the previous round's network (new inputs at zero)
     #: after a warm start: "new_inputs" trains only the added effect's input weights, "full" all
     refit: str = "new_inputs"
@@ -89,6 +91,11 @@ class LoopSettings:
             raise ConfigError(
                 f"loop.min_score={self.min_score} must lie in [0, 1): it is a share of the "
                 "residual variance. Fix: e.g. loop.min_score=0.05."
+            )
+        if self.significance not in TESTS:
+            raise ConfigError(
+                f"unknown loop.significance '{self.significance}'. Fix: loop.significance=one "
+                f"of {list(TESTS)}."
             )
         if self.max_rounds < 0:
             raise ConfigError(f"loop.max_rounds={self.max_rounds} must be >= 0.")
@@ -267,6 +274,7 @@ def _diagnose_round(
         min_score=settings.min_score,
         alpha=settings.alpha,
         lags=evidence_lags(result.window.nb),
+        test=settings.significance,
     )
     write_json(
         residual_analysis(splits.test, result.evaluation.predictions, n_skip),
