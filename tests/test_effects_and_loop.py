@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 
 import numpy as np
 import pytest
@@ -307,7 +308,7 @@ def test_loop_runs_with_the_svm(tmp_path):
     assert (tmp_path / "loop" / "round_1" / "metrics.json").is_file()
 
 
-def test_per_recording_test_names_an_effect_that_acts_on_one_recording_only():
+def test_per_recording_test_names_an_effect_that_acts_on_one_recording_only(caplog):
     """Creep shows on one of eight tests only (a step, then a hold). Pooled over every
     recording's blocks its p-value hangs on the noise of the seven it does not act on (0.005
     to 0.4 over six noise seeds); tested per recording (Holm over the eight) it is named, and
@@ -328,6 +329,11 @@ def test_per_recording_test_names_an_effect_that_acts_on_one_recording_only():
     assert not any(d.significant for d in ranked[1:])
 
     assert not any(d.significant for d in diagnose(recs, white, ctx, [], test="per_recording"))
+    with caplog.at_level(logging.WARNING):
+        short = [Recording(u=r.u[:100], y=r.y[:100], fs=FS, name=r.name) for r in recs[1:3]]
+        diagnose([recs[0], *short], [residuals[0], *(w[:100] for w in white[1:3])], ctx, [],
+                 test="per_recording")
+    assert "cannot reach p <= 0.01 on s4 (5 blocks), s12 (5 blocks)" in caplog.text
     declared = diagnose(recs, residuals, ctx, ["creep"], test="per_recording")
     assert not any(d.significant for d in declared)
     with pytest.raises(ValueError, match="unknown test 'best'"):

@@ -267,6 +267,22 @@ def _verdict(
     )
 
 
+def _warn_too_short(blocks: Sequence[_Block], names: Sequence[str], alpha: float) -> None:
+    """Log the recordings too short for the per-recording test ever to reach ``alpha``."""
+    counts = np.bincount([b.recording for b in blocks], minlength=len(names))
+    # the smallest one-sided signed-rank p of n blocks is 2**-n (1 below 6), times Holm's factor
+    floor = np.where(counts >= 6, 2.0 ** -counts.astype(float), 1.0) * len(names)
+    short = [f"{names[i]} ({counts[i]} blocks)" for i in np.flatnonzero(floor > alpha)]
+    if short:
+        log.warning(
+            "per-recording significance cannot reach p <= %g on %s: too short to cut into "
+            "enough blocks, so an effect acting only there goes unseen. Fix: longer "
+            "recordings, or loop.significance=pooled",
+            alpha,
+            ", ".join(short),
+        )
+
+
 def _holds_input(recording: Recording, context: FeatureContext) -> bool:
     """Whether the recording holds every input constant: its peak-to-peak within 0.1 % of the
     training input's amplitude (a measured hold keeps a little noise)."""
@@ -329,6 +345,8 @@ def diagnose(
         if tested not in baselines:
             base = _standardised([p.base for p in shown])
             baselines[tested] = base, _blocks(shown, base, folds)
+            if test == "per_recording":
+                _warn_too_short(baselines[tested][1], [recordings[i].name for i in tested], alpha)
         base, base_blocks = baselines[tested]
         # an input-independent trend gains nothing from delayed copies of itself
         own_lags = lags if effect.predictable else (0,)
