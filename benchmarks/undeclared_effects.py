@@ -33,6 +33,7 @@ from pathlib import Path
 
 from effect_ceiling import ceiling  # the script beside this one
 
+from hysteresis_lab.analysis.diagnosis import TESTS
 from hysteresis_lab.effects.registry import get_effect
 
 log = logging.getLogger("undeclared_effects")
@@ -135,7 +136,7 @@ def main() -> None:
     parser.add_argument("--train-sines", default=TRAIN_SINES, help="Hydra list, or [] for none")
     parser.add_argument("--effect-path", default="network", choices=["network", "linear"],
                         help="how effect operators enter the network (model.effect_path)")
-    parser.add_argument("--significance", default="pooled", choices=["pooled", "per_recording"],
+    parser.add_argument("--significance", default="pooled", choices=list(TESTS),
                         help="how the diagnosis tests significance (loop.significance)")
     parser.add_argument("--root", type=Path, default=Path("outputs/undeclared"))
     args = parser.parse_args()

@@ -23,9 +23,10 @@ from hysteresis_lab.data.factory import build_datamodule, build_splits
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.effects.augment import augment_splits, context_to_dict
-from hysteresis_lab.errors import ConfigError, DataError
+from hysteresis_lab.errors import DataError
 from hysteresis_lab.evaluation.evaluate import Evaluation, evaluate_model
 from hysteresis_lab.evaluation.plots import loops_figure, residuals_figure, save_figure
+from hysteresis_lab.evaluation.predict import check_n_step
 from hysteresis_lab.evaluation.report import metrics_document, write_json
 from hysteresis_lab.models.io import save_model
 from hysteresis_lab.training import TrainResult, build_model, fit, model_layout
@@ -214,11 +215,7 @@ def _check_evaluation_settings(data: DatasetSplits, n_steps: int | None) -> None
             source=f"data set '{data.name}'",
             fix="give some with data.test=[a.csv,b.csv], or train only with evaluate=false",
         )
-    if n_steps is not None and int(n_steps) < 1:
-        raise ConfigError(
-            f"n_step={n_steps} must be a whole number >= 1 (or null: no n-step scores). "
-            "Fix: e.g. n_step=100."
-        )
+    check_n_step(n_steps)
 
 
 def _score_rejected_refit(

@@ -53,6 +53,8 @@ HELD_SPAN = 1e-3
 TESTS = ("pooled", "per_recording")
 #: blocks per recording of the per-recording test (its smallest one-sided p is 2**-blocks)
 BLOCKS_PER_RECORDING = 20
+#: fewer nonzero block gains than this give no signed-rank test (p = 1)
+MIN_RANKED_BLOCKS = 6
 
 
 @dataclass
@@ -214,9 +216,10 @@ class _Gains:
 
 
 def _signed_rank_p(gains: np.ndarray) -> float:
-    """One-sided Wilcoxon p that the gains are positive (1 with fewer than 6 nonzero ones)."""
+    """One-sided Wilcoxon p that the gains are positive (1 with fewer than
+    `MIN_RANKED_BLOCKS` nonzero ones)."""
     nonzero = gains[np.abs(gains) > 1e-12]
-    if len(nonzero) < 6:
+    if len(nonzero) < MIN_RANKED_BLOCKS:
         return 1.0
     return float(stats.wilcoxon(nonzero, alternative="greater").pvalue)
 
@@ -270,8 +273,9 @@ def _verdict(
 def _warn_too_short(blocks: Sequence[_Block], names: Sequence[str], alpha: float) -> None:
     """Log the recordings too short for the per-recording test ever to reach ``alpha``."""
     counts = np.bincount([b.recording for b in blocks], minlength=len(names))
-    # the smallest one-sided signed-rank p of n blocks is 2**-n (1 below 6), times Holm's factor
-    floor = np.where(counts >= 6, 2.0 ** -counts.astype(float), 1.0) * len(names)
+    # the smallest one-sided signed-rank p of n blocks is 2**-n, times Holm's factor
+    ranked = counts >= MIN_RANKED_BLOCKS
+    floor = np.where(ranked, 2.0 ** -counts.astype(float), 1.0) * len(names)
     short = [f"{names[i]} ({counts[i]} blocks)" for i in np.flatnonzero(floor > alpha)]
     if short:
         log.warning(
@@ -342,11 +346,12 @@ def diagnose(
             results.append(_not_tested(name, effect.description, effect.predictable))
             continue
         shown = [prepared[i] for i in tested]
+        shown_names = [recordings[i].name for i in tested]
         if tested not in baselines:
             base = _standardised([p.base for p in shown])
             baselines[tested] = base, _blocks(shown, base, folds)
             if test == "per_recording":
-                _warn_too_short(baselines[tested][1], [recordings[i].name for i in tested], alpha)
+                _warn_too_short(baselines[tested][1], shown_names, alpha)
         base, base_blocks = baselines[tested]
         # an input-independent trend gains nothing from delayed copies of itself
         own_lags = lags if effect.predictable else (0,)
@@ -360,9 +365,7 @@ def diagnose(
         signals = _standardised(evidence_signals)
         full = [np.column_stack([b, s]) for b, s in zip(base, signals, strict=True)]
         gains = _gains(base_blocks, _blocks(shown, full, folds))
-        significant, p_value, how = _verdict(
-            gains, test, min_score, alpha, [recordings[i].name for i in tested]
-        )
+        significant, p_value, how = _verdict(gains, test, min_score, alpha, shown_names)
         where = "" if len(tested) == len(recordings) else (
             f" on the {len(tested)} of {len(recordings)} recordings that "
             + ("move the input" if effect.predictable else "hold the input constant")

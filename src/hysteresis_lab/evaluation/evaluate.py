@@ -11,7 +11,7 @@ import numpy as np
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.evaluation.metrics import score
-from hysteresis_lab.evaluation.predict import free_run, n_step, one_step
+from hysteresis_lab.evaluation.predict import check_n_step, free_run, n_step, one_step
 
 log = logging.getLogger(__name__)
 
@@ -43,6 +43,7 @@ def evaluate_model(
     Scores start at `scoring_start` (the initial conditions every mode takes from the
     measurement are not scored).
     """
+    check_n_step(n_steps)  # before the other modes' work, not after it
     modes: dict[str, list[np.ndarray]] = {
         "one_step": one_step(model, recordings, window),
         "free_run": free_run(model, recordings, window, device=device),

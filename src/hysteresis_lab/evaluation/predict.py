@@ -109,6 +109,15 @@ def free_run(
     return _simulate(model, recordings, window, starts, device, fast)
 
 
+def check_n_step(n: int | None) -> None:
+    """Raise `DataError` unless ``n`` is a valid n-step horizon (None: no n-step scores)."""
+    if n is not None and int(n) < 1:
+        raise DataError(
+            f"n_step={n} must be a whole number >= 1 (or null: no n-step scores).",
+            fix="e.g. n_step=100",
+        )
+
+
 def n_step(
     model: Any,
     recordings: Sequence[Recording],
@@ -124,8 +133,7 @@ def n_step(
     is an ``n``-step-ahead prediction. ``n = 1`` equals `one_step`; ``n >= N`` equals
     `free_run`.
     """
-    if n < 1:
-        raise DataError(f"n_step={n} must be >= 1.", fix="set n_step to a positive integer")
+    check_n_step(n)
     _check(model, recordings, window)
     starts = [list(range(0, rec.n_samples, n)) for rec in recordings]
     return _simulate(model, recordings, window, starts, device, fast)
