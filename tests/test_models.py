@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import lightning as L
 import numpy as np
 import pytest
@@ -128,3 +130,18 @@ def test_invalid_hyperparameters_are_config_errors():
         get_model_class("lstm")(nu=1, ny=1, num_layers=2, lstm_layers=2)
     with pytest.raises(ConfigError, match="kernel"):
         get_model_class("svm")(nu=1, ny=1, kernel="laplace")
+
+
+@pytest.mark.parametrize(
+    ("name", "bad", "fix"),
+    [
+        ("ffnn", {"neurons": 0}, "model.neurons=100"),
+        ("lstm", {"units": 0}, "model.units=66"),
+        ("cnn", {"units": 0}, "model.units=83"),
+        ("svm", {"C": 0.0}, "model.C=10"),
+    ],
+)
+def test_a_bad_model_size_names_the_setting_and_a_fix(name, bad, fix):
+    setting = next(iter(bad))
+    with pytest.raises(ConfigError, match=rf"{setting}=0.*Fix: .*{re.escape(fix)}"):
+        get_model_class(name)(nu=1, ny=1, **bad)

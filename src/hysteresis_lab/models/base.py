@@ -62,7 +62,10 @@ class NarxModule(L.LightningModule):
     ) -> None:
         super().__init__()
         if nu < 1 or ny < 1:
-            raise ConfigError(f"a model needs nu >= 1 and ny >= 1 (got nu={nu}, ny={ny}).")
+            raise ConfigError(
+                f"a model needs nu >= 1 and ny >= 1 (got nu={nu}, ny={ny}). Fix: give the data "
+                "at least one input and one output column."
+            )
         if lr_schedule not in LR_SCHEDULES:
             raise ConfigError(
                 f"unknown lr_schedule '{lr_schedule}'. Fix: model.lr_schedule=one of "

@@ -42,8 +42,10 @@ class CNNNet(NarxModule):
         super().__init__(nu=nu, ny=ny, **kwargs)
         if conv_layers < 1 or num_layers <= conv_layers or kernel_size < 1 or units < 1:
             raise ConfigError(
-                f"CNN needs conv_layers >= 1, num_layers > conv_layers and kernel_size >= 1; got "
-                f"num_layers={num_layers}, conv_layers={conv_layers}, kernel_size={kernel_size}."
+                "CNN needs conv_layers >= 1, num_layers > conv_layers (the output layer is "
+                f"dense), kernel_size >= 1 and units >= 1; got num_layers={num_layers}, "
+                f"conv_layers={conv_layers}, kernel_size={kernel_size}, units={units}. Fix: e.g. "
+                "model.num_layers=3 model.conv_layers=2 model.kernel_size=5 model.units=83."
             )
         self.net = _ConvHead(self.n_features, units, conv_layers, kernel_size,
                              num_layers - conv_layers - 1, ny)

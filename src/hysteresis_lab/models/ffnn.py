@@ -23,7 +23,9 @@ class FFNN(NarxModule):
         super().__init__(nu=nu, ny=ny, **kwargs)
         if num_layers < 2 or neurons < 1:
             raise ConfigError(
-                f"FFNN needs num_layers >= 2 and neurons >= 1 (got {num_layers}, {neurons})."
+                f"FFNN needs num_layers >= 2 and neurons >= 1 (got num_layers={num_layers}, "
+                f"neurons={neurons}). Fix: e.g. model.num_layers=4 model.neurons=100 (the "
+                "study's search space: 3-5 layers, 25-100 neurons)."
             )
         self.net = mlp(self.n_features, ny, neurons, num_layers - 1)
 

@@ -36,8 +36,9 @@ class LSTMNet(NarxModule):
         super().__init__(nu=nu, ny=ny, **kwargs)
         if lstm_layers < 1 or num_layers <= lstm_layers or units < 1:
             raise ConfigError(
-                f"LSTM needs lstm_layers >= 1 and num_layers > lstm_layers (the output layer is "
-                f"dense); got num_layers={num_layers}, lstm_layers={lstm_layers}."
+                "LSTM needs lstm_layers >= 1, num_layers > lstm_layers (the output layer is "
+                f"dense) and units >= 1; got num_layers={num_layers}, lstm_layers={lstm_layers}, "
+                f"units={units}. Fix: e.g. model.num_layers=3 model.lstm_layers=2 model.units=66."
             )
         self.net = _LSTMHead(self.n_features, units, lstm_layers, num_layers - lstm_layers - 1,
                              ny)

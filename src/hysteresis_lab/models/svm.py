@@ -74,7 +74,9 @@ class SVMModel:
             )
         if C <= 0 or gamma <= 0 or degree < 1:
             raise ConfigError(
-                f"SVM needs C > 0, gamma > 0, degree >= 1 (got {C}, {gamma}, {degree})."
+                f"SVM needs C > 0, gamma > 0 and degree >= 1 (got C={C}, gamma={gamma}, "
+                f"degree={degree}). Fix: e.g. model.C=10 model.gamma=0.1 model.degree=3 (the "
+                "study's search space: C 0.1-100, gamma 1e-4-10, degree 2-6)."
             )
         self.hparams: dict[str, Any] = {
             "nu": nu,
