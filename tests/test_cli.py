@@ -68,7 +68,9 @@ def test_evaluate_reproduces_the_training_metrics(trained_run, csv_data, tmp_pat
         (["data.train=/nonexistent/file.csv"], "no such file"),
         (["data.window.na=-1"], "window na=-1 is invalid"),
         (["model.lr=abc"], "model.lr='abc' must be a number. Fix: model.lr=0.001"),
-        (["seed=abc"], "seed='abc' must be a number"),
+        (["seed=abc"], "seed='abc' must be a whole number"),
+        (["model=lstm", "model.lstm_layers=1.5"],
+         "model.lstm_layers=1.5 must be a whole number. Fix: model.lstm_layers=2"),
         (["model.effects=creep"], "model.effects='creep' must be a list"),
         (["plots=maybe"], "plots='maybe' must be true or false. Fix: plots=true"),
         (["model=lstm", "model.lr=x"], "model.lr='x' must be a number"),
@@ -91,6 +93,26 @@ def test_a_training_length_that_trains_nothing_or_forever_is_refused(csv_data, t
     assert proc.returncode == 2, output[-3000:]
     assert "must be a whole number >= 1" in output and "Fix: e.g. trainer.max_epochs=100" in output
     assert "Traceback" not in output
+    assert not list(tmp_path.rglob("*.ckpt"))
+
+
+@pytest.mark.parametrize(
+    ("app", "override", "message"),
+    [
+        ("train", "trainer.precision=7", "Lightning refused the trainer settings: Precision 7"),
+        ("train", "+trainer.foo=1", "unexpected keyword argument 'foo'"),
+        ("train", "trainer.devices=3", "trainer.devices=3 gives 3 devices"),
+        ("loop", "trainer.devices=2", "Fix: trainer.devices=1"),
+    ],
+)
+def test_trainer_settings_lightning_refuses_stop_before_any_fit(
+    csv_data, tmp_path, app, override, message
+):
+    proc = run_app(app, *data_overrides(*csv_data), override, "trainer.max_epochs=1",
+                   f"hydra.run.dir={tmp_path}", *QUIET)
+    output = proc.stderr + proc.stdout
+    assert proc.returncode == 2, output[-3000:]
+    assert message in output and "Traceback" not in output
     assert not list(tmp_path.rglob("*.ckpt"))
 
 

@@ -10,7 +10,7 @@ PACKAGED = OmegaConf.create({
     "seed": 0,
     "n_step": None,
     "plots": True,
-    "model": {"lr": 1e-3, "effects": [], "lr_schedule": "cosine"},
+    "model": {"lr": 1e-3, "effects": [], "lr_schedule": "cosine", "num_layers": 4},
     "trainer": {"devices": 1},
     "data": {"effects": {"creep": {"enabled": True}}},
 })
@@ -25,9 +25,9 @@ def overridden(**values) -> DictConfig:
 
 def test_values_of_the_packaged_type_pass():
     cfg = overridden(seed=3, model__lr=5, n_step=100, plots=False, model__effects=["creep"],
-                     model__lr_schedule="plateau", trainer__devices="auto")
+                     model__lr_schedule="plateau", trainer__devices="auto", model__num_layers=3)
     keys = ["seed", "model.lr", "n_step", "plots", "model.effects", "model.lr_schedule",
-            "trainer.devices"]
+            "trainer.devices", "model.num_layers"]
     assert type_mismatches(cfg, PACKAGED, keys) == []
 
 
@@ -39,7 +39,7 @@ def test_each_changed_type_is_named_with_its_fix():
                         "data.effects.creep"],
     )
     assert problems == [
-        "seed='abc' must be a number. Fix: seed=0",
+        "seed='abc' must be a whole number. Fix: seed=0",
         "model.lr=True must be a number. Fix: model.lr=0.001",
         "n_step='x' must be a number or null. Fix: e.g. n_step=null",
         "plots='maybe' must be true or false. Fix: plots=true (true or false)",
@@ -53,3 +53,11 @@ def test_each_changed_type_is_named_with_its_fix():
 def test_only_the_overridden_keys_are_checked():
     cfg = overridden(seed="abc")
     assert type_mismatches(cfg, PACKAGED, ["model.lr"]) == []
+
+
+def test_a_count_takes_only_whole_numbers():
+    cfg = overridden(model__num_layers=2.5, seed=1.0)
+    assert type_mismatches(cfg, PACKAGED, ["model.num_layers", "seed"]) == [
+        "model.num_layers=2.5 must be a whole number. Fix: model.num_layers=4",
+        "seed=1.0 must be a whole number. Fix: seed=0",
+    ]

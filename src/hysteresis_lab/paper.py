@@ -26,7 +26,7 @@ from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.evaluation.plots import loops_figure, save_figure
 from hysteresis_lab.evaluation.report import write_json, write_table2
 from hysteresis_lab.pipeline import evaluation_device, plain_dict, train_and_evaluate
-from hysteresis_lab.training import model_layout
+from hysteresis_lab.training import check_trainer_settings, is_network, model_layout
 
 log = logging.getLogger(__name__)
 
@@ -118,6 +118,8 @@ def run_paper(
 ) -> dict[str, PaperEntry]:
     """Train and score every model; write table2.md/.csv, paper_results.json, figure1.png."""
     data_cfg, trainer_cfg = plain_dict(data_cfg), plain_dict(trainer_cfg)
+    if any(is_network(cfg) for cfg in models.values()):
+        check_trainer_settings(trainer_cfg)  # before any model trains, not in a worker
     splits = build_splits(data_cfg)
     processes, threads = plan_workers(len(models), trainer_cfg, workers)
     jobs = [

@@ -29,7 +29,14 @@ from hysteresis_lab.evaluation.plots import loops_figure, residuals_figure, save
 from hysteresis_lab.evaluation.predict import check_n_step
 from hysteresis_lab.evaluation.report import metrics_document, write_json
 from hysteresis_lab.models.io import save_model
-from hysteresis_lab.training import TrainResult, build_model, fit, model_layout
+from hysteresis_lab.training import (
+    TrainResult,
+    build_model,
+    check_trainer_settings,
+    fit,
+    is_network,
+    model_layout,
+)
 
 log = logging.getLogger(__name__)
 
@@ -95,6 +102,8 @@ def train_and_evaluate(
     (`NarxModule.train_new_inputs_only`), ``"full"`` every weight.
     """
     model_cfg, data_cfg, trainer_cfg = map(plain_dict, (model_cfg, data_cfg, trainer_cfg))
+    if is_network(model_cfg):
+        check_trainer_settings(trainer_cfg)
     output_dir.mkdir(parents=True, exist_ok=True)
     L.seed_everything(seed, workers=True, verbose=False)
     effects = list(model_cfg.get("effects") or [])

@@ -15,6 +15,7 @@ import numpy as np
 import torch
 from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint, TQDMProgressBar
 from lightning.pytorch.loggers import TensorBoardLogger
+from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
 from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.data.segments import SegmentDataModule
@@ -98,12 +99,8 @@ def fit(
     validation free-run loss (one-step MSE without free-run fine-tuning) by more than the
     share ``min_gain``.
     """
-    epochs = trainer_cfg.get("max_epochs")
-    if isinstance(model, L.LightningModule) and (epochs is None or int(epochs) < 1):
-        raise ConfigError(
-            f"trainer.max_epochs={epochs} must be a whole number >= 1 (0 trains nothing, -1 "
-            "never stops). Fix: e.g. trainer.max_epochs=100 (the study's)."
-        )
+    if isinstance(model, L.LightningModule):
+        _check_max_epochs(trainer_cfg)
     start = (
         {k: v.detach().clone() for k, v in model.state_dict().items()}
         if keep_start_unless_beaten and isinstance(model, L.LightningModule)
@@ -219,6 +216,45 @@ def _fit_one_step(
     best, val_mse = _restore_best(model, checkpoint)
     log.info("best validation MSE %.4e (scaled); checkpoint %s", val_mse, best)
     return best, val_mse
+
+
+def is_network(model_cfg: Mapping[str, Any]) -> bool:
+    """Does the model named in ``model_cfg`` train with Lightning (and the ``trainer`` config)?"""
+    return issubclass(get_model_class(_model_name(model_cfg)), L.LightningModule)
+
+
+def check_trainer_settings(trainer_cfg: Mapping[str, Any]) -> None:
+    """Fail before any data or training work when the ``trainer`` settings cannot train a
+    network: a training length that trains nothing or never stops, settings Lightning refuses
+    (an unknown argument, a precision or accelerator this machine lacks) or more than one
+    device (a model here trains, and is scored, in one process on one device)."""
+    _check_max_epochs(trainer_cfg)
+    quiet = ("enable_progress_bar", "logger", "enable_checkpointing", "enable_model_summary")
+    try:
+        trainer = _trainer({**trainer_cfg, **dict.fromkeys(quiet, False)})
+    except (MisconfigurationException, ModuleNotFoundError, TypeError, ValueError) as exc:
+        raise ConfigError(
+            f"Lightning refused the trainer settings: {str(exc).rstrip('.! ')}. Fix: correct "
+            "the trainer.* override (trainer.accelerator=auto takes a GPU when there is one, "
+            "else the CPU)."
+        ) from exc
+    if trainer.num_devices > 1 or trainer.num_nodes > 1:
+        raise ConfigError(
+            f"trainer.devices={trainer_cfg.get('devices')!r} gives {trainer.num_devices} "
+            f"devices on {trainer.num_nodes} node(s); a model here trains on one device (the "
+            "paper run trains several models side by side instead). Fix: trainer.devices=1, or "
+            "trainer.devices=[<index>] to pick one GPU."
+        )
+
+
+def _check_max_epochs(trainer_cfg: Mapping[str, Any]) -> None:
+    """A network must train at least one epoch and must stop."""
+    epochs = trainer_cfg.get("max_epochs")
+    if epochs is None or int(epochs) < 1:
+        raise ConfigError(
+            f"trainer.max_epochs={epochs} must be a whole number >= 1 (0 trains nothing, -1 "
+            "never stops). Fix: e.g. trainer.max_epochs=100 (the study's)."
+        )
 
 
 def _trainer(

@@ -5,7 +5,8 @@ as strings and the mistake surfaces later as a traceback deep inside a library (
 truthy string silently counts as ``true``). Before a command does any work, every value an
 override changed is compared with the value the packaged configs give the same key (composed
 with the same group choices: ``model=lstm``, ``experiment=paper`` ...): a number must stay a
-number, a switch ``true``/``false``, a list a list, a group of settings a group. Keys whose
+number (a whole number where the packaged value is one: layer counts, epochs, lags), a switch
+``true``/``false``, a list a list, a group of settings a group. Keys whose
 packaged value is a string, or ``null`` (bar those in `NULLABLE_NUMBERS`), are not checked
 (their type is open).
 """
@@ -33,19 +34,29 @@ NULLABLE_NUMBERS = frozenset({
 #: keys whose packaged value is a number but which also take other types (Lightning's
 #: ``devices`` takes "auto" or a list of device indices)
 OPEN_KEYS = frozenset({"trainer.devices"})
+NUMBER = "a number"
+WHOLE = "a whole number"
 
 
 def _kind(value: Any) -> str | None:
     """The type an override must keep, in words; None where any type goes."""
     if isinstance(value, bool):
         return "true or false"
-    if isinstance(value, int | float):
-        return "a number"
+    if isinstance(value, int):
+        return WHOLE
+    if isinstance(value, float):
+        return NUMBER
     if isinstance(value, list | ListConfig):
         return "a list"
     if isinstance(value, dict | DictConfig):
         return "a group of settings"
     return None
+
+
+def _keeps(expected: str, value: Any) -> bool:
+    """Is ``value`` of the kind ``expected``? A whole number is a number too."""
+    kind = _kind(value)
+    return kind == expected or (expected == NUMBER and kind == WHOLE)
 
 
 def _fix(key: str, reference: Any) -> str:
@@ -69,11 +80,11 @@ def type_mismatches(cfg: DictConfig, reference: DictConfig, keys: list[str]) -> 
         packaged = OmegaConf.select(reference, key, default=None)
         value = OmegaConf.select(cfg, key, default=None)
         if packaged is None and key in NULLABLE_NUMBERS:
-            if value is not None and _kind(value) != "a number":
+            if value is not None and not _keeps(NUMBER, value):
                 problems.append(f"{key}={value!r} must be a number or null. Fix: e.g. {key}=null")
             continue
         expected = _kind(packaged)
-        if expected is None or value is None or _kind(value) == expected:
+        if expected is None or value is None or _keeps(expected, value):
             continue
         if isinstance(value, DictConfig | ListConfig):
             value = OmegaConf.to_container(value)
