@@ -73,6 +73,9 @@ def test_evaluate_reproduces_the_training_metrics(trained_run, csv_data, tmp_pat
          "model.lstm_layers=1.5 must be a whole number. Fix: model.lstm_layers=2"),
         (["model.effects=creep"], "model.effects='creep' must be a list"),
         (["plots=maybe"], "plots='maybe' must be true or false. Fix: plots=true"),
+        (["model.effects=[creep,hysteresis,creep]"],
+         "model.effects names ['creep'] more than once. Fix: name each effect once, "
+         "model.effects=[creep,hysteresis]"),
         (["model=lstm", "model.lr=x"], "model.lr='x' must be a number"),
     ],
 )

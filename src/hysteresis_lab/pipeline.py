@@ -23,6 +23,7 @@ from hysteresis_lab.data.factory import build_datamodule, build_splits
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.effects.augment import augment_splits, context_to_dict
+from hysteresis_lab.effects.registry import check_effects
 from hysteresis_lab.errors import DataError
 from hysteresis_lab.evaluation.evaluate import Evaluation, evaluate_model
 from hysteresis_lab.evaluation.plots import loops_figure, residuals_figure, save_figure
@@ -107,6 +108,7 @@ def train_and_evaluate(
     output_dir.mkdir(parents=True, exist_ok=True)
     L.seed_everything(seed, workers=True, verbose=False)
     effects = list(model_cfg.get("effects") or [])
+    check_effects(effects)
     data, context = augment_splits(splits or build_splits(data_cfg), effects)
     if evaluate:
         _check_evaluation_settings(data, n_steps)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from importlib.metadata import entry_points
 
 from hysteresis_lab.effects.base import Effect
@@ -22,3 +23,16 @@ def get_effect(name: str) -> Effect:
             f"with those names, or install a package registering '{GROUP}' entry points."
         )
     return points[name].load()()
+
+
+def check_effects(names: Sequence[str]) -> None:
+    """Refuse unknown effect names (listing the catalogue) and an effect named twice."""
+    for name in names:
+        get_effect(name)
+    repeated = sorted({name for name in names if list(names).count(name) > 1})
+    if repeated:
+        unique = list(dict.fromkeys(names))
+        raise ConfigError(
+            f"model.effects names {repeated} more than once. Fix: name each effect once, "
+            f"model.effects=[{','.join(unique)}]."
+        )

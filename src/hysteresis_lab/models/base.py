@@ -26,7 +26,7 @@ from torch import nn
 
 from hysteresis_lab.data.windows import Layout, WindowSpec, assemble
 from hysteresis_lab.effects.augment import context_from_dict
-from hysteresis_lab.effects.registry import get_effect
+from hysteresis_lab.effects.registry import check_effects, get_effect
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.fast import input_lags
 
@@ -84,8 +84,7 @@ class NarxModule(L.LightningModule):
                 f"model.refit_lr must be positive or null (got {refit_lr}). Fix: e.g. "
                 "model.refit_lr=1e-4, or null for lr / 10."
             )
-        for name in effects:
-            get_effect(name)  # unknown names fail here, listing the catalogue
+        check_effects(effects)
         if effects and feature_context is None:
             raise ConfigError(
                 "a model with effects needs the feature_context of its training data. Fix: build "
