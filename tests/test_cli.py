@@ -29,6 +29,26 @@ def trained_run(csv_data, tmp_path_factory) -> Path:
     return run_dir
 
 
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        (["data.columns.time=null", "data.fs=1000"],
+         "is sampled at 1000 Hz but the model was trained at 2000 Hz"),
+        (["data.units.y=mm"], "is in u [V], y [mm] but the model was trained on u [V], y [um]"),
+    ],
+)
+def test_evaluate_refuses_data_at_another_rate_or_in_other_units(
+    trained_run, csv_data, tmp_path, overrides, message
+):
+    train, tests = csv_data
+    proc = run_app("evaluate", f"checkpoint={trained_run}", *data_overrides(train, tests),
+                   *overrides, f"hydra.run.dir={tmp_path}")
+    output = proc.stderr + proc.stdout
+    assert proc.returncode == 2, output[-3000:]
+    assert message in output and "Fix: " in output and "Traceback" not in output
+    assert not (tmp_path / "metrics.json").exists()
+
+
 def test_train_writes_metrics_checkpoint_figures_and_tensorboard(trained_run):
     metrics = json.loads((trained_run / "metrics.json").read_text())
     assert metrics["model"] == "ffnn" and metrics["units"] == {"u": "V", "y": "um"}

@@ -119,7 +119,7 @@ def train_and_evaluate(
         if effects
         else {}
     )
-    model = build_model(model_cfg, datamodule, **extra)
+    model = build_model(model_cfg, datamodule, trained_on=_trained_on(data), **extra)
     if warm_start is not None:
         model.warm_start_from(warm_start)
         if refit == "new_inputs":
@@ -216,6 +216,13 @@ def train_and_evaluate(
         trained.refit_validation,
         rejected_refit,
     )
+
+
+def _trained_on(data: DatasetSplits) -> dict[str, Any]:
+    """What a model keeps of its training data to refuse data it cannot score: the sampling
+    rate (its lags span a fixed number of samples) and the physical units (its scaler works
+    in them)."""
+    return {"fs": data.fs, **{f"{k}_units": v for k, v in data.units.items()}}
 
 
 def _check_evaluation_settings(data: DatasetSplits, n_steps: int | None) -> None:

@@ -378,7 +378,7 @@ def _model_name(model_cfg: Mapping[str, Any]) -> str:
 
 #: model parameters that come from the data, never from the config
 DERIVED_PARAMETERS = {"self", "nu", "ny", "na", "nb", "nk", "scaler", "feature_context",
-                      "n_base_inputs"}
+                      "n_base_inputs", "trained_on"}
 
 
 def _init_parameters(cls: type) -> set[str]:

@@ -35,7 +35,9 @@ def _check(model: Any, recordings: Sequence[Recording], window: WindowSpec) -> N
             f"window is na={window.na}, nb={window.nb}, nk={window.nk}. Fix: evaluate with the "
             "model's window (hysteresis_lab.models.io.model_window(model))."
         )
+    trained_on = dict(getattr(model, "hparams", {}) or {}).get("trained_on") or {}
     for rec in recordings:
+        _check_recorded_like_training(rec, trained_on)
         if (rec.nu, rec.ny) != (model.nu, model.ny):
             raise DataError(
                 f"has {rec.nu} input(s) and {rec.ny} output(s) but the model expects "
@@ -50,6 +52,28 @@ def _check(model: Any, recordings: Sequence[Recording], window: WindowSpec) -> N
                 source=f"recording '{rec.name}'",
                 fix="use a longer recording",
             )
+
+
+def _check_recorded_like_training(rec: Recording, trained_on: dict[str, Any]) -> None:
+    """Refuse a recording at another sampling rate or in other units than the model's
+    training data (models saved before they kept these are not checked)."""
+    fs = trained_on.get("fs")
+    if fs and not np.isclose(rec.fs, fs, rtol=1e-6):
+        raise DataError(
+            f"is sampled at {rec.fs:g} Hz but the model was trained at {fs:g} Hz: its lags "
+            "span a fixed number of samples, so it would see another time scale.",
+            source=f"recording '{rec.name}'",
+            fix=f"resample the recording to {fs:g} Hz, or train a model on data at {rec.fs:g} Hz",
+        )
+    trained = (trained_on.get("u_units"), trained_on.get("y_units"))
+    if None not in trained and (rec.u_units, rec.y_units) != trained:
+        raise DataError(
+            f"is in u [{rec.u_units}], y [{rec.y_units}] but the model was trained on u "
+            f"[{trained[0]}], y [{trained[1]}]: its scaling works in those units.",
+            source=f"recording '{rec.name}'",
+            fix=f"convert the recording to {trained[0]} and {trained[1]} (for CSV files that "
+            f"are already in them: data.units.u={trained[0]} data.units.y={trained[1]})",
+        )
 
 
 def _scaler(model: Any) -> Scaler:

@@ -59,6 +59,7 @@ class NarxModule(L.LightningModule):
         refit_lr: float | None = None,
         effect_path: str = "network",
         n_base_inputs: int | None = None,
+        trained_on: dict[str, Any] | None = None,
     ) -> None:
         super().__init__()
         if nu < 1 or ny < 1:

@@ -63,6 +63,7 @@ class SVMModel:
         seed: int = 0,
         effects: Sequence[str] = (),
         feature_context: dict[str, Any] | None = None,
+        trained_on: dict[str, Any] | None = None,
     ) -> None:
         if kernel not in KERNELS:
             raise ConfigError(
@@ -98,6 +99,7 @@ class SVMModel:
             "feature_context": feature_context,
             "model_name": "svm",
             "scaler": scaler,
+            "trained_on": trained_on,
         }
         self.nu, self.ny = nu, ny
         self.window = WindowSpec(na=na, nb=nb, nk=nk)
