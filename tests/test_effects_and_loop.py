@@ -305,7 +305,36 @@ def test_loop_runs_with_the_svm(tmp_path):
     assert (tmp_path / "loop" / "round_0" / "metrics.json").is_file()
     assert rounds[0]["added"]  # the SVM leaves the undeclared creep in its residual
     assert rounds[1]["effects"] == [rounds[0]["added"]]
-    assert (tmp_path / "loop" / "round_1" / "metrics.json").is_file()
+    loss = rounds[1]["refit_validation_loss"]  # the refit met the last model on validation
+    assert loss["start"] == pytest.approx(
+        json.loads((tmp_path / "loop" / "round_0" / "metrics.json").read_text())["val_mse_scaled"])
+    kept = loss["refit"] < loss["start"]
+    assert ("rejected" in rounds[1]) is not kept
+    assert (tmp_path / "loop" / "round_1" / "metrics.json").is_file() is kept
+
+
+def test_an_svm_refit_that_loses_on_validation_is_dropped(tmp_path):
+    """The SVM refits from scratch: it is kept only when its validation MSE beats the last
+    model's (here by 99 %, which none does), else the last model stands."""
+    train, tests = small_dataset(tmp_path, effects={"creep": {"enabled": True}})
+    proc = run_app("loop", *data_overrides(train, tests), "model=svm", "model.n_components=100",
+                   "model.max_samples=1000", "loop.max_rounds=1", "loop.min_refit_gain=0.99",
+                   "logger=none", f"hydra.run.dir={tmp_path}/loop")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    rounds = json.loads((tmp_path / "loop" / "loop_report.json").read_text())["rounds"]
+    assert rounds[1]["rejected"] == rounds[0]["added"]
+    assert rounds[1]["tests"] == rounds[0]["tests"]  # the round-0 model stands
+    loss = rounds[1]["refit_validation_loss"]
+    assert not loss["refit"] < 0.01 * loss["start"]
+    refit = rounds[1]["rejected_refit"]  # what the refit itself did, scored on the tests
+    assert refit["tests"] != rounds[1]["tests"]
+    folder = tmp_path / "loop" / "round_1"
+    assert not (folder / "model.skops").exists() and not (folder / "metrics.json").exists()
+    again = run_app("evaluate", f"checkpoint={folder / 'rejected_refit_model.skops'}",
+                    *data_overrides(train, tests), f"hydra.run.dir={tmp_path}/eval", "plots=false")
+    assert again.returncode == 0, again.stderr[-3000:]
+    fresh = json.loads((tmp_path / "eval" / "metrics.json").read_text())["mean"]
+    assert fresh["rmse_free_run"] == pytest.approx(refit["mean_rmse_free_run"], rel=1e-6)
 
 
 def test_per_recording_test_names_an_effect_that_acts_on_one_recording_only(caplog):

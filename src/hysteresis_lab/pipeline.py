@@ -41,9 +41,10 @@ from hysteresis_lab.training import (
 
 log = logging.getLogger(__name__)
 
-#: where a warm-started refit that lost to its start on validation leaves its own weights
-#: (beside ``rejected_refit_metrics.json``; ``model.ckpt`` holds the start it lost to)
+#: where a loop refit that lost on validation leaves its own model, beside its metrics (a
+#: warm-started one: ``model.ckpt`` beside them holds the start it lost to)
 REJECTED_REFIT_MODEL = "rejected_refit_model"
+REJECTED_REFIT_METRICS = "rejected_refit_metrics.json"
 
 
 @dataclass
@@ -178,7 +179,7 @@ def train_and_evaluate(
                 str(model_cfg["name"]),
             )
             log.info("saved %s", save_model(rejected, output_dir / REJECTED_REFIT_MODEL))
-        write_json(rejected_refit, output_dir / "rejected_refit_metrics.json")
+        write_json(rejected_refit, output_dir / REJECTED_REFIT_METRICS)
     document = metrics_document(
         str(model_cfg["name"]),
         units,

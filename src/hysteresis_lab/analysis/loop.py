@@ -5,7 +5,8 @@ recordings in both modes, analyses the free-run residuals and ranks the effects 
 does not declare yet (`hysteresis_lab.analysis.diagnosis`). The top significant one is added
 and the next round refits, until nothing significant remains or ``max_rounds`` effects are
 added. A refit that does not beat the model it started from on validation is rejected: the
-effect is dropped, the last model stands and the next significant effect is tried.
+effect is dropped, the last model stands and the next significant effect is tried (a model
+refitted from scratch, the SVM, meets the last kept one on its validation MSE).
 With ``warm_start`` a refit starts from the previous round's network with the new effect's
 input weights at zero (nested models: it begins exactly where the last round ended); with
 ``refit="new_inputs"`` (the default) it trains only those weights, so everything the last
@@ -15,6 +16,7 @@ effect brings, not the spread between two fits.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import itertools
 import logging
@@ -37,7 +39,12 @@ from hysteresis_lab.evaluation.plots import loops_figure, save_figure
 from hysteresis_lab.evaluation.report import write_json
 from hysteresis_lab.models.base import NarxModule
 from hysteresis_lab.models.registry import get_model_class
-from hysteresis_lab.pipeline import RunResult, train_and_evaluate
+from hysteresis_lab.pipeline import (
+    REJECTED_REFIT_METRICS,
+    REJECTED_REFIT_MODEL,
+    RunResult,
+    train_and_evaluate,
+)
 
 log = logging.getLogger(__name__)
 
@@ -141,6 +148,10 @@ def run_loop(
             warm_start=warm_start,
             refit=_refit_mode(settings.refit, trying),
         )
+        if trying is not None and warm_start is None:
+            result = judge_cold_refit(result, kept[-1], settings.min_refit_gain)
+            if not result.improved:
+                _set_aside_rejected_files(result.rejected_refit)
         entry = _round_entry(round_effects, result)
         if refit_lr is not None:
             entry["refit_lr"] = refit_lr
@@ -211,6 +222,35 @@ def next_effect(
     candidates = [d for d in diagnosis if d.significant and d.effect not in tried]
     reported = [d.effect for d in candidates if not d.predictable]
     return next((d for d in candidates if d.predictable), None), reported
+
+
+def judge_cold_refit(refit: RunResult, last: RunResult, min_gain: float) -> RunResult:
+    """Keep a refit trained from scratch (the SVM, or ``loop.warm_start=false``) only when its
+    validation MSE beats the last kept model's by more than the share ``min_gain``; otherwise
+    the last model stands, with the refit's scores kept as what it would have done (as a
+    warm-started refit that lost to its start is reported)."""
+    losses = {"start": last.val_mse, "refit": refit.val_mse}
+    if refit.val_mse < (1.0 - min_gain) * last.val_mse:
+        return dataclasses.replace(refit, refit_validation=losses)
+    log.info(
+        "refit did not beat the last model on validation (%.4e vs %.4e, scaled): kept that model",
+        refit.val_mse,
+        last.val_mse,
+    )
+    return dataclasses.replace(
+        last, improved=False, refit_validation=losses, rejected_refit=refit.document
+    )
+
+
+def _set_aside_rejected_files(document: dict[str, Any]) -> None:
+    """A rejected refit trained from scratch leaves its model and metrics under the names a
+    rejected warm-started refit uses, so a round folder's ``model.*`` is always a model that
+    stands (the one it lost to is the last kept round's)."""
+    model_path = Path(document["model_path"])
+    aside = model_path.with_name(REJECTED_REFIT_MODEL + model_path.suffix)
+    model_path.replace(aside)
+    (model_path.parent / "metrics.json").replace(model_path.parent / REJECTED_REFIT_METRICS)
+    document["model_path"] = str(aside)
 
 
 def _without_network_only_settings(model_cfg: Mapping[str, Any]) -> dict[str, Any]:
