@@ -81,6 +81,24 @@ def test_declared_effect_explains_its_own_residual():
     assert not any(r.significant for r in ranked)
 
 
+def test_each_output_of_a_mimo_recording_is_diagnosed():
+    """Creep in the second output's residual only: the diagnosis must look past the first."""
+    recs = [Recording(u=r.u, y=np.zeros((r.n_samples, 2)), fs=FS, name=r.name,
+                      y_names=("x", "z")) for r in sines()]
+    ctx = FeatureContext(FS, np.array([100.0]), 6.0)
+    rng = np.random.default_rng(1)
+    residuals = [np.column_stack([0.01 * rng.standard_normal(r.n_samples), creep[:, 0]])
+                 for r, creep in zip(recs, creep_shaped_residuals(recs), strict=True)]
+    ranked = diagnose(recs, residuals, ctx, declared=["hysteresis"])
+    assert ranked[0].effect == "creep" and ranked[0].significant
+    assert "on the 6 of 6" not in ranked[0].evidence  # every (recording, output) pair shows it
+    per_output = diagnose(recs, residuals, ctx, declared=["hysteresis"], test="per_recording")
+    assert per_output[0].effect == "creep" and ":z" in per_output[0].evidence
+    white_first = [r[:, :1] for r in residuals]  # the first output alone holds nothing
+    single = [Recording(u=r.u, y=r.y[:, :1], fs=FS, name=r.name) for r in recs]
+    assert not any(d.significant for d in diagnose(single, white_first, ctx, ["hysteresis"]))
+
+
 def delayed(x: np.ndarray, samples: int) -> np.ndarray:
     return np.concatenate([np.zeros(samples), x[:-samples]])
 

@@ -12,6 +12,8 @@ baseline and each input-dependent candidate enter with a few lags (``lags``, a d
 regression; the loop spans twice the model's input window): the test then sees an effect with
 the phase the dynamics give it, and the baseline gets the same freedom. Every recording
 weighs the same, however long; the score is the mean over recordings of the held-out gain.
+A recording with several outputs (a MIMO system) counts as one recording per output, and
+each output gets coefficients of its own (one law per output, shared by the recordings).
 
 Each effect is tested on the recordings that can show it. An input-dependent effect: those
 whose input moves. An input-independent one (drift): those that hold the input constant — on
@@ -36,7 +38,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import stats
@@ -130,7 +132,7 @@ def _prepare(
 ) -> _Prepared:
     """``held``: the input is constant, so the baseline has nothing to regress on and gets no
     columns (de-meaned, they would be round-off, which standardising would blow up)."""
-    e = np.asarray(residual, dtype=float)[:, 0]
+    e = np.asarray(residual, dtype=float).reshape(len(residual), -1)[:, 0]  # one output
     keep = np.flatnonzero(np.isfinite(e))
     keep = keep[:: max(1, len(keep) // max_points)]
     e = _centre(e[keep])
@@ -148,17 +150,21 @@ def evidence_lags(nb: int) -> tuple[int, ...]:
     return tuple(sorted({0, nb // 5, nb // 2, nb, 2 * nb}))
 
 
-def _per_recording(signals: list[np.ndarray]) -> list[np.ndarray]:
-    """Each recording's signals in columns of their own (zeros elsewhere): an effect that does
-    not depend on the input (drift) takes a different course in every recording, so it gets
-    its own coefficients per recording instead of one law for all."""
-    width = sum(s.shape[1] for s in signals)
-    out, column = [], 0
-    for s in signals:
-        block = np.zeros((len(s), width))
-        block[:, column : column + s.shape[1]] = s
+def _in_groups(signals: list[np.ndarray], groups: Sequence[int]) -> list[np.ndarray]:
+    """Each group's signals in columns of their own (zeros elsewhere), so each group gets
+    coefficients of its own: every output of a MIMO system has its own law, and an effect
+    that does not depend on the input (drift) takes a different course in every recording.
+    One group: the signals as they are."""
+    keys = sorted(set(groups))
+    if len(keys) == 1:
+        return list(signals)
+    width = signals[0].shape[1]
+    out = []
+    for s, group in zip(signals, groups, strict=True):
+        block = np.zeros((len(s), width * len(keys)))
+        start = keys.index(group) * width
+        block[:, start : start + width] = s
         out.append(block)
-        column += s.shape[1]
     return out
 
 
@@ -287,6 +293,34 @@ def _warn_too_short(blocks: Sequence[_Block], names: Sequence[str], alpha: float
         )
 
 
+def _one_output_each(
+    recordings: Sequence[Recording], residuals: Sequence[np.ndarray]
+) -> tuple[list[Recording], list[np.ndarray], list[int]]:
+    """A recording with several outputs enters once per output (``<name>:<output>``): each
+    output's residual is a series of its own, weighing as much as a single-output recording.
+    Also returns which output each series is (its coefficients are that output's)."""
+    singles, columns, outputs = [], [], []
+    for rec, residual in zip(recordings, residuals, strict=True):
+        residual = np.asarray(residual, dtype=float).reshape(len(residual), -1)
+        if residual.shape[1] != rec.ny:
+            raise ValueError(
+                f"the residual of '{rec.name}' has {residual.shape[1]} column(s), the recording "
+                f"{rec.ny} output(s)."
+            )
+        if rec.ny == 1:
+            singles.append(rec)
+            columns.append(residual)
+            outputs.append(0)
+            continue
+        for j, output in enumerate(rec.y_names):
+            singles.append(replace(
+                rec, name=f"{rec.name}:{output}", y=rec.y[:, [j]], y_names=(output,)
+            ))
+            columns.append(residual[:, [j]])
+            outputs.append(j)
+    return singles, columns, outputs
+
+
 def _holds_input(recording: Recording, context: FeatureContext) -> bool:
     """Whether the recording holds every input constant: its peak-to-peak within 0.1 % of the
     training input's amplitude (a measured hold keeps a little noise)."""
@@ -331,6 +365,7 @@ def diagnose(
     if test == "per_recording":
         folds = max(folds, BLOCKS_PER_RECORDING)
     names = [n for n in (candidates or available_effects()) if n not in declared]
+    recordings, residuals, outputs = _one_output_each(recordings, residuals)
     held = [_holds_input(rec, context) for rec in recordings]
     prepared = [
         _prepare(rec, res, context, declared, max_points, lags, hold)
@@ -348,7 +383,7 @@ def diagnose(
         shown = [prepared[i] for i in tested]
         shown_names = [recordings[i].name for i in tested]
         if tested not in baselines:
-            base = _standardised([p.base for p in shown])
+            base = _standardised(_in_groups([p.base for p in shown], [outputs[i] for i in tested]))
             baselines[tested] = base, _blocks(shown, base, folds)
             if test == "per_recording":
                 _warn_too_short(baselines[tested][1], shown_names, alpha)
@@ -360,9 +395,8 @@ def diagnose(
             * p.weight
             for i, p in zip(tested, shown, strict=True)
         ]
-        if not effect.predictable:
-            evidence_signals = _per_recording(evidence_signals)
-        signals = _standardised(evidence_signals)
+        groups = [outputs[i] for i in tested] if effect.predictable else list(range(len(tested)))
+        signals = _standardised(_in_groups(evidence_signals, groups))
         full = [np.column_stack([b, s]) for b, s in zip(base, signals, strict=True)]
         gains = _gains(base_blocks, _blocks(shown, full, folds))
         significant, p_value, how = _verdict(gains, test, min_score, alpha, shown_names)
