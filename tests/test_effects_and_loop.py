@@ -13,6 +13,7 @@ from helpers import data_overrides, run_app, small_dataset
 from hysteresis_lab.analysis.correlation import correlation_tests
 from hysteresis_lab.analysis.diagnosis import EffectScore, diagnose, evidence_lags
 from hysteresis_lab.analysis.loop import LoopSettings, next_effect
+from hysteresis_lab.analysis.report import diagnostics_figure, residual_analysis
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.effects.augment import augment, feature_context
 from hysteresis_lab.effects.base import FeatureContext
@@ -97,6 +98,29 @@ def test_each_output_of_a_mimo_recording_is_diagnosed():
     white_first = [r[:, :1] for r in residuals]  # the first output alone holds nothing
     single = [Recording(u=r.u, y=r.y[:, :1], fs=FS, name=r.name) for r in recs]
     assert not any(d.significant for d in diagnose(single, white_first, ctx, ["hysteresis"]))
+
+
+def test_residual_analysis_covers_every_output_and_input():
+    """A 2-input, 2-output recording: one entry per output, its tests per input; the second
+    output's residual is the second input delayed, which only its own test sees."""
+    rng = np.random.default_rng(2)
+    u = rng.standard_normal((4000, 2))
+    mimo = Recording(u=u, y=np.zeros((4000, 2)), fs=FS, name="m", u_names=("a", "b"),
+                     y_names=("x", "z"))
+    residual = np.column_stack([0.1 * rng.standard_normal(4000), delayed(u[:, 1], 3)])
+    siso = Recording(u=u[:, :1], y=np.zeros((4000, 1)), fs=FS, name="s")
+    predictions = {"m": {"free_run": mimo.y - residual},
+                   "s": {"free_run": siso.y - residual[:, :1]}}
+    analysis = residual_analysis([mimo, siso], predictions, n_skip=10)
+    assert set(analysis) == {"m:x", "m:z", "s"}
+    assert "correlation" in analysis["s"]["free_run"]  # one input: as before, not nested
+    tests = {out: {name: per["correlation"]["phi_ue"]["passed"]
+                   for name, per in analysis[f"m:{out}"]["free_run"]["inputs"].items()}
+             for out in ("x", "z")}
+    assert tests == {"x": {"a": True, "b": True}, "z": {"a": True, "b": False}}
+    figure = diagnostics_figure([mimo, siso], predictions, n_skip=10)
+    titles = [ax.get_title() for ax in figure.axes]
+    assert len(figure.axes) == 3 * 4 and "m:z free_run: phi_ue (b)" in titles
 
 
 def delayed(x: np.ndarray, samples: int) -> np.ndarray:
