@@ -18,6 +18,7 @@ model (the same scaler as the networks). Saved with skops, never with pickle.
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Sequence
 from typing import Any, ClassVar
 
@@ -127,17 +128,27 @@ class SVMModel:
                     random_state=h["seed"],
                 ).fit(x)
             features = self._features(x)
-            self.estimators = [
-                LinearSVR(
-                    C=h["C"],
-                    epsilon=h["epsilon"],
-                    loss="squared_epsilon_insensitive",
-                    dual=False,  # primal Newton solver: seconds where the dual needs minutes
-                    max_iter=5000,
-                    random_state=h["seed"],
-                ).fit(features, target[:, j])
-                for j in range(target.shape[1])
-            ]
+            log.info(
+                "SVM: linear SVR on %d windows x %d features, one fit per output (%d); the cost "
+                "grows faster than the window count (on large data a lower model.n_components "
+                "or model.strategy=subsample is faster)",
+                *features.shape,
+                target.shape[1],
+            )
+            self.estimators = []
+            for j in range(target.shape[1]):
+                start = time.perf_counter()
+                self.estimators.append(
+                    LinearSVR(
+                        C=h["C"],
+                        epsilon=h["epsilon"],
+                        loss="squared_epsilon_insensitive",
+                        dual=False,  # primal Newton solver: seconds where the dual needs minutes
+                        max_iter=5000,
+                        random_state=h["seed"],
+                    ).fit(features, target[:, j])
+                )
+                log.info("SVM output %d fitted in %.1f s", j, time.perf_counter() - start)
         else:
             rows = rng.choice(len(x), size=min(h["max_samples"], len(x)), replace=False)
             self.estimators = [
