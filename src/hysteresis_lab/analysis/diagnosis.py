@@ -314,7 +314,7 @@ def _one_output_each(
             continue
         for j, output in enumerate(rec.y_names):
             singles.append(replace(
-                rec, name=f"{rec.name}:{output}", y=rec.y[:, [j]], y_names=(output,)
+                rec, name=rec.output_label(j), y=rec.y[:, [j]], y_names=(output,)
             ))
             columns.append(residual[:, [j]])
             outputs.append(j)

@@ -14,12 +14,6 @@ from hysteresis_lab.data.recording import Recording
 MODES = ("one_step", "free_run")
 
 
-def series_label(rec: Recording, output: int) -> str:
-    """A recording's name, with the output's for a recording of several outputs (as the
-    diagnosis names them)."""
-    return rec.name if rec.ny == 1 else f"{rec.name}:{rec.y_names[output]}"
-
-
 def residual_analysis(recordings: list[Recording], predictions: dict[str, dict[str, np.ndarray]],
                       n_skip: int, max_lag: int = 50) -> dict[str, Any]:
     """Per recording (and output, for several) and mode: correlation tests, spectrum peaks,
@@ -42,7 +36,7 @@ def residual_analysis(recordings: list[Recording], predictions: dict[str, dict[s
                     "vs_time": binned(rec.t[n_skip:], e),
                     **(next(iter(per_input.values())) if rec.nu == 1 else {"inputs": per_input}),
                 }
-            out[series_label(rec, output)] = per_mode
+            out[rec.output_label(output)] = per_mode
     return out
 
 
@@ -71,7 +65,7 @@ def diagnostics_figure(recordings: list[Recording], predictions: dict[str, dict[
         ]
         strongest = int(np.argmax([np.max(np.abs(t["phi_ue"].values)) for t in by_input]))
         tests, u, u_name = by_input[strongest], rec.u[n_skip:, strongest], rec.u_names[strongest]
-        label = series_label(rec, output)
+        label = rec.output_label(output)
         for ax, key in zip(row[:2], ("phi_ee", "phi_ue"), strict=True):
             test = tests[key]
             ax.stem(np.arange(len(test.values)), test.values, markerfmt=" ", basefmt=" ")

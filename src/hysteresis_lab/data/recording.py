@@ -144,6 +144,11 @@ class Recording:
             name=name or self.name,
         )
 
+    def output_label(self, output: int) -> str:
+        """The recording's name, with the output's (``<name>:<output>``) when it has several:
+        how the residual analysis and the diagnosis name one output's series."""
+        return self.name if self.ny == 1 else f"{self.name}:{self.y_names[output]}"
+
     def with_output(self, y: np.ndarray, name: str | None = None) -> Recording:
         """Return a copy with the output replaced (e.g. by a model's prediction)."""
         return replace(self, y=y, name=name or self.name)
