@@ -132,7 +132,7 @@ def _prepare(
 ) -> _Prepared:
     """``held``: the input is constant, so the baseline has nothing to regress on and gets no
     columns (de-meaned, they would be round-off, which standardising would blow up)."""
-    e = np.asarray(residual, dtype=float).reshape(len(residual), -1)[:, 0]  # one output
+    e = np.asarray(residual, dtype=float)[:, 0]  # one output's (see `_one_output_each`)
     keep = np.flatnonzero(np.isfinite(e))
     keep = keep[:: max(1, len(keep) // max_points)]
     e = _centre(e[keep])
@@ -296,9 +296,9 @@ def _warn_too_short(blocks: Sequence[_Block], names: Sequence[str], alpha: float
 def _one_output_each(
     recordings: Sequence[Recording], residuals: Sequence[np.ndarray]
 ) -> tuple[list[Recording], list[np.ndarray], list[int]]:
-    """A recording with several outputs enters once per output (``<name>:<output>``): each
-    output's residual is a series of its own, weighing as much as a single-output recording.
-    Also returns which output each series is (its coefficients are that output's)."""
+    """Every output of a recording as a series of its own (named by `Recording.output_label`),
+    each weighing as much as a single-output recording; also which output each series is (its
+    coefficients are that output's)."""
     singles, columns, outputs = [], [], []
     for rec, residual in zip(recordings, residuals, strict=True):
         residual = np.asarray(residual, dtype=float).reshape(len(residual), -1)
@@ -307,11 +307,6 @@ def _one_output_each(
                 f"the residual of '{rec.name}' has {residual.shape[1]} column(s), the recording "
                 f"{rec.ny} output(s)."
             )
-        if rec.ny == 1:
-            singles.append(rec)
-            columns.append(residual)
-            outputs.append(0)
-            continue
         for j, output in enumerate(rec.y_names):
             singles.append(replace(
                 rec, name=rec.output_label(j), y=rec.y[:, [j]], y_names=(output,)
