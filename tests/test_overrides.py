@@ -41,7 +41,7 @@ def test_each_changed_type_is_named_with_its_fix():
     assert problems == [
         "seed='abc' must be a whole number. Fix: seed=0",
         "model.lr=True must be a number. Fix: model.lr=0.001",
-        "n_step='x' must be a number or null. Fix: e.g. n_step=null",
+        "n_step='x' must be a whole number or null. Fix: e.g. n_step=null",
         "plots='maybe' must be true or false. Fix: plots=true (true or false)",
         "model.effects='creep' must be a list. Fix: model.effects=[a,b] (brackets even for one "
         "item: model.effects=[a])",
@@ -56,8 +56,9 @@ def test_only_the_overridden_keys_are_checked():
 
 
 def test_a_count_takes_only_whole_numbers():
-    cfg = overridden(model__num_layers=2.5, seed=1.0)
-    assert type_mismatches(cfg, PACKAGED, ["model.num_layers", "seed"]) == [
+    cfg = overridden(model__num_layers=2.5, seed=1.0, n_step=2.5)
+    assert type_mismatches(cfg, PACKAGED, ["model.num_layers", "seed", "n_step"]) == [
         "model.num_layers=2.5 must be a whole number. Fix: model.num_layers=4",
         "seed=1.0 must be a whole number. Fix: seed=0",
+        "n_step=2.5 must be a whole number or null. Fix: e.g. n_step=null",
     ]

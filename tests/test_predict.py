@@ -88,8 +88,9 @@ def test_n_step_between_one_step_and_free_run(name, splits, trained):
     bad = n_step(model, [corrupted], dm.window, 5)[0]
     np.testing.assert_allclose(bad[: ft + 10], five[: ft + 10], atol=1e-9)
     assert np.abs(bad[ft + 10 :] - five[ft + 10 :]).max() > 1e-4
-    with pytest.raises(DataError, match="n_step"):
-        n_step(model, recs, dm.window, 0)
+    for bad_horizon in (0, 2.5, True):
+        with pytest.raises(DataError, match="must be a whole number >= 1"):
+            n_step(model, recs, dm.window, bad_horizon)
 
 
 def test_data_with_other_channels_than_the_model(trained):

@@ -26,16 +26,18 @@ from hysteresis_lab.errors import ConfigError
 
 log = logging.getLogger(__name__)
 
-#: keys whose packaged value is null (off / automatic) but which take a number when set
-NULLABLE_NUMBERS = frozenset({
-    "n_step", "model.rollout_lr", "model.refit_lr", "trainer.gradient_clip_val", "data.fs",
-    "data.splits.train_sine_amplitude",
-})
+NUMBER = "a number"
+WHOLE = "a whole number"
+#: keys whose packaged value is null (off / automatic) but which take a number when set,
+#: with the kind of number they take
+NULLABLE_NUMBERS = {
+    "n_step": WHOLE, "model.rollout_lr": NUMBER, "model.refit_lr": NUMBER,
+    "trainer.gradient_clip_val": NUMBER, "data.fs": NUMBER,
+    "data.splits.train_sine_amplitude": NUMBER,
+}
 #: keys whose packaged value is a number but which also take other types (Lightning's
 #: ``devices`` takes "auto" or a list of device indices)
 OPEN_KEYS = frozenset({"trainer.devices"})
-NUMBER = "a number"
-WHOLE = "a whole number"
 
 
 def _kind(value: Any) -> str | None:
@@ -80,8 +82,9 @@ def type_mismatches(cfg: DictConfig, reference: DictConfig, keys: list[str]) -> 
         packaged = OmegaConf.select(reference, key, default=None)
         value = OmegaConf.select(cfg, key, default=None)
         if packaged is None and key in NULLABLE_NUMBERS:
-            if value is not None and not _keeps(NUMBER, value):
-                problems.append(f"{key}={value!r} must be a number or null. Fix: e.g. {key}=null")
+            expected = NULLABLE_NUMBERS[key]
+            if value is not None and not _keeps(expected, value):
+                problems.append(f"{key}={value!r} must be {expected} or null. Fix: e.g. {key}=null")
             continue
         expected = _kind(packaged)
         if expected is None or value is None or _keeps(expected, value):

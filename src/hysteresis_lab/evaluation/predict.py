@@ -135,7 +135,8 @@ def free_run(
 
 def check_n_step(n: int | None) -> None:
     """Raise `DataError` unless ``n`` is a valid n-step horizon (None: no n-step scores)."""
-    if n is not None and int(n) < 1:
+    whole = isinstance(n, int | float) and not isinstance(n, bool) and float(n).is_integer()
+    if n is not None and not (whole and n >= 1):
         raise DataError(
             f"n_step={n} must be a whole number >= 1 (or null: no n-step scores).",
             fix="e.g. n_step=100",
