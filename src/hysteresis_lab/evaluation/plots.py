@@ -20,8 +20,8 @@ def _style(label: str, position: int) -> tuple[str, str]:
     return MODE_STYLES.get(label, (OTHER_COLORS[position % len(OTHER_COLORS)], "-"))
 
 
-def _grid(n_panels: int, panel_size: float = 2.6) -> tuple[Figure, np.ndarray]:
-    cols = min(4, max(1, n_panels))
+def _grid(n_panels: int, panel_size: float = 2.6, cols: int = 4) -> tuple[Figure, np.ndarray]:
+    cols = min(cols, max(1, n_panels))
     rows = math.ceil(n_panels / cols)
     fig = Figure(figsize=(panel_size * cols, panel_size * rows))
     axes = fig.subplots(rows, cols, squeeze=False)
@@ -30,36 +30,60 @@ def _grid(n_panels: int, panel_size: float = 2.6) -> tuple[Figure, np.ndarray]:
     return fig, axes
 
 
+def _panels(recordings: Sequence[Recording]) -> tuple[list[tuple[Recording, int]], int]:
+    """One panel per recording and output, and the grid's column count: four panels a row
+    for single-output data, one row per recording (a column per output) for several."""
+    panels = [(rec, output) for rec in recordings for output in range(rec.ny)]
+    ny = max((rec.ny for rec in recordings), default=1)
+    return panels, 4 if ny == 1 else ny
+
+
+def driving_input(rec: Recording, output: int) -> int:
+    """The input whose measured signal correlates most (in magnitude) with ``output``: what
+    a loop of that output is drawn against when there are several inputs."""
+    if rec.nu == 1:
+        return 0
+    y = rec.y[:, output] - rec.y[:, output].mean()
+    u = rec.u - rec.u.mean(axis=0)
+    scale = np.linalg.norm(u, axis=0) * np.linalg.norm(y)
+    corr = np.abs(u.T @ y) / np.where(scale > 0, scale, np.inf)
+    return int(np.argmax(corr))
+
+
 def loops_figure(
     recordings: Sequence[Recording],
     predictions: Mapping[str, Mapping[str, np.ndarray]],
     title: str = "",
-    channel: int = 0,
     max_points: int = 4000,
 ) -> Figure:
-    """Figure-1-style grid: measured and predicted output against input, one panel per test.
+    """Figure-1-style grid: measured and predicted output against input, one panel per test
+    recording and output (each output drawn against the input that drives it most).
 
     ``predictions[recording name][mode]`` is an (N, ny) array; modes are drawn in their own
     colour (free run solid red, one-step dashed orange), the measurement in black.
     """
-    fig, axes = _grid(len(recordings))
-    for ax, rec in zip(axes.flat, recordings, strict=False):
+    panels, cols = _panels(recordings)
+    fig, axes = _grid(len(panels), cols=cols)
+    for ax, (rec, output) in zip(axes.flat, panels, strict=False):
         step = max(1, rec.n_samples // max_points)
-        u = rec.u[::step, min(channel, rec.nu - 1)]
-        ax.plot(u, rec.y[::step, channel], color="black", lw=1.2, label="measured")
+        source = driving_input(rec, output)
+        u = rec.u[::step, source]
+        ax.plot(u, rec.y[::step, output], color="black", lw=1.2, label="measured")
         for position, (mode, y_hat) in enumerate(predictions.get(rec.name, {}).items()):
             color, style = _style(mode, position)
             ax.plot(
                 u,
-                np.asarray(y_hat)[::step, channel],
+                np.asarray(y_hat)[::step, output],
                 color=color,
                 ls=style,
                 lw=0.9,
                 label=mode.replace("_", " "),
             )
-        ax.set_title(rec.name, fontsize=9)
-        ax.set_xlabel(f"u [{rec.u_units}]", fontsize=8)
-        ax.set_ylabel(f"y [{rec.y_units}]", fontsize=8)
+        ax.set_title(rec.output_label(output), fontsize=9)
+        u_name = f"{rec.u_names[source]} " if rec.nu > 1 else "u "
+        y_name = f"{rec.y_names[output]} " if rec.ny > 1 else "y "
+        ax.set_xlabel(f"{u_name}[{rec.u_units}]", fontsize=8)
+        ax.set_ylabel(f"{y_name}[{rec.y_units}]", fontsize=8)
         ax.tick_params(labelsize=7)
     axes.flat[0].legend(fontsize=7, loc="upper left")
     if title:
@@ -72,20 +96,21 @@ def residuals_figure(
     recordings: Sequence[Recording],
     predictions: Mapping[str, Mapping[str, np.ndarray]],
     title: str = "",
-    channel: int = 0,
     max_points: int = 4000,
 ) -> Figure:
-    """Residual (measured minus predicted) against time, one panel per test recording."""
-    fig, axes = _grid(len(recordings), panel_size=2.8)
-    for ax, rec in zip(axes.flat, recordings, strict=False):
+    """Residual (measured minus predicted) against time, one panel per test recording and
+    output."""
+    panels, cols = _panels(recordings)
+    fig, axes = _grid(len(panels), panel_size=2.8, cols=cols)
+    for ax, (rec, output) in zip(axes.flat, panels, strict=False):
         step = max(1, rec.n_samples // max_points)
         t = rec.t[::step]
         for position, (mode, y_hat) in enumerate(predictions.get(rec.name, {}).items()):
             color, style = _style(mode, position)
-            residual = rec.y[::step, channel] - np.asarray(y_hat)[::step, channel]
+            residual = rec.y[::step, output] - np.asarray(y_hat)[::step, output]
             ax.plot(t, residual, color=color, ls=style, lw=0.8, label=mode.replace("_", " "))
         ax.axhline(0.0, color="black", lw=0.5)
-        ax.set_title(rec.name, fontsize=9)
+        ax.set_title(rec.output_label(output), fontsize=9)
         ax.set_xlabel("t [s]", fontsize=8)
         ax.set_ylabel(f"residual [{rec.y_units}]", fontsize=8)
         ax.tick_params(labelsize=7)
