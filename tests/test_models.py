@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import re
 
 import lightning as L
@@ -13,7 +14,7 @@ from hysteresis_lab.errors import ConfigError, DataError
 from hysteresis_lab.evaluation.predict import free_run, one_step
 from hysteresis_lab.models.io import load_model, save_model
 from hysteresis_lab.models.registry import available_models, get_model_class
-from hysteresis_lab.training import build_model, fit
+from hysteresis_lab.training import build_model, check_trainer_settings, fit
 from narx import CONFIGS, TRAINER, datamodule_for, narx_data
 
 
@@ -145,3 +146,13 @@ def test_a_bad_model_size_names_the_setting_and_a_fix(name, bad, fix):
     setting = next(iter(bad))
     with pytest.raises(ConfigError, match=rf"{setting}=0.*Fix: .*{re.escape(fix)}"):
         get_model_class(name)(nu=1, ny=1, **bad)
+
+
+def test_checking_trainer_settings_logs_no_lightning_lines(caplog):
+    """The check builds a Trainer only to validate it: the device lines come from the fit."""
+    with caplog.at_level(logging.INFO):
+        check_trainer_settings({**TRAINER, "max_epochs": 1})
+    assert not [r for r in caplog.records if r.name.startswith("lightning")]
+    with caplog.at_level(logging.INFO):  # the same Trainer built for real does log them
+        L.Trainer(logger=False, enable_checkpointing=False, enable_progress_bar=False)
+    assert any("available" in r.getMessage() for r in caplog.records)

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import inspect
 import logging
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -231,7 +232,8 @@ def check_trainer_settings(trainer_cfg: Mapping[str, Any]) -> None:
     _check_max_epochs(trainer_cfg)
     quiet = ("enable_progress_bar", "logger", "enable_checkpointing", "enable_model_summary")
     try:
-        trainer = _trainer({**trainer_cfg, **dict.fromkeys(quiet, False)})
+        with _lightning_info_muted():  # the real fit logs the device lines once
+            trainer = _trainer({**trainer_cfg, **dict.fromkeys(quiet, False)})
     except (MisconfigurationException, ModuleNotFoundError, TypeError, ValueError) as exc:
         raise ConfigError(
             f"Lightning refused the trainer settings: {str(exc).rstrip('.! ')}. Fix: correct "
@@ -245,6 +247,19 @@ def check_trainer_settings(trainer_cfg: Mapping[str, Any]) -> None:
             "paper run trains several models side by side instead). Fix: trainer.devices=1, or "
             "trainer.devices=[<index>] to pick one GPU."
         )
+
+
+@contextlib.contextmanager
+def _lightning_info_muted() -> Iterator[None]:
+    """Hold back Lightning's info lines (devices found, tips) while a Trainer is only built
+    to check its settings."""
+    lightning_log = logging.getLogger("lightning.pytorch.utilities.rank_zero")
+    level = lightning_log.level
+    lightning_log.setLevel(logging.WARNING)
+    try:
+        yield
+    finally:
+        lightning_log.setLevel(level)
 
 
 def _check_max_epochs(trainer_cfg: Mapping[str, Any]) -> None:
