@@ -7,6 +7,7 @@ final metrics as hparams).
 
 from __future__ import annotations
 
+import json
 import logging
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
@@ -19,6 +20,7 @@ import torch
 from lightning.pytorch.loggers import TensorBoardLogger
 from omegaconf import DictConfig, OmegaConf
 
+from hysteresis_lab import fit_record
 from hysteresis_lab.data.factory import build_datamodule, build_splits
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.data.windows import WindowSpec
@@ -29,7 +31,7 @@ from hysteresis_lab.evaluation.evaluate import Evaluation, evaluate_model
 from hysteresis_lab.evaluation.plots import loops_figure, residuals_figure, save_figure
 from hysteresis_lab.evaluation.predict import check_n_step
 from hysteresis_lab.evaluation.report import metrics_document, write_json
-from hysteresis_lab.models.io import save_model
+from hysteresis_lab.models.io import load_model, model_window, save_model
 from hysteresis_lab.training import (
     TrainResult,
     build_model,
@@ -93,6 +95,7 @@ def train_and_evaluate(
     warm_start: Any | None = None,
     refit: str = "full",
     min_refit_gain: float = 0.0,
+    reuse: bool = False,
 ) -> RunResult:
     """Fit the model ``model_cfg`` on ``data_cfg``'s data, score it on every test recording.
 
@@ -102,6 +105,8 @@ def train_and_evaluate(
     ``min_refit_gain``). ``refit``: with a warm start,
     ``"new_inputs"`` trains only the new input channels' weights
     (`NarxModule.train_new_inputs_only`), ``"full"`` every weight.
+    ``reuse``: a fit that finished in ``output_dir`` with the same settings, data and start
+    (`hysteresis_lab.fit_record`) is loaded and scored instead of trained; the loop's resume.
     """
     model_cfg, data_cfg, trainer_cfg = map(plain_dict, (model_cfg, data_cfg, trainer_cfg))
     if is_network(model_cfg):
@@ -110,9 +115,19 @@ def train_and_evaluate(
     L.seed_everything(seed, workers=True, verbose=False)
     effects = list(model_cfg.get("effects") or [])
     check_effects(effects)
-    data, context = augment_splits(splits or build_splits(data_cfg), effects)
+    splits = splits or build_splits(data_cfg)
+    data, context = augment_splits(splits, effects)
     if evaluate:
         _check_evaluation_settings(data, n_steps)
+    record_key = None
+    if reuse and evaluate:
+        settings = {"model": model_cfg, "data": data_cfg, "trainer": trainer_cfg, "seed": seed,
+                    "n_steps": n_steps, "refit": refit if warm_start is not None else None,
+                    "min_refit_gain": min_refit_gain}
+        record_key = fit_record.fingerprint(settings, splits, warm_start)
+        record = fit_record.finished_fit(output_dir, record_key)
+        if record is not None:
+            return _reused_fit(record, data, output_dir, trainer_cfg, n_steps)
     datamodule = build_datamodule(data_cfg, model_layout(model_cfg), seed=seed, splits=data)
     extra = (
         {"feature_context": context_to_dict(context),
@@ -190,6 +205,14 @@ def train_and_evaluate(
     write_json(document, output_dir / "metrics.json")
     if plots:
         _write_figures(data, evaluation, output_dir, str(model_cfg["name"]), logger)
+    if record_key is not None:
+        files = [model_path.name, "metrics.json"]
+        files += [REJECTED_REFIT_METRICS] if rejected_refit is not None else []
+        fit_record.write_record(output_dir, record_key, {
+            "files": files, "model_file": model_path.name,
+            "val_mse": trained.val_mse, "improved": trained.improved,
+            "refit_validation": trained.refit_validation, "rejected": rejected_refit is not None,
+        })
     if logger is not None:
         hparams = {f"model/{k}": v for k, v in model_cfg.items() if _scalar(v)}
         hparams.update({"data": data.name, "seed": seed})
@@ -216,6 +239,37 @@ def train_and_evaluate(
         trained.improved,
         trained.refit_validation,
         rejected_refit,
+    )
+
+
+def _reused_fit(
+    record: Mapping[str, Any],
+    data: DatasetSplits,
+    output_dir: Path,
+    trainer_cfg: Mapping[str, Any],
+    n_steps: int | None,
+) -> RunResult:
+    """The result of the finished fit ``record`` describes, its model loaded and scored again
+    (the same weights give the same predictions; nothing is trained or rewritten)."""
+    log.info(
+        "%s: reusing the finished fit there (same settings, data and start; %s). To train "
+        "it again, delete that file or set loop.resume=false",
+        output_dir, fit_record.FIT_RECORD,
+    )
+    model = load_model(output_dir / record["model_file"])
+    window = model_window(model)
+    evaluation = evaluate_model(
+        model, data.test, window, n_init=data.n_init, n_steps=n_steps,
+        device=evaluation_device(trainer_cfg),
+    )
+    document = json.loads((output_dir / "metrics.json").read_text())
+    rejected_refit = (
+        json.loads((output_dir / REJECTED_REFIT_METRICS).read_text())
+        if record["rejected"] else None
+    )
+    return RunResult(
+        document, record["val_mse"], evaluation, model, window, record["improved"],
+        record["refit_validation"], rejected_refit,
     )
 
 

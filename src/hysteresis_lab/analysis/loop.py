@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from hysteresis_lab import fit_record
 from hysteresis_lab.analysis.diagnosis import TESTS, EffectScore, diagnose, evidence_lags
 from hysteresis_lab.analysis.report import diagnostics_figure, residual_analysis
 from hysteresis_lab.data.splits import DatasetSplits
@@ -72,6 +73,9 @@ class LoopSettings:
     #: validation free-run loss goes on to the keep-or-reject test (``model.refit_lr``, when
     #: set, is the only rate tried)
     refit_lr_factors: tuple[float, ...] = (0.1, 1.0)
+    #: run again in the folder of a stopped loop (``hydra.run.dir``), each fit that finished
+    #: there with the same settings, data and start is reused, not trained again
+    resume: bool = True
 
     def __post_init__(self) -> None:
         self.refit_lr_factors = tuple(float(f) for f in self.refit_lr_factors)
@@ -135,6 +139,7 @@ def run_loop(
         splits=splits,
         use_tensorboard=use_tensorboard,
         min_refit_gain=settings.min_refit_gain,
+        reuse=settings.resume,
     )
     for number in itertools.count():
         round_effects = effects + ([trying] if trying else [])
@@ -247,6 +252,7 @@ def _set_aside_rejected_files(document: dict[str, Any]) -> None:
     rejected warm-started refit uses, so a round folder's ``model.*`` is always a model that
     stands (the one it lost to is the last kept round's)."""
     model_path = Path(document["model_path"])
+    fit_record.forget(model_path.parent)  # its files move: a resumed loop refits it
     aside = model_path.with_name(REJECTED_REFIT_MODEL + model_path.suffix)
     model_path.replace(aside)
     (model_path.parent / "metrics.json").replace(model_path.parent / REJECTED_REFIT_METRICS)

@@ -1,0 +1,93 @@
+"""A stopped loop, run again in its folder, reuses every fit that finished there."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import time
+
+import numpy as np
+import torch
+
+from helpers import data_overrides, popen_app, run_app, small_dataset
+from hysteresis_lab import fit_record
+from hysteresis_lab.data.recording import Recording
+from hysteresis_lab.data.splits import DatasetSplits
+from hysteresis_lab.models.ffnn import FFNN
+
+REUSED = "reusing the finished fit"
+
+
+def _loop_args(tmp_path):
+    train, tests = small_dataset(tmp_path, effects={"creep": {"enabled": True}})
+    return [*data_overrides(train, tests), "model=ffnn", "loop.max_rounds=1",
+            "trainer.max_epochs=3", "trainer.enable_progress_bar=false", "logger=none"]
+
+
+def _kill_when(path, proc, timeout=300.0):
+    """SIGKILL ``proc`` (and its children) as soon as ``path`` exists."""
+    deadline = time.monotonic() + timeout
+    while not path.exists():
+        assert proc.poll() is None, proc.stdout.read()[-3000:]
+        assert time.monotonic() < deadline, f"{path} never appeared"
+        time.sleep(0.02)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+
+
+def test_a_killed_loop_resumes_without_retraining_its_finished_fits(tmp_path):
+    args = _loop_args(tmp_path)
+    whole = run_app("loop", *args, f"hydra.run.dir={tmp_path}/whole")
+    assert whole.returncode == 0, whole.stderr[-3000:]
+    expected = json.loads((tmp_path / "whole" / "loop_report.json").read_text())
+    assert len(expected["rounds"]) == 2  # a refit ran after round 0: the kill lands between
+
+    run_dir = tmp_path / "killed"
+    killed = popen_app("loop", *args, f"hydra.run.dir={run_dir}")
+    _kill_when(run_dir / "round_0" / fit_record.FIT_RECORD, killed)
+    assert not (run_dir / "loop_report.json").exists()
+    round_0_model = run_dir / "round_0" / "model.ckpt"
+    written = round_0_model.stat().st_mtime_ns
+
+    resumed = run_app("loop", *args, f"hydra.run.dir={run_dir}")
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    output = resumed.stdout + resumed.stderr
+    assert output.count(REUSED) == 1  # round 0 only: the refits had not finished
+    assert round_0_model.stat().st_mtime_ns == written  # not trained again
+    # the refits started from the reloaded round-0 network: the same report to the digit
+    assert json.loads((run_dir / "loop_report.json").read_text()) == expected
+
+    again = run_app("loop", *args, f"hydra.run.dir={run_dir}")
+    assert again.returncode == 0, again.stderr[-3000:]
+    fits = list(run_dir.rglob(fit_record.FIT_RECORD))
+    assert len(fits) == 3  # round 0 and the refit at each of the two rates
+    assert (again.stdout + again.stderr).count(REUSED) == len(fits)  # nothing trains
+    assert json.loads((run_dir / "loop_report.json").read_text()) == expected
+
+    other = run_app("loop", *args, "trainer.max_epochs=2", f"hydra.run.dir={run_dir}")
+    assert other.returncode == 0, other.stderr[-3000:]
+    assert REUSED not in other.stdout + other.stderr  # other settings: every fit trains
+    assert round_0_model.stat().st_mtime_ns != written
+
+
+def test_the_fingerprint_changes_with_settings_data_and_start():
+    u = np.random.default_rng(0).standard_normal((50, 1))
+
+    def splits(scale=1.0):
+        rec = Recording(u=u, y=scale * np.ones((50, 1)), fs=100.0, name="r")
+        return DatasetSplits(name="d", train=[rec], test=[rec])
+
+    data = splits()
+    start = FFNN(nu=1, ny=1)
+    key = fit_record.fingerprint({"lr": 1e-3}, data, start)
+    assert key == fit_record.fingerprint({"lr": 1e-3}, data, start)
+    assert key != fit_record.fingerprint({"lr": 1e-4}, data, start)
+    assert key != fit_record.fingerprint({"lr": 1e-3}, splits(2.0), start)
+    assert key != fit_record.fingerprint({"lr": 1e-3}, data, None)
+    moved = FFNN(nu=1, ny=1)
+    moved.load_state_dict(start.state_dict())
+    assert fit_record.fingerprint({"lr": 1e-3}, data, moved) == key  # the weights count
+    with torch.no_grad():
+        next(moved.parameters())[0, 0] += 1e-6
+    assert fit_record.fingerprint({"lr": 1e-3}, data, moved) != key
