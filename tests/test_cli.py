@@ -187,12 +187,11 @@ def test_evaluate_errors(trained_run, csv_data, tmp_path):
 
 
 def test_paper_experiment_writes_table2_and_figure1(tmp_path):
-    proc = run_app(
-        "train", "experiment=paper", "trainer.max_epochs=1", "logger=none",
-        "+data.splits.n_train=4000", "+data.splits.test_frequencies=[1,50,500]",
-        "+data.splits.max_test_samples=1500", "paper.models.svm.n_components=100",
-        f"hydra.run.dir={tmp_path}", *QUIET, timeout=900,
-    )
+    args = ["train", "experiment=paper", "trainer.max_epochs=1", "logger=none",
+            "+data.splits.n_train=4000", "+data.splits.test_frequencies=[1,50,500]",
+            "+data.splits.max_test_samples=1500", "paper.models.svm.n_components=100",
+            f"hydra.run.dir={tmp_path}", *QUIET]
+    proc = run_app(*args, timeout=900)
     assert proc.returncode == 0, proc.stderr[-3000:]
     results = json.loads((tmp_path / "paper_results.json").read_text())
     assert set(results) == {"ffnn", "lstm", "cnn", "svm"}
@@ -203,6 +202,11 @@ def test_paper_experiment_writes_table2_and_figure1(tmp_path):
     rows = (tmp_path / "table2.csv").read_text().splitlines()
     assert len(rows) == 1 + 4 * (3 + 2) * 2  # header + models x (tests + mean, std) x modes
     assert (tmp_path / "figure1.png").stat().st_size > 20_000
+    # run again in the same folder (a stopped run resumed): every finished fit is reused
+    again = run_app(*args, timeout=900)
+    assert again.returncode == 0, again.stderr[-3000:]
+    assert (again.stdout + again.stderr).count("reusing the finished fit") == 4
+    assert json.loads((tmp_path / "paper_results.json").read_text()) == results
 
 
 def test_plugin_registers_an_architecture_and_its_config(csv_data, tmp_path):

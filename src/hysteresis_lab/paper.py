@@ -52,6 +52,7 @@ class _Job:
     use_tensorboard: bool
     splits: DatasetSplits
     threads: int | None = None
+    resume: bool = True
 
 
 def available_cores() -> int:
@@ -83,7 +84,7 @@ def _run_job(job: _Job) -> PaperEntry:
         torch.set_num_threads(job.threads)
     result = train_and_evaluate(
         job.model_cfg, job.data_cfg, job.trainer_cfg, job.output_dir, seed=job.seed,
-        splits=job.splits, use_tensorboard=job.use_tensorboard,
+        splits=job.splits, use_tensorboard=job.use_tensorboard, reuse=job.resume,
     )
     free_run = {name: p["free_run"] for name, p in result.evaluation.predictions.items()}
     return PaperEntry(result.document, free_run)
@@ -115,8 +116,13 @@ def run_paper(
     seed: int = 0,
     use_tensorboard: bool = True,
     workers: int | str = "auto",
+    resume: bool = True,
 ) -> dict[str, PaperEntry]:
-    """Train and score every model; write table2.md/.csv, paper_results.json, figure1.png."""
+    """Train and score every model; write table2.md/.csv, paper_results.json, figure1.png.
+
+    ``resume``: a model whose fit finished in its folder with the same settings and data (a
+    rerun of a stopped experiment in its folder) is loaded and scored, not trained again.
+    """
     data_cfg, trainer_cfg = plain_dict(data_cfg), plain_dict(trainer_cfg)
     if any(is_network(cfg) for cfg in models.values()):
         check_trainer_settings(trainer_cfg)  # before any model trains, not in a worker
@@ -124,7 +130,7 @@ def run_paper(
     processes, threads = plan_workers(len(models), trainer_cfg, workers)
     jobs = [
         _Job(key, plain_dict(cfg), data_cfg, trainer_cfg, output_dir / key, seed,
-             use_tensorboard, splits, threads)
+             use_tensorboard, splits, threads, resume)
         for key, cfg in models.items()
     ]
     if processes == 1:

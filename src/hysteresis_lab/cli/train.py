@@ -44,6 +44,7 @@ def run(cfg: DictConfig) -> float | None:
             seed=cfg.seed,
             use_tensorboard=use_tensorboard,
             workers=cfg.paper.get("workers", "auto"),
+            resume=bool(cfg.paper.get("resume", True)),
         )
         return None
     if cfg.task != "train":
