@@ -93,7 +93,7 @@ def run_case(name: str, args: argparse.Namespace) -> dict:
         "loop.max_rounds=1", f"trainer.max_epochs={args.epochs}",
         f"model.rollout_steps={args.rollout_steps}", f"model.rollout_epochs={args.rollout_epochs}",
         f"data.splits.train_sines={args.train_sines}", f"model.effect_path={args.effect_path}",
-        f"loop.significance={args.significance}",
+        f"loop.significance={args.significance}", f"loop.resume={str(args.resume).lower()}",
         "trainer.enable_progress_bar=false",
         "logger=none", f"hydra.run.dir={out}", *overrides,
     ]
@@ -139,6 +139,11 @@ def main() -> None:
     parser.add_argument("--significance", default="pooled", choices=list(TESTS),
                         help="how the diagnosis tests significance (loop.significance)")
     parser.add_argument("--root", type=Path, default=Path("outputs/undeclared"))
+    parser.add_argument(
+        "--resume", action="store_true",
+        help="reuse the fits a stopped run finished under --root (their seconds are then not "
+        "training times); by default every fit trains, so the figures come from this code",
+    )
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     for name in args.cases:
