@@ -70,6 +70,12 @@ def test_a_killed_loop_resumes_without_retraining_its_finished_fits(tmp_path):
     assert REUSED not in other.stdout + other.stderr  # other settings: every fit trains
     assert round_0_model.stat().st_mtime_ns != written
 
+    # a run that does not resume overwrites the fits: no older record may vouch for them
+    fresh = run_app("loop", *args, "loop.resume=false", f"hydra.run.dir={run_dir}")
+    assert fresh.returncode == 0, fresh.stderr[-3000:]
+    assert REUSED not in fresh.stdout + fresh.stderr
+    assert not list(run_dir.rglob(fit_record.FIT_RECORD))
+
 
 def test_the_fingerprint_changes_with_settings_data_and_start():
     u = np.random.default_rng(0).standard_normal((50, 1))

@@ -128,6 +128,8 @@ def train_and_evaluate(
         record = fit_record.finished_fit(output_dir, record_key)
         if record is not None:
             return _reused_fit(record, data, output_dir, trainer_cfg, n_steps)
+    # this fit overwrites the folder's files: an older record must not vouch for them
+    fit_record.forget(output_dir)
     datamodule = build_datamodule(data_cfg, model_layout(model_cfg), seed=seed, splits=data)
     extra = (
         {"feature_context": context_to_dict(context),
@@ -253,7 +255,7 @@ def _reused_fit(
     (the same weights give the same predictions; nothing is trained or rewritten)."""
     log.info(
         "%s: reusing the finished fit there (same settings, data and start; %s). To train "
-        "it again, delete that file or set loop.resume=false",
+        "it again, delete that file or run with loop.resume=false (paper.resume=false)",
         output_dir, fit_record.FIT_RECORD,
     )
     model = load_model(output_dir / record["model_file"])
