@@ -65,6 +65,14 @@ def test_a_killed_loop_resumes_without_retraining_its_finished_fits(tmp_path):
     assert (again.stdout + again.stderr).count(REUSED) == len(fits)  # nothing trains
     assert json.loads((run_dir / "loop_report.json").read_text()) == expected
 
+    round_0_model.write_bytes(round_0_model.read_bytes()[:100])  # damaged since
+    damaged = run_app("loop", *args, f"hydra.run.dir={run_dir}")
+    assert damaged.returncode == 0, damaged.stderr[-3000:]
+    output = damaged.stdout + damaged.stderr
+    assert "cannot be reused" in output and "checkpoint is corrupt" in output
+    assert output.count(REUSED) == 2  # the refits: round 0 trained again to the same weights
+    assert json.loads((run_dir / "loop_report.json").read_text()) == expected
+
     other = run_app("loop", *args, "trainer.max_epochs=2", f"hydra.run.dir={run_dir}")
     assert other.returncode == 0, other.stderr[-3000:]
     assert REUSED not in other.stdout + other.stderr  # other settings: every fit trains

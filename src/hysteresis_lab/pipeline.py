@@ -127,7 +127,9 @@ def train_and_evaluate(
         record_key = fit_record.fingerprint(settings, splits, warm_start)
         record = fit_record.finished_fit(output_dir, record_key)
         if record is not None:
-            return _reused_fit(record, data, output_dir, trainer_cfg, n_steps)
+            reused = _reused_fit(record, data, output_dir, trainer_cfg, n_steps)
+            if reused is not None:
+                return reused
     # this fit overwrites the folder's files: an older record must not vouch for them
     fit_record.forget(output_dir)
     datamodule = build_datamodule(data_cfg, model_layout(model_cfg), seed=seed, splits=data)
@@ -250,15 +252,20 @@ def _reused_fit(
     output_dir: Path,
     trainer_cfg: Mapping[str, Any],
     n_steps: int | None,
-) -> RunResult:
+) -> RunResult | None:
     """The result of the finished fit ``record`` describes, its model loaded and scored again
-    (the same weights give the same predictions; nothing is trained or rewritten)."""
+    (the same weights give the same predictions; nothing is trained or rewritten); None when
+    its model file cannot be loaded any more."""
+    try:
+        model = load_model(output_dir / record["model_file"])
+    except DataError as exc:
+        log.warning("the fit in %s cannot be reused (%s): it trains again", output_dir, exc)
+        return None
     log.info(
         "%s: reusing the finished fit there (same settings, data and start; %s). To train "
         "it again, delete that file or run with loop.resume=false (paper.resume=false)",
         output_dir, fit_record.FIT_RECORD,
     )
-    model = load_model(output_dir / record["model_file"])
     window = model_window(model)
     evaluation = evaluate_model(
         model, data.test, window, n_init=data.n_init, n_steps=n_steps,
