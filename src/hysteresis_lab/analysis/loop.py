@@ -29,6 +29,7 @@ import numpy as np
 
 from hysteresis_lab import fit_record
 from hysteresis_lab.analysis.diagnosis import TESTS, EffectScore, diagnose, evidence_lags
+from hysteresis_lab.analysis.excitation import operator_excitation
 from hysteresis_lab.analysis.report import diagnostics_figure, residual_analysis
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.effects.augment import feature_context
@@ -189,6 +190,11 @@ def run_loop(
             break
         entry["added"] = trying = top.effect
         tried.add(top.effect)
+        excitation = operator_excitation(
+            top.effect, [*splits.train, *splits.val], splits.test, context
+        )
+        entry["added_excitation"] = excitation.to_dict()
+        log.info("'%s' added: %s", top.effect, excitation.reading())
     report = {
         "units": {"y": splits.test[0].y_units},
         "data": splits.name,
@@ -436,6 +442,7 @@ def loop_markdown(report: dict[str, Any]) -> str:
             lines += ["", f"## Round {i}: {r['rejected']} rejected", "", f"- {r['note']}"]
             lines += _refit_rate_lines(r) + _rejected_refit_lines(r, unit)
             lines.append(f"- next: {r['added']}" if r["added"] else "- nothing else to try")
+            lines += _excitation_lines(r)
             continue
         lines += ["", f"## Round {i}: diagnosis", ""] + _refit_rate_lines(r)
         lines += [_diagnosis_line(d) for d in r["diagnosis"]]
@@ -445,7 +452,14 @@ def loop_markdown(report: dict[str, Any]) -> str:
                 "input: free run cannot predict it; no gain is claimed)"
             )
         lines.append(f"- added: {r['added']}" + (f" ({r['note']})" if r.get("note") else ""))
+        lines += _excitation_lines(r)
     return "\n".join(lines) + "\n"
+
+
+def _excitation_lines(entry: Mapping[str, Any]) -> list[str]:
+    """How hard the tests drive the added effect's operators beyond the identification data."""
+    excitation = entry.get("added_excitation")
+    return [f"  - {excitation['reading']}"] if excitation else []
 
 
 def _diagnosis_line(d: Mapping[str, Any]) -> str:
