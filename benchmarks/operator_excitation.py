@@ -30,8 +30,12 @@ CONF = Path(__file__).resolve().parents[1] / "conf"
 def data_overrides() -> dict[str, list[str]]:
     """Each data set: the packaged default, then each undeclared-effect case's."""
     cases = {
-        name: [f"data.effects.{block}.enabled=true", f"data.splits.train_sines={TRAIN_SINES}",
-               TEST_HOLD, *CASE_DATA.get(name, [])]
+        name: [
+            f"data.effects.{block}.enabled=true",
+            f"data.splits.train_sines={TRAIN_SINES}",
+            TEST_HOLD,
+            *CASE_DATA.get(name, []),
+        ]
         for name, (block, _, _) in CASES.items()
     }
     return {"default": [], **cases}

@@ -21,8 +21,14 @@ REUSED = "reusing the finished fit"
 
 def _loop_args(tmp_path):
     train, tests = small_dataset(tmp_path, effects={"creep": {"enabled": True}})
-    return [*data_overrides(train, tests), "model=ffnn", "loop.max_rounds=1",
-            "trainer.max_epochs=3", "trainer.enable_progress_bar=false", "logger=none"]
+    return [
+        *data_overrides(train, tests),
+        "model=ffnn",
+        "loop.max_rounds=1",
+        "trainer.max_epochs=3",
+        "trainer.enable_progress_bar=false",
+        "logger=none",
+    ]
 
 
 def _kill_when(path, proc, timeout=300.0):

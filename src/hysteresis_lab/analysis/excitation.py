@@ -40,20 +40,31 @@ class Excitation:
         """One line for the report."""
         channel, ratio = self.worst
         if ratio is not None and ratio <= UNDER_EXCITED_RATIO:
-            return (f"the tests drive no operator of '{self.effect}' more than {ratio:.2g}x as "
-                    f"hard (RMS) as the identification data ({channel})")
+            return (
+                f"the tests drive no operator of '{self.effect}' more than {ratio:.2g}x as "
+                f"hard (RMS) as the identification data ({channel})"
+            )
         if ratio is None:
-            return (f"'{channel}' never moves in the identification data but does on the tests: "
-                    f"the refit cannot learn '{self.effect}' there; identification data that "
-                    "drive it as the tests do would")
-        return (f"'{channel}' moves {ratio:.3g}x less (RMS) in the identification data than on "
-                f"the tests: the refit learns '{self.effect}' from data that show little of it; "
-                "identification data that drive it as the tests do would show more")
+            return (
+                f"'{channel}' never moves in the identification data but does on the tests: "
+                f"the refit cannot learn '{self.effect}' there; identification data that "
+                "drive it as the tests do would"
+            )
+        return (
+            f"'{channel}' moves {ratio:.3g}x less (RMS) in the identification data than on "
+            f"the tests: the refit learns '{self.effect}' from data that show little of it; "
+            "identification data that drive it as the tests do would show more"
+        )
 
     def to_dict(self) -> dict[str, object]:
         channel, ratio = self.worst
-        return {"effect": self.effect, "worst_channel": channel, "worst_ratio": ratio,
-                "ratios": self.ratios, "reading": self.reading()}
+        return {
+            "effect": self.effect,
+            "worst_channel": channel,
+            "worst_ratio": ratio,
+            "ratios": self.ratios,
+            "reading": self.reading(),
+        }
 
 
 def operator_excitation(
