@@ -233,12 +233,13 @@ def test_loop_writes_its_report(tmp_path):
             assert (chosen / "residual_diagnostics.png").is_file()
     markdown = (tmp_path / "loop" / "loop_report.md").read_text()
     assert markdown.startswith("# Residual loop")
-    for entry in rounds:  # how hard the tests drive the added effect, beside its name
-        if entry["added"]:
-            excitation = entry["added_excitation"]
-            assert excitation["effect"] == entry["added"]
-            assert set(excitation["ratios"]) >= {excitation["worst_channel"]}
-            assert f"  - {excitation['reading']}" in markdown
+    added = [entry for entry in rounds if entry["added"]]
+    assert added  # round 0 adds an effect on this data (creep is on)
+    for entry in added:  # how hard the tests drive the added effect, beside its name
+        excitation = entry["added_excitation"]
+        assert excitation["effect"] == entry["added"]
+        assert excitation["worst_channel"] in excitation["ratios"]
+        assert f"  - {excitation['reading']}" in markdown
     # no test recording holds the input: drift is listed as not tested, with the fix
     drift = next(d for d in rounds[0]["diagnosis"] if d["effect"] == "drift")
     assert not drift["tested"] and not drift["significant"]

@@ -1,4 +1,5 @@
-"""Fit records: what a finished fit depended on, so that a stopped loop reuses it on a rerun.
+"""Fit records: what a finished fit depended on, so that a rerun of a stopped loop (or paper
+experiment) in its folder reuses it.
 
 A fit writes ``fit_record.json`` into its folder as its last step: a fingerprint of
 everything its result depends on (model, data and trainer settings, seed, the refit rule,
