@@ -17,7 +17,7 @@ does not depend on the input, can only be told apart from slow input-driven erro
 input does not move). The identification data is the study's multisine plus full-amplitude
 sines between the test frequencies (``--train-sines``; the multisine alone never drives the
 full-amplitude loops of the test sines, so a model trained on it mostly shows its own
-extrapolation error), and the networks are fine-tuned on their free-run error (``--rollout-steps``).
+extrapolation error), and the networks are fine-tuned on their free-run error (``--horizon``).
 Each case also reports, per test where the effect acts, the RMSE cut that taking the effect's
 own output off the round-0 error would give (``benchmarks/effect_ceiling.py``).
 """
@@ -91,7 +91,8 @@ def run_case(name: str, args: argparse.Namespace) -> dict:
     command = [
         "hysteresis-lab-loop", "model=ffnn", f"model.effects=[{','.join(declared)}]",
         "loop.max_rounds=1", f"trainer.max_epochs={args.epochs}",
-        f"model.rollout_steps={args.rollout_steps}", f"model.rollout_epochs={args.rollout_epochs}",
+        "model.objective=simulation", f"model.horizon={args.horizon}",
+        f"model.simulation_epochs={args.simulation_epochs}",
         f"data.splits.train_sines={args.train_sines}", f"model.effect_path={args.effect_path}",
         f"loop.significance={args.significance}", f"loop.resume={str(args.resume).lower()}",
         "trainer.enable_progress_bar=false",
@@ -131,8 +132,8 @@ def main() -> None:
         help="one-step epochs of each fit (20 for speed; the study's 100 leave the round-0 "
         "network holding more of creep and the second mode: see README)",
     )
-    parser.add_argument("--rollout-steps", type=int, default=200)
-    parser.add_argument("--rollout-epochs", type=int, default=5)
+    parser.add_argument("--horizon", type=int, default=200)
+    parser.add_argument("--simulation-epochs", type=int, default=5)
     parser.add_argument("--train-sines", default=TRAIN_SINES, help="Hydra list, or [] for none")
     parser.add_argument("--effect-path", default="network", choices=["network", "linear"],
                         help="how effect operators enter the network (model.effect_path)")

@@ -48,13 +48,14 @@ def test_fine_tuning_lowers_the_free_run_error(seed, splits, tmp_path):
     one_step = fit(build_model(CONFIGS["ffnn"], dm), dm, TRAINER, tmp_path / "one_step").model
     segments = SegmentDataModule(dm, steps=50)
     before = segment_loss(one_step, segments)
-    cfg = {**CONFIGS["ffnn"], "rollout_steps": 50, "rollout_epochs": 8, "rollout_lr": 3e-3}
+    cfg = {**CONFIGS["ffnn"], "objective": "simulation", "horizon": 50, "simulation_epochs": 8,
+           "simulation_lr": 3e-3}
     L.seed_everything(seed)  # the same one-step fit, then the free-run stage
     tuned = fit(build_model(cfg, dm), dm, TRAINER, tmp_path / "free_run")
     after = segment_loss(tuned.model, segments)
     assert after < 0.8 * before
     assert tuned.checkpoint is not None and tuned.checkpoint.parent.name == "checkpoints_free_run"
-    assert not tuned.model.rollout_mode  # back to one-step batches for later use
+    assert not tuned.model.simulation_mode  # back to one-step batches for later use
 
 
 def test_segments_are_scaled_consecutive_samples(splits):
@@ -73,9 +74,11 @@ def test_segments_are_scaled_consecutive_samples(splits):
 
 def test_bad_fine_tuning_settings_are_config_errors(splits):
     dm = datamodule_for("ffnn", splits)
-    with pytest.raises(ConfigError, match="rollout_steps >= 0"):
-        build_model({**CONFIGS["ffnn"], "rollout_steps": -1}, dm)
-    with pytest.raises(ConfigError, match="model.rollout_steps="):
+    with pytest.raises(ConfigError, match=r"horizon=-1 \(a whole number >= 1\)"):
+        build_model({**CONFIGS["ffnn"], "objective": "simulation", "horizon": -1}, dm)
+    with pytest.raises(ConfigError, match="unknown model.objective 'free'"):
+        build_model({**CONFIGS["ffnn"], "objective": "free"}, dm)
+    with pytest.raises(ConfigError, match="model.horizon="):
         SegmentDataModule(dm, steps=10_000).setup()
 
 
@@ -108,7 +111,8 @@ def test_fine_tuning_that_does_not_help_keeps_the_starting_weights(splits, tmp_p
     dm = datamodule_for("ffnn", splits)
     L.seed_everything(0)
     plain = fit(build_model(CONFIGS["ffnn"], dm), dm, TRAINER, tmp_path / "plain").model
-    cfg = {**CONFIGS["ffnn"], "rollout_steps": 50, "rollout_epochs": 2, "rollout_lr": 1e3}
+    cfg = {**CONFIGS["ffnn"], "objective": "simulation", "horizon": 50, "simulation_epochs": 2,
+           "simulation_lr": 1e3}
     L.seed_everything(0)
     guarded = fit(build_model(cfg, dm), dm, TRAINER, tmp_path / "guarded")
     assert guarded.checkpoint is not None and guarded.checkpoint.parent.name == "checkpoints"

@@ -22,7 +22,7 @@ def test_refit_choice_scores_the_start_and_every_refit(tmp_path):
     rate's own saved weights on the check sines and names the one they prefer."""
     run = tmp_path / "loop"
     proc = run_app("loop", *SMALL_DEFAULT, "model=ffnn", "loop.max_rounds=1",
-                   "loop.min_refit_gain=0.99", "trainer.max_epochs=2", "model.rollout_epochs=1",
+                   "loop.min_refit_gain=0.99", "trainer.max_epochs=2", "model.simulation_epochs=1",
                    "trainer.enable_progress_bar=false", "logger=none", f"hydra.run.dir={run}")
     assert proc.returncode == 0, proc.stderr[-3000:]
     rounds = json.loads((run / "loop_report.json").read_text())["rounds"]

@@ -56,7 +56,7 @@ def test_refit_trains_only_the_new_inputs(name, effect_path, fine_tune, splits, 
     lr = CONFIGS[name].get("lr", 1e-3)  # a short test: refit at the full rate
     model, fitted, augmented, dm_aug = grown_model(name, splits, trained, effect_path, refit_lr=lr)
     if fine_tune:
-        model.hparams["rollout_steps"], model.hparams["rollout_epochs"] = 40, 2
+        model.hparams.update(objective="simulation", horizon=40, simulation_epochs=2)
     model.train_new_inputs_only()
     assert model.new_inputs_only
     refit = fit(model, dm_aug, TRAINER, tmp_path, one_step=not fine_tune).model

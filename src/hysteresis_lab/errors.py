@@ -25,3 +25,7 @@ class DataError(HysteresisLabError, ValueError):
 
 class ConfigError(HysteresisLabError, ValueError):
     """A configuration value or override is invalid."""
+
+
+class TrainingDiverged(HysteresisLabError, RuntimeError):
+    """Training produced only non-finite losses (a diverging free run, a too-large step)."""

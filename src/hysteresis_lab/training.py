@@ -14,13 +14,18 @@ from typing import Any
 import lightning as L
 import numpy as np
 import torch
-from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint, TQDMProgressBar
+from lightning.pytorch.callbacks import (
+    EarlyStopping,
+    LearningRateMonitor,
+    ModelCheckpoint,
+    TQDMProgressBar,
+)
 from lightning.pytorch.loggers import TensorBoardLogger
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
 from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.data.segments import SegmentDataModule
-from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.errors import ConfigError, TrainingDiverged
 from hysteresis_lab.models.registry import get_model_class
 
 log = logging.getLogger(__name__)
@@ -95,7 +100,7 @@ def fit(
     """Fit ``model``; nets keep the checkpoint with the best validation loss.
 
     ``one_step=False`` skips the one-step stage when the model fine-tunes on the free-run
-    error anyway (``rollout_steps > 0``). ``keep_start_unless_beaten`` (a warm-started
+    error anyway (``objective="simulation"`` with ``simulation_epochs``). ``keep_start_unless_beaten`` (a warm-started
     refit): the weights ``model`` starts with are kept unless training beats them on the
     validation free-run loss (one-step MSE without free-run fine-tuning) by more than the
     share ``min_gain``.
@@ -145,18 +150,36 @@ def _keep_start_unless_beaten(
 def _selection_loss(
     model: L.LightningModule, datamodule: WindowDataModule, trainer_cfg: Mapping[str, Any]
 ) -> float:
-    """Validation free-run MSE over ``rollout_steps`` segments, or the one-step MSE."""
-    steps = int(model.hparams.get("rollout_steps") or 0)
+    """Validation free-run MSE over ``horizon`` segments (objective "simulation"), or the
+    one-step MSE."""
+    steps = model.simulation_horizon
     if steps == 0:
         return _validation_mse(_scaled_predictor(model), datamodule)
     settings = {**dict(trainer_cfg), "logger": False, "enable_checkpointing": False}
-    model.rollout_mode = True
+    model.simulation_mode = True
     try:
         trainer = _trainer(settings)
         segments = SegmentDataModule(datamodule, steps)
         return float(trainer.validate(model, datamodule=segments, verbose=False)[0]["val_loss"])
     finally:
-        model.rollout_mode = False
+        model.simulation_mode = False
+
+
+def stage_lr(model: L.LightningModule, stage: str) -> float:
+    """The learning rate of a training stage, decided here only.
+
+    ``stage``: "one_step" (the study's stage, or the whole fit) uses ``model.lr``, or for a
+    warm-started refit ``refit_lr`` (default ``lr / 10``); "simulation" (the free-run error
+    as the only objective) the same; "fine_tune" (the free-run stage after a one-step stage
+    or from a fitted network) ``simulation_lr``, default a tenth of the one-step rate.
+    """
+    hparams = model.hparams
+    lr = float(hparams.lr)
+    if getattr(model, "_new_entries", None):  # a refit from a fitted (warm-start) network
+        lr = float(hparams.get("refit_lr") or 0.1 * lr)
+    if stage == "fine_tune":
+        lr = float(hparams.get("simulation_lr") or 0.1 * lr)
+    return lr
 
 
 def _fit(
@@ -177,18 +200,37 @@ def _fit(
         val_mse = _validation_mse(model.predict_scaled, datamodule)
         return TrainResult(model, val_mse, time.perf_counter() - start)
 
-    steps = int(model.hparams.get("rollout_steps") or 0)
+    steps = model.simulation_horizon
+    fine_tune_epochs = model.hparams.get("simulation_epochs")
     stages = (model, datamodule, trainer_cfg, output_dir, logger)
+    if steps > 0 and fine_tune_epochs is None:  # the free-run error is the only objective
+        model.stage_lr = stage_lr(model, "simulation")
+        best, val_mse, _ = _fit_free_run(
+            *stages, steps, int(trainer_cfg["max_epochs"]), callbacks, "checkpoints",
+            starting_checkpoint=None, keep_start=False,
+        )
+        seconds = time.perf_counter() - start
+        log.info("trained in %.1f s (validation free-run MSE %.4e, scaled)", seconds, val_mse)
+        return TrainResult(model.eval(), val_mse, seconds, best)
     if not one_step and steps > 0:
-        val_mse = _validation_mse(_scaled_predictor(model), datamodule)
-        best, improved = _fine_tune_free_run(*stages, steps, starting_checkpoint=None)
+        model.stage_lr = stage_lr(model, "fine_tune")
+        best, improved, val_mse = _fit_free_run(
+            *stages, steps, int(fine_tune_epochs), None, "checkpoints_free_run",
+            starting_checkpoint=None, keep_start=True,
+        )
         if not improved:  # the new inputs were not learned: refit from the warm start
             log.info("refitting the warm-started network on the one-step error first")
             one_step = True
     if one_step or steps == 0:
+        model.stage_lr = stage_lr(model, "one_step")
         best, val_mse = _fit_one_step(*stages, callbacks)
         if steps > 0:
-            best, _ = _fine_tune_free_run(*stages, steps, starting_checkpoint=best)
+            model.stage_lr = stage_lr(model, "fine_tune")
+            best, _, val_mse = _fit_free_run(
+                *stages, steps, int(fine_tune_epochs), None, "checkpoints_free_run",
+                starting_checkpoint=best, keep_start=True,
+            )
+    model.stage_lr = None
     seconds = time.perf_counter() - start
     log.info("trained in %.1f s", seconds)
     return TrainResult(model.eval(), val_mse, seconds, best)
@@ -326,47 +368,70 @@ def _restore_best(
     return (Path(best) if best else None), float(score) if score is not None else float("nan")
 
 
-def _fine_tune_free_run(
+def _fit_free_run(
     model: L.LightningModule,
     datamodule: WindowDataModule,
     trainer_cfg: Mapping[str, Any],
     output_dir: Path,
     logger: TensorBoardLogger | None,
     steps: int,
+    epochs: int,
+    callbacks: list[Any] | None,
+    folder: str,
     starting_checkpoint: Path | None,
-) -> tuple[Path | None, bool]:
-    """Simulation-error fine-tuning: minimise the free-run MSE over ``steps``-sample segments.
+    keep_start: bool,
+) -> tuple[Path | None, bool, float]:
+    """Simulation-error training: minimise the free-run MSE over ``steps``-sample segments.
 
-    Starts from the current weights and keeps the checkpoint with the best validation
-    free-run loss (``val_loss`` of this stage, own TensorBoard version ``free_run``) — or the
-    starting weights when no epoch beat them on that loss (then it returns
-    ``starting_checkpoint`` and False). The one-step validation MSE stays the run's reported
-    (sweep) objective.
+    Runs ``epochs`` epochs from the current weights at ``model.stage_lr`` and keeps the
+    checkpoint with the best validation free-run loss (model selection on the free run;
+    ``model.patience`` epochs without a better one stop it early). ``keep_start`` (a
+    fine-tuning stage): when no epoch beat the starting weights on that loss, those stay and
+    ``starting_checkpoint`` and False are returned. Returns the checkpoint, whether training
+    improved on the start, and the validation free-run MSE (scaled) of the weights kept.
     """
     segments = SegmentDataModule(datamodule, steps)
-    checkpoint = _best_checkpoint(output_dir / "checkpoints_free_run")
-    settings = {**dict(trainer_cfg), "max_epochs": int(model.hparams.get("rollout_epochs", 10))}
+    checkpoint = _best_checkpoint(output_dir / folder)
+    all_callbacks: list[Any] = [checkpoint, *(callbacks or [])]
+    patience = model.hparams.get("patience")
+    if patience:
+        all_callbacks.append(EarlyStopping(monitor="val_loss", mode="min", patience=patience))
+    settings = {**dict(trainer_cfg), "max_epochs": epochs}
     if settings.get("gradient_clip_val") is None:
         settings["gradient_clip_val"] = 1.0  # feedback through many steps: keep updates bounded
     starting_weights = {k: v.detach().clone() for k, v in model.state_dict().items()}
-    model.rollout_mode = True
+    model.simulation_mode = True
     try:
+        version = "" if folder == "checkpoints" else "free_run"
         stage_logger = (
-            TensorBoardLogger(save_dir=logger.save_dir, name=logger.name, version="free_run")
+            TensorBoardLogger(save_dir=logger.save_dir, name=logger.name, version=version)
             if logger is not None
             else False
         )
+        if stage_logger:
+            all_callbacks.append(LearningRateMonitor(logging_interval="epoch"))
         trainer = _trainer(
-            settings, [checkpoint], logger=stage_logger, default_root_dir=str(output_dir)
+            settings, all_callbacks, logger=stage_logger, default_root_dir=str(output_dir)
         )
         starting_loss = float(
             trainer.validate(model, datamodule=segments, verbose=False)[0]["val_loss"]
         )
-        trainer.fit(model, datamodule=segments)
+        if not np.isfinite(starting_loss) and not keep_start:
+            raise TrainingDiverged(
+                "the initial model's free run is not finite on the validation segments (an "
+                "unstable initial model). Fix: a shorter model.horizon, or check the data "
+                "scaling (data.scaling) and the model's initial settings."
+            )
+        try:
+            trainer.fit(model, datamodule=segments)
+        except TrainingDiverged as exc:
+            if not keep_start:
+                raise
+            log.warning("free-run fine-tuning diverged (%s)", exc)
         best, val_free_run = _restore_best(model, checkpoint)
     finally:
-        model.rollout_mode = False
-    if not val_free_run < starting_loss:
+        model.simulation_mode = False
+    if keep_start and not val_free_run < starting_loss:
         model.load_state_dict(starting_weights)
         log.info(
             "free-run fine-tuning did not beat the starting weights on validation (%.4e vs "
@@ -374,14 +439,14 @@ def _fine_tune_free_run(
             val_free_run,
             starting_loss,
         )
-        return starting_checkpoint, False
+        return starting_checkpoint, False, starting_loss
     log.info(
-        "free-run fine-tuning: validation free-run MSE %.4e -> %.4e (scaled) over %d steps",
+        "free-run training: validation free-run MSE %.4e -> %.4e (scaled) over %d steps",
         starting_loss,
         val_free_run,
         steps,
     )
-    return best, True
+    return best, True, val_free_run
 
 
 def _model_name(model_cfg: Mapping[str, Any]) -> str:

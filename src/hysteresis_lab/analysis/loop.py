@@ -50,8 +50,9 @@ from hysteresis_lab.pipeline import (
 
 log = logging.getLogger(__name__)
 
-#: model settings only networks take (besides the ``rollout_*`` ones)
-NETWORK_ONLY = ("effect_path", "refit_lr")
+#: model settings only networks take
+NETWORK_ONLY = ("effect_path", "refit_lr", "objective", "horizon", "simulation_epochs",
+                "simulation_lr", "patience")
 
 REFITS = ("new_inputs", "full")
 
@@ -269,7 +270,7 @@ def _without_network_only_settings(model_cfg: Mapping[str, Any]) -> dict[str, An
     """Free-run fine-tuning (on by default in the loop), ``effect_path`` and ``refit_lr`` are
     network settings; a model that is no network (the SVM) skips them."""
     cfg = dict(model_cfg)
-    network_only = [k for k in cfg if k.startswith("rollout_") or k in NETWORK_ONLY]
+    network_only = [k for k in cfg if k in NETWORK_ONLY]
     if network_only and not issubclass(get_model_class(str(cfg.get("name"))), NarxModule):
         log.info("model '%s' is no network: %s ignored", cfg.get("name"), network_only)
         cfg = {k: v for k, v in cfg.items() if k not in network_only}

@@ -31,7 +31,8 @@ WHOLE = "a whole number"
 #: keys whose packaged value is null (off / automatic) but which take a number when set,
 #: with the kind of number they take
 NULLABLE_NUMBERS = {
-    "n_step": WHOLE, "model.rollout_lr": NUMBER, "model.refit_lr": NUMBER,
+    "n_step": WHOLE, "model.simulation_lr": NUMBER,
+    "model.simulation_epochs": WHOLE, "model.patience": WHOLE, "model.refit_lr": NUMBER,
     "trainer.gradient_clip_val": NUMBER, "data.fs": NUMBER,
     "data.splits.train_sine_amplitude": NUMBER,
 }

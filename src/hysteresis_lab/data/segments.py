@@ -1,4 +1,4 @@
-"""Free-run segments of the training recordings, for simulation-error fine-tuning.
+"""Free-run segments of the training recordings, for simulation-error training.
 
 A segment is ``first_target + steps`` consecutive samples of one recording, scaled like the
 one-step windows: the model starts from the first ``first_target`` measured outputs and
@@ -32,7 +32,9 @@ class SegmentDataModule(L.LightningDataModule):
     def __init__(self, windows: WindowDataModule, steps: int) -> None:
         super().__init__()
         if steps < 1:
-            raise ConfigError(f"rollout_steps={steps} must be >= 1 for segment training.")
+            raise ConfigError(
+                f"model.horizon={steps} must be >= 1 for simulation-error training."
+            )
         self.windows = windows
         self.length = windows.window.first_target + steps
         self.stride = max(1, steps // 2)
@@ -51,7 +53,7 @@ class SegmentDataModule(L.LightningDataModule):
                 raise ConfigError(
                     f"only {len(train_u)} free-run segment(s) of {self.length} samples fit in the "
                     "training data; none would be left for training after the validation share. "
-                    "Fix: a smaller model.rollout_steps."
+                    "Fix: a smaller model.horizon."
                 )
             val_u, val_y, train_u, train_y = (
                 train_u[val],
@@ -79,12 +81,21 @@ class SegmentDataModule(L.LightningDataModule):
             for start in range(0, rec.n_samples - self.length + 1, self.stride):
                 us.append(u[start : start + self.length])
                 ys.append(y[start : start + self.length])
+        longest = max(rec.n_samples for rec in recordings)
+        most = longest - self.windows.window.first_target
         if not us:
-            longest = max(rec.n_samples for rec in recordings)
-            most = longest - self.windows.window.first_target
             raise ConfigError(
-                f"free-run segments of {self.length} samples do not fit in recordings of at most "
-                f"{longest} samples. Fix: model.rollout_steps={max(1, most)} or less."
+                f"free-run segments of {self.length} samples (model.horizon plus the "
+                f"{self.windows.window.first_target} initial samples) do not fit in recordings "
+                f"of at most {longest} samples. Fix: model.horizon={max(1, most)} or less."
+            )
+        short = [rec.name for rec in recordings if rec.n_samples < self.length]
+        if short:
+            log.warning(
+                "recordings %s are shorter than one free-run segment (%d samples) and take no "
+                "part in simulation-error training; model.horizon=%d or less would use them",
+                short, self.length, min(r.n_samples for r in recordings)
+                - self.windows.window.first_target,
             )
         return np.stack(us), np.stack(ys)
 

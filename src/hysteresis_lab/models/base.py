@@ -4,7 +4,15 @@ A subclass sets ``layout`` ("flat" or "sequence") and builds ``self.net`` mappin
 regressors to the scaled next output. The base owns what every architecture shares:
 normalisation (buffers saved with the weights, so a checkpoint maps volts to micrometres on
 its own), the MSE loss, Adam and the learning-rate schedule, and the differentiable free run
-used by simulation-error fine-tuning (``rollout_steps > 0``, see `hysteresis_lab.training`).
+used by simulation-error training (``objective="simulation"``, see `hysteresis_lab.training`).
+
+Training objectives (``objective``): ``"one_step"`` is the study's one-step-ahead MSE on
+regression windows; ``"simulation"`` is the free-run MSE over segments of ``horizon`` samples,
+each started from its measured first ``first_target`` samples (the NARX state; state-space
+subclasses estimate their state from them with an encoder), gradients through the whole
+horizon. With ``simulation_epochs`` set, a one-step stage of ``trainer.max_epochs`` epochs
+comes first and the simulation stage then runs ``simulation_epochs`` epochs at
+``simulation_lr`` (fine-tuning); with it null the simulation error is the only objective.
 
 Declared effects (`hysteresis_lab.effects`) arrive as extra input channels after the
 ``n_base_inputs`` measured ones. ``effect_path="network"`` feeds them to the network like any
@@ -16,6 +24,7 @@ and a model that extrapolates linearly in the new operators instead of through R
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Sequence
 from typing import Any, ClassVar
 
@@ -27,10 +36,13 @@ from torch import nn
 from hysteresis_lab.data.windows import Layout, WindowSpec, assemble
 from hysteresis_lab.effects.augment import context_from_dict
 from hysteresis_lab.effects.registry import check_effects, get_effect
-from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.errors import ConfigError, TrainingDiverged
 from hysteresis_lab.models.fast import input_lags
 
+log = logging.getLogger(__name__)
+
 LR_SCHEDULES = ("cosine", "plateau", "none")
+OBJECTIVES = ("one_step", "simulation")
 EFFECT_PATHS = ("network", "linear")
 
 
@@ -53,9 +65,11 @@ class NarxModule(L.LightningModule):
         weight_decay: float = 0.0,
         effects: Sequence[str] = (),
         feature_context: dict[str, Any] | None = None,
-        rollout_steps: int = 0,
-        rollout_epochs: int = 10,
-        rollout_lr: float | None = None,
+        objective: str = "one_step",
+        horizon: int = 200,
+        simulation_epochs: int | None = None,
+        simulation_lr: float | None = None,
+        patience: int | None = None,
         refit_lr: float | None = None,
         effect_path: str = "network",
         n_base_inputs: int | None = None,
@@ -74,11 +88,10 @@ class NarxModule(L.LightningModule):
             )
         if not lr > 0:
             raise ConfigError(f"learning rate lr={lr} must be positive. Fix: model.lr=1e-3.")
-        if rollout_steps < 0 or rollout_epochs < 1 or (rollout_lr is not None and rollout_lr <= 0):
+        check_objective(objective, horizon, simulation_epochs, simulation_lr)
+        if patience is not None and not patience >= 1:
             raise ConfigError(
-                f"simulation-error fine-tuning needs rollout_steps >= 0 (0: off), rollout_epochs "
-                f">= 1 and a positive rollout_lr (got {rollout_steps}, {rollout_epochs}, "
-                f"{rollout_lr}). Fix: e.g. model.rollout_steps=200 model.rollout_epochs=10."
+                f"model.patience={patience!r} must be >= 1 epochs, or null (no early stopping)."
             )
         if refit_lr is not None and not refit_lr > 0:
             raise ConfigError(
@@ -136,8 +149,11 @@ class NarxModule(L.LightningModule):
                     torch.zeros(self.n_base_inputs, int(to_input.sum()))
                 )
         self.loss_fn = nn.MSELoss()
-        #: set by `hysteresis_lab.training` while fine-tuning on free-run segments
-        self.rollout_mode = False
+        #: set by `hysteresis_lab.training` while training on free-run segments
+        self.simulation_mode = False
+        #: the learning rate of the running training stage, set by `hysteresis_lab.training`
+        self.stage_lr: float | None = None
+        self._skipped_batches = 0
 
     # ------------------------------------------------------------------ model
     @property
@@ -369,18 +385,29 @@ class NarxModule(L.LightningModule):
         return u_part + [w.nb * nu + j for j in range(w.na * ny)]
 
     # ------------------------------------------------------------------ training
+    @property
+    def simulation_horizon(self) -> int:
+        """Samples simulated per training segment; 0 when the objective is one-step."""
+        if self.hparams.get("objective", "one_step") != "simulation":
+            return 0
+        return int(self.hparams.get("horizon") or 0)
+
     def _loss(self, batch: tuple[torch.Tensor, torch.Tensor]) -> torch.Tensor:
-        """One-step loss on (regressors, target) windows, or in ``rollout_mode`` the free-run
-        loss on (u, y) segments."""
-        if self.rollout_mode:
+        """One-step loss on (regressors, target) windows, or in ``simulation_mode`` the
+        free-run loss on (u, y) segments."""
+        if self.simulation_mode:
             u, y = batch
             start = self.window.first_target
             return self.loss_fn(self.simulate_scaled(u, y), y[:, start:])
         x, target = batch
         return self.loss_fn(self(x), target)
 
-    def training_step(self, batch: Any, batch_idx: int) -> torch.Tensor:
+    def training_step(self, batch: Any, batch_idx: int) -> torch.Tensor | None:
         loss = self._loss(batch)
+        if not torch.isfinite(loss):
+            # a diverging free run (or a bad step) must not update the weights: skip it
+            self._skipped_batches += 1
+            return None
         # The epoch's batch-size-weighted mean, logged once in `on_train_epoch_end`: a
         # `self.log` per step costs Lightning ~0.4 ms, a fifth of a small network's step.
         size = batch[0].shape[0]
@@ -391,8 +418,21 @@ class NarxModule(L.LightningModule):
     def on_train_epoch_start(self) -> None:
         self._train_loss_sum = torch.zeros((), device=self.device)
         self._train_loss_count = 0
+        self._skipped_batches = 0
 
     def on_train_epoch_end(self) -> None:
+        if self._skipped_batches and not self._train_loss_count:
+            raise TrainingDiverged(
+                f"every batch of epoch {self.current_epoch} gave a non-finite loss "
+                f"({'free-run' if self.simulation_mode else 'one-step'} error): the model "
+                "diverged. Fix: a smaller model.lr (or model.simulation_lr), a shorter "
+                "model.horizon, or trainer.gradient_clip_val=0.5."
+            )
+        if self._skipped_batches:
+            log.warning(
+                "epoch %d: %d batch(es) with a non-finite loss were skipped",
+                self.current_epoch, self._skipped_batches,
+            )
         if self._train_loss_count:
             mean = self._train_loss_sum / self._train_loss_count
             self.log("train_loss", mean, on_step=False, on_epoch=True, prog_bar=True)
@@ -406,11 +446,7 @@ class NarxModule(L.LightningModule):
         return loss
 
     def configure_optimizers(self) -> Any:
-        lr = self.hparams.lr
-        if getattr(self, "_new_entries", None):  # a refit from a fitted (warm-start) network
-            lr = self.hparams.get("refit_lr") or 0.1 * lr
-        if self.rollout_mode:  # fine-tuning starts from a fitted model: smaller steps
-            lr = self.hparams.get("rollout_lr") or 0.1 * lr
+        lr = self.stage_lr or self.hparams.lr
         trainable = [p for p in self.parameters() if p.requires_grad]
         optimizer = torch.optim.Adam(trainable, lr=lr, weight_decay=self.hparams.weight_decay)
         schedule = self.hparams.lr_schedule
@@ -432,6 +468,29 @@ class NarxModule(L.LightningModule):
                 "lr_scheduler": {"scheduler": scheduler, "monitor": "val_loss"},
             }
         return optimizer
+
+
+def check_objective(
+    objective: str, horizon: int, simulation_epochs: int | None, simulation_lr: float | None
+) -> None:
+    """Refuse training-objective settings that cannot train (see the module docstring)."""
+    if objective not in OBJECTIVES:
+        raise ConfigError(
+            f"unknown model.objective '{objective}'. Fix: model.objective=one of "
+            f"{list(OBJECTIVES)} (simulation: the free-run error, our recommendation)."
+        )
+    bad = []
+    if objective == "simulation" and not (isinstance(horizon, int) and horizon >= 1):
+        bad.append(f"horizon={horizon!r} (a whole number >= 1)")
+    if simulation_epochs is not None and not simulation_epochs >= 1:
+        bad.append(f"simulation_epochs={simulation_epochs!r} (>= 1, or null)")
+    if simulation_lr is not None and not simulation_lr > 0:
+        bad.append(f"simulation_lr={simulation_lr!r} (> 0, or null)")
+    if bad:
+        raise ConfigError(
+            f"simulation-error training settings out of range: {', '.join(bad)}. Fix: e.g. "
+            "model.objective=simulation model.horizon=200 model.simulation_epochs=null."
+        )
 
 
 def mlp(n_in: int, n_out: int, hidden: int, n_hidden_layers: int) -> nn.Sequential:

@@ -80,7 +80,7 @@ def load_model(path: Path | str) -> Any:
             source=str(path),
             fix="pass the model.ckpt written by hysteresis-lab-train",
         )
-    hparams = dict(checkpoint["hyper_parameters"])
+    hparams = _current_names(dict(checkpoint["hyper_parameters"]))
     hparams.pop("model_name", None)
     model = get_model_class(checkpoint["model_name"])(**hparams)
     try:
@@ -92,6 +92,18 @@ def load_model(path: Path | str) -> Any:
             fix="retrain the model",
         ) from None
     return model.eval()
+
+
+def _current_names(hparams: dict[str, Any]) -> dict[str, Any]:
+    """Settings of checkpoints saved before the training objective was named (``rollout_*``:
+    a one-step fit fine-tuned on the free-run error) under their current names."""
+    steps = hparams.pop("rollout_steps", None)
+    epochs = hparams.pop("rollout_epochs", None)
+    lr = hparams.pop("rollout_lr", None)
+    if steps:
+        hparams.update(objective="simulation", horizon=int(steps), simulation_epochs=epochs,
+                       simulation_lr=lr)
+    return hparams
 
 
 def _load_skops(path: Path) -> Any:
