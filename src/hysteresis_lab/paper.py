@@ -127,6 +127,13 @@ def run_paper(
     if any(is_network(cfg) for cfg in models.values()):
         check_trainer_settings(trainer_cfg)  # before any model trains, not in a worker
     splits = build_splits(data_cfg)
+    if not splits.val:
+        log.info(
+            "validation: the study's random %.0f %% of the training windows (the multisine is "
+            "periodic, so these windows repeat inputs the models train on; data=default "
+            "outside experiment=paper validates on a second multisine instead)",
+            100 * float(data_cfg.get("val_fraction", 0.1)),
+        )
     processes, threads = plan_workers(len(models), trainer_cfg, workers)
     jobs = [
         _Job(key, plain_dict(cfg), data_cfg, trainer_cfg, output_dir / key, seed,

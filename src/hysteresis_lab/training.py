@@ -205,7 +205,7 @@ def _fit(
     stages = (model, datamodule, trainer_cfg, output_dir, logger)
     if steps > 0 and fine_tune_epochs is None:  # the free-run error is the only objective
         model.stage_lr = stage_lr(model, "simulation")
-        best, val_mse, _ = _fit_free_run(
+        best, _, val_mse = _fit_free_run(
             *stages, steps, int(trainer_cfg["max_epochs"]), callbacks, "checkpoints",
             starting_checkpoint=None, keep_start=False,
         )

@@ -66,7 +66,7 @@ class SegmentDataModule(L.LightningDataModule):
             "val": TensorDataset(torch.from_numpy(val_u), torch.from_numpy(val_y)),
         }
         log.info(
-            "free-run fine-tuning: %d training and %d validation segments of %d samples",
+            "simulation-error training: %d training and %d validation segments of %d samples",
             len(train_u),
             len(val_u),
             self.length,

@@ -220,6 +220,14 @@ def _run(
     fast: bool = True,
 ) -> np.ndarray:
     """Scaled simulation of all rows: measured lags up to ``first_target``, then predictions."""
+    simulate = getattr(model, "simulate_recordings", None)
+    if simulate is not None:  # a state-space model runs its own state (StateSpaceModule)
+        model_device = next(model.parameters()).device
+        model.to(torch.device(device) if device is not None else model_device)
+        try:
+            return simulate(u, y_meas, reset, window)
+        finally:
+            model.to(model_device)
     split = getattr(model, "free_run_split", None)
     u, term = split(u) if split is not None else (u, None)  # see NarxModule.free_run_split
     factory = getattr(model, "free_run_kernel", None) if fast else None

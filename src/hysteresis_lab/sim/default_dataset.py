@@ -19,6 +19,7 @@ from hysteresis_lab.sim.positioner import simulate_recording
 log = logging.getLogger(__name__)
 
 HOLD_STREAM = 1  # seed stream of the hold recording (apart from the sines' seeds)
+VAL_STREAM = 2  # seed stream of the validation multisine
 TEST_FREQUENCIES_HZ = (0.1, 1, 10, 50, 100, 150, 200, 250, 300, 400, 450, 500)
 
 
@@ -40,6 +41,15 @@ def _hold_recording(
     return simulate_recording(u, fs, config, seed=hold_seed, name=f"hold_{seconds:g}s")
 
 
+def _validation_multisine(
+    n: int, fs: float, amplitude: float, config: PositionerConfig, seed: int
+) -> Recording:
+    """A second multisine realisation (other phases, own noise) for honest validation."""
+    phase_seed, noise_seed = np.random.default_rng((seed, VAL_STREAM)).integers(0, 2**31, 2)
+    u = multisine(n, fs=fs, amplitude=amplitude, seed=int(phase_seed))
+    return simulate_recording(u, fs, config, seed=int(noise_seed), name="multisine_validation")
+
+
 def make_default_dataset(
     effects: Mapping[str, Any] | DictConfig | None = None,
     seed: int = 0,
@@ -51,6 +61,7 @@ def make_default_dataset(
     train_sines: Sequence[float] = (),
     train_sine_amplitude: float | None = None,
     test_hold_s: float = 0.0,
+    val_samples: int = 0,
 ) -> DatasetSplits:
     """Multisine (500 lines, 0-500 Hz, ±amplitude, ``n_train`` samples) and sine test sets.
 
@@ -62,6 +73,10 @@ def make_default_dataset(
     the test amplitude; less keeps identification inside the amplifier's linear range).
     ``test_hold_s`` > 0 adds a test recording that holds the input at 0 V that long: the
     metrology test for drift, the one recording on which nothing the input drives moves.
+    ``val_samples`` > 0 adds a validation recording: a second realisation of the multisine
+    (same spectrum and amplitude, other random phases, its own noise) of that many samples.
+    The multisine is periodic, so a random split of its windows (``val_samples=0``, the
+    study's protocol) validates on inputs the model trained on.
     """
     if isinstance(effects, DictConfig):
         effects = OmegaConf.to_container(effects, resolve=True)  # type: ignore[assignment]
@@ -69,6 +84,11 @@ def make_default_dataset(
         raise ConfigError(
             f"train_sine_amplitude={train_sine_amplitude} V must lie in (0, {amplitude:g}] V. "
             "Fix: data.splits.train_sine_amplitude=null (the test amplitude) or a smaller value."
+        )
+    if not (isinstance(val_samples, int) and val_samples >= 0):
+        raise ConfigError(
+            f"val_samples={val_samples!r} must be a whole number >= 0. Fix: "
+            "data.splits.val_samples=20000 (a second multisine) or 0 (random split of windows)."
         )
     if not test_hold_s >= 0:
         raise ConfigError(
@@ -100,9 +120,11 @@ def make_default_dataset(
         )
     if test_hold_s > 0:
         tests.append(_hold_recording(test_hold_s, fs, config, seed, max_test_samples))
+    val = [_validation_multisine(val_samples, fs, amplitude, config, seed)] if val_samples else []
     return DatasetSplits(
         name="default",
         train=train,
+        val=val,
         test=tests,
         metadata={"source": "simulator", "effects": config.to_dict(), "seed": seed},
     )
