@@ -83,3 +83,48 @@ def test_a_saved_subnet_loads_and_predicts_the_same(untrained, tmp_path):
     for a, b in zip(free_run(model, dm.splits.test, dm.window),
                     free_run(loaded, dm.splits.test, dm.window), strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+def test_warm_start_with_an_effect_channel_keeps_the_free_run():
+    """The loop's refit grows a fitted SUBNET by effect channels; their weights start at
+    zero, so the grown model simulates exactly what the fitted one did (nested models)."""
+    torch.manual_seed(0)
+    cfg = {k: v for k, v in SUBNET.items() if k not in ("name", "horizon", "lr")}
+    fitted = build_model_class("subnet")(nu=1, ny=1, **cfg)
+    grown = build_model_class("subnet")(nu=3, ny=1, **cfg)
+    u = torch.randn(2, 60, 1)
+    u_grown = torch.cat([u, torch.randn(2, 60, 2)], -1)
+    y = torch.randn(2, 10, 1)
+    with torch.no_grad():
+        assert not torch.allclose(fitted.simulate_scaled(u, y), grown.simulate_scaled(u_grown, y))
+        grown.warm_start_from(fitted)
+        np.testing.assert_allclose(grown.simulate_scaled(u_grown, y),
+                                   fitted.simulate_scaled(u, y), atol=1e-5)
+
+
+def build_model_class(name: str):
+    from hysteresis_lab.models.registry import get_model_class
+
+    return get_model_class(name)
+
+
+def test_onnx_step_simulates_like_the_model(untrained, tmp_path):
+    """The exported step file, fed its own state, reproduces the model's free run."""
+    ort = pytest.importorskip("onnxruntime")
+    from hysteresis_lab.models.export import export_onnx
+
+    model, dm = untrained
+    path = export_onnx(model, tmp_path / "subnet.onnx")
+    step = ort.InferenceSession(str(path.with_name("subnet_step.onnx")))
+    rec = dm.splits.test[0]
+    u, y = scaled(rec, dm.scaler)
+    ft = dm.window.first_target
+    with torch.no_grad():
+        state = model.encode(model._regressor_at(u, y[:, :ft], ft)).numpy()
+    expected = free_run(model, [rec], dm.window)[0][ft : ft + 50]
+    produced = []
+    for k in range(ft, ft + 50):
+        y_k, state = step.run(None, {"state": state,
+                                     "u": rec.u[k - dm.window.nk + 1][None].astype(np.float32)})
+        produced.append(y_k[0])
+    np.testing.assert_allclose(np.array(produced), expected, atol=1e-3)

@@ -307,7 +307,6 @@ class NarxModule(L.LightningModule):
                 f"cannot warm-start a {type(self).__name__} (nu={self.nu}) from a "
                 f"{type(previous).__name__} (nu={previous.nu}) with another window or outputs."
             )
-        positions = torch.as_tensor(self._old_regressor_positions(previous.nu))
         old = dict(previous.named_parameters())
         self._new_entries: dict[str, torch.Tensor] = {}
         with torch.no_grad():
@@ -325,7 +324,7 @@ class NarxModule(L.LightningModule):
                     new[:, : before.shape[1]] = before
                     self._new_entries[name] = torch.ones_like(new, dtype=torch.bool)
                     self._new_entries[name][:, : before.shape[1]] = False
-                elif (
+                elif (positions := self._old_input_positions(name, previous.nu)) is not None and (
                     before.dim() >= 2
                     and before.shape[1] == len(positions)
                     and (before.shape[0] == new.shape[0] and before.shape[2:] == new.shape[2:])
@@ -375,6 +374,11 @@ class NarxModule(L.LightningModule):
             for name, (kept, mask) in self._kept_values.items():
                 value = parameters[name]
                 value.copy_(torch.where(mask.to(value.device), value, kept.to(value.device)))
+
+    def _old_input_positions(self, name: str, old_nu: int) -> torch.Tensor | None:
+        """Where each input column of parameter ``name`` of a model with ``old_nu`` inputs
+        sits in this one's (a warm start copies them there; the rest are new)."""
+        return torch.as_tensor(self._old_regressor_positions(old_nu))
 
     def _old_regressor_positions(self, old_nu: int) -> list[int]:
         """Where each regressor column of a model with ``old_nu`` inputs sits in this one's."""

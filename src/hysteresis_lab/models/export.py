@@ -10,6 +10,7 @@ from torch import nn
 
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.base import NarxModule
+from hysteresis_lab.models.state_space import StateSpaceModule
 
 log = logging.getLogger(__name__)
 
@@ -25,8 +26,28 @@ class PhysicalModel(nn.Module):
         return self.model.predict_physical(u_past, y_past)
 
 
+class PhysicalStep(nn.Module):
+    """A state-space model's step: ``(state (B, nx), u [V] (B, nu)) -> (y [µm] (B, ny),
+    next state (B, nx))``; ``y`` is the output of ``state``, the input drives the next one."""
+
+    def __init__(self, model: StateSpaceModule) -> None:
+        super().__init__()
+        self.model = model
+
+    def forward(self, state: torch.Tensor, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        m = self.model
+        y = m.unscale_output(m.output(state))
+        return y, m.transition(state, (u - m.u_offset) / m.u_scale)
+
+
 def export_onnx(model: object, path: Path | str, opset: int = 17) -> Path:
-    """Write ``model`` as ONNX with a dynamic batch axis; returns the path."""
+    """Write ``model`` as ONNX with a dynamic batch axis; returns the path.
+
+    The file maps past inputs and outputs to the next output (one-step prediction). A
+    state-space model (`StateSpaceModule`) also gets ``<stem>_step.onnx``, its simulation
+    step: the one-step file's encoder gives the initial state (``encode``), the step file
+    runs it forward from the input alone.
+    """
     if not isinstance(model, NarxModule):
         raise ConfigError(
             f"{type(model).__name__} cannot be exported to ONNX here; only the networks can. "
@@ -45,4 +66,17 @@ def export_onnx(model: object, path: Path | str, opset: int = 17) -> Path:
         opset_version=opset, dynamo=False,
     )
     log.info("exported %s to %s", type(model).__name__, path)
+    if isinstance(model, StateSpaceModule):
+        _export_step(model, path.with_name(f"{path.stem}_step.onnx"), opset)
     return path
+
+
+def _export_step(model: StateSpaceModule, path: Path, opset: int) -> None:
+    state = model.encode(torch.zeros(2, model.n_features))
+    torch.onnx.export(
+        PhysicalStep(model), (state.detach(), torch.zeros(2, model.nu)), str(path),
+        input_names=["state", "u"], output_names=["y", "next_state"],
+        dynamic_axes={name: {0: "batch"} for name in ("state", "u", "y", "next_state")},
+        opset_version=opset, dynamo=False,
+    )
+    log.info("exported the simulation step of %s to %s", type(model).__name__, path)

@@ -57,6 +57,20 @@ class StateSpaceModule(NarxModule):
         """Every input channel, measured or effect operator, is an input of the state model."""
         return ["base"] * self.nu
 
+    def _old_input_positions(self, name: str, old_nu: int) -> torch.Tensor | None:
+        """Warm starts (the loop adds effect channels after the inputs): the encoder reads
+        the flat NARX regressor; ``input_columns`` names the other parameters whose columns
+        are [state..., inputs...] (the state columns ``state_columns`` wide)."""
+        columns = self.input_columns()
+        if name in columns:
+            width = columns[name]
+            return torch.as_tensor(list(range(width)) + [width + i for i in range(old_nu)])
+        return super()._old_input_positions(name, old_nu)
+
+    def input_columns(self) -> dict[str, int]:
+        """Parameters whose input side is [state (n columns), inputs]: name -> n."""
+        return {}
+
     # ------------------------------------------------------------------ NARX contract
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """One-step prediction: the output of the state the encoder reads from the window."""

@@ -63,6 +63,9 @@ class SUBNET(StateSpaceModule):
                 net[-1].weight.mul_(0.1)
                 net[-1].bias.zero_()
 
+    def input_columns(self) -> dict[str, int]:
+        return {"B.weight": 0, "f.0.weight": self.nx}
+
     def encode(self, regressor: torch.Tensor) -> torch.Tensor:
         return self.encoder(regressor)
 
