@@ -22,6 +22,7 @@ from torch import Tensor, nn
 from hysteresis_lab.blocks._util import as_float_array, from_numpy, logit, to_numpy64
 
 DAMPING_EPS = 1e-4
+DAMPING_MAX = 4.0  # heavily overdamped; far beyond it a pole reaches z = 1 in float64
 
 
 class _IIRFunction(torch.autograd.Function):
@@ -77,19 +78,23 @@ class FirstOrderLag(nn.Module):
     """Unit-DC-gain first-order low-pass (the amplifier), learnable cutoff.
 
     Step-invariant discretisation as `hysteresis_lab.sim.blocks.first_order_lowpass`: pole
-    ``exp(-2 pi f_c / fs)`` in (0, 1) for any ``f_c = exp(raw) > 0``, hence always stable.
+    ``exp(-2 pi f_c / fs)`` in (0, 1) for any ``f_c = min_cutoff_hz + exp(raw)``, hence always
+    stable.
     """
 
-    def __init__(self, fs: float, cutoff_hz: float) -> None:
+    def __init__(self, fs: float, cutoff_hz: float, *, min_cutoff_hz: float = 1.0) -> None:
         super().__init__()
-        if cutoff_hz <= 0 or fs <= 0:
-            raise ValueError(f"fs and cutoff_hz must be > 0 (got {fs}, {cutoff_hz})")
+        if not 0 < min_cutoff_hz < cutoff_hz or fs <= 0:
+            raise ValueError(f"need fs > 0 and 0 < min_cutoff_hz < cutoff_hz (got {fs}, "
+                             f"{min_cutoff_hz}, {cutoff_hz})")
         self.fs = float(fs)
-        self.raw_cutoff = nn.Parameter(torch.tensor(math.log(cutoff_hz), dtype=torch.float64))
+        self.min_cutoff_hz = float(min_cutoff_hz)
+        self.raw_cutoff = nn.Parameter(
+            torch.tensor(math.log(cutoff_hz - min_cutoff_hz), dtype=torch.float64))
 
     @property
     def cutoff_hz(self) -> Tensor:
-        return self.raw_cutoff.double().exp()
+        return self.min_cutoff_hz + self.raw_cutoff.double().exp()
 
     def coefficients(self) -> tuple[Tensor, Tensor]:
         pole = torch.exp(-2.0 * math.pi * self.cutoff_hz / self.fs)
@@ -146,9 +151,10 @@ class SecondOrderMode(nn.Module):
     """Unit-DC-gain second-order resonance(s), learnable frequency and damping.
 
     ``frequency = fmin + (fmax - fmin) sigmoid(raw)`` with ``fmax = 0.45 fs`` by default (below
-    Nyquist, so the prewarped bilinear filter exists) and ``damping = exp(raw) + 1e-4`` > 0:
-    stable for any raw value. With ``n_modes > 1`` the modes act in parallel on the same input,
-    ``y = sum_m w_m mode_m(x)`` with ``w_1 = 1 - sum_{m>1} w_m`` (unit DC gain; the others free,
+    Nyquist, so the prewarped bilinear filter exists) and ``damping = 1e-4 + 4 sigmoid(raw)``
+    (> 0, and bounded so that no pole rounds onto z = 1): stable for any raw value. With
+    ``n_modes > 1`` the modes act in parallel on the same input, ``y = sum_m w_m mode_m(x)``
+    with ``w_1 = 1 - sum_{m>1} w_m`` (unit DC gain; the others free,
     default 0.05 each); a scalar ``frequency_hz`` places mode m at ``frequency * 3^(m-1)``
     (clipped below ``fmax``).
     """
@@ -177,13 +183,15 @@ class SecondOrderMode(nn.Module):
             freqs = freqs[0] * 3.0 ** np.arange(self.n_modes)
         freqs = np.clip(as_float_array(freqs, self.n_modes), None, 0.98 * self.fmax)
         damp = as_float_array(damping, self.n_modes)
-        if np.any(freqs <= self.fmin) or np.any(damp <= DAMPING_EPS):
-            raise ValueError(f"frequencies must exceed fmin={self.fmin} Hz and damping "
-                             f"{DAMPING_EPS} (got {freqs}, {damp})")
+        if np.any(freqs <= self.fmin) or np.any(damp <= DAMPING_EPS) or \
+                np.any(damp >= DAMPING_EPS + DAMPING_MAX):
+            raise ValueError(f"frequencies must exceed fmin={self.fmin} Hz and damping lie in "
+                             f"({DAMPING_EPS}, {DAMPING_MAX}) (got {freqs}, {damp})")
         frac = (freqs - self.fmin) / (self.fmax - self.fmin)
         raw_f = [logit(p) for p in frac]
         self.raw_frequency = nn.Parameter(torch.tensor(raw_f, dtype=torch.float64))
-        self.raw_damping = nn.Parameter(torch.tensor(np.log(damp - DAMPING_EPS)))
+        raw_d = [logit(z) for z in (damp - DAMPING_EPS) / DAMPING_MAX]
+        self.raw_damping = nn.Parameter(torch.tensor(raw_d, dtype=torch.float64))
         extra = np.full(self.n_modes - 1, 0.05) if weights is None else \
             np.asarray(weights, dtype=float).reshape(-1)[1:]
         if weights is not None and len(weights) != self.n_modes:
@@ -196,7 +204,7 @@ class SecondOrderMode(nn.Module):
 
     @property
     def damping(self) -> Tensor:
-        return self.raw_damping.double().exp() + DAMPING_EPS
+        return DAMPING_EPS + DAMPING_MAX * torch.sigmoid(self.raw_damping.double())
 
     @property
     def weights(self) -> Tensor:
