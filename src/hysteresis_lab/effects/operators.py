@@ -8,16 +8,43 @@ from scipy import signal
 
 
 @numba.njit(cache=True)
+def play_recursion(
+    u: np.ndarray, thresholds: np.ndarray, state: np.ndarray, out: np.ndarray,
+    branch: np.ndarray,
+) -> None:
+    """The play-operator recursion ``p_k = max(u_k - r, min(u_k + r, p_{k-1}))``, in place.
+
+    The one implementation shared by the effects and `hysteresis_lab.blocks.PlayOperators`.
+    ``u`` (n,), ``thresholds`` (m,), ``state`` (m,) the outputs before the first sample (updated
+    to the last), ``out`` (n, m) the outputs, ``branch`` (n, m) int8: +1 where the output
+    follows ``u - r`` (pushed up), -1 where it follows ``u + r`` (pushed down), 0 where held.
+    """
+    n, m = u.shape[0], thresholds.shape[0]
+    for k in range(n):
+        for j in range(m):
+            r = thresholds[j]
+            upper = u[k] + r
+            p = state[j]
+            br = 0
+            if upper < p:
+                p = upper
+                br = -1
+            lower = u[k] - r
+            if lower > p:
+                p = lower
+                br = 1
+            state[j] = p
+            out[k, j] = p
+            branch[k, j] = br
+
+
+@numba.njit(cache=True)
 def play_operators(u: np.ndarray, thresholds: np.ndarray) -> np.ndarray:
     """Prandtl–Ishlinskii play (backlash) operators of ``u`` (1-D) for every threshold, at rest."""
     n, m = u.shape[0], thresholds.shape[0]
     out = np.empty((n, m))
-    state = np.zeros(m)
-    for k in range(n):
-        for j in range(m):
-            r = thresholds[j]
-            state[j] = max(u[k] - r, min(u[k] + r, state[j]))
-            out[k, j] = state[j]
+    branch = np.empty((n, m), dtype=np.int8)
+    play_recursion(u, thresholds, np.zeros(m), out, branch)
     return out
 
 

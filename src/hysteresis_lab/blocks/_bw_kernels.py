@@ -1,0 +1,136 @@
+"""Numba kernels of the discrete Bouc–Wen recursion (forward and its adjoint), float64.
+
+The per-step update is the one of `hysteresis_lab.sim.bouc_wen._advance` (exact for an input
+moving linearly between samples), written with ``a = alpha * d``, ``r1 = beta - gamma`` (the
+rate while moving against the state's sign) and ``r2 = beta + gamma`` (moving with it), so that
+the same floating-point operations give the simulator's numbers. ``_advance_grad`` also returns
+the partial derivatives of the new state, from which the backward pass runs the recursion in
+reverse (reverse-mode differentiation of the exact update, no smoothing).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+JIT = {"cache": True, "error_model": "numpy"}
+
+
+@numba.njit(**JIT)
+def advance(h: float, x: float, s: float, a: float, r1: float, r2: float) -> float:
+    """State after moving ``x >= 0`` (input units) in direction ``s`` (+1/-1) from ``h``."""
+    if h * s < 0.0:  # against the state's sign: h heads towards zero and beyond
+        h_inf = s * a / r1
+        h_new = h_inf + (h - h_inf) * math.exp(-r1 * x)
+        if h_new * s <= 0.0:
+            return h_new
+        x -= math.log((h - h_inf) / (-h_inf)) / r1  # distance used to reach h = 0
+        h = 0.0
+    h_inf = s * a / r2
+    return h_inf + (h - h_inf) * math.exp(-r2 * x)
+
+
+@numba.njit(**JIT)
+def _advance_grad(
+    h: float, x: float, s: float, a: float, r1: float, r2: float
+) -> tuple[float, float, float, float, float, float]:
+    """``advance`` and its partial derivatives w.r.t. ``h, x, a, r1, r2``."""
+    if h * s < 0.0:
+        h_inf = s * a / r1
+        e = math.exp(-r1 * x)
+        h_new = h_inf + (h - h_inf) * e
+        if h_new * s <= 0.0:
+            d_x = -r1 * (h - h_inf) * e
+            d_a = (1.0 - e) * s / r1
+            d_r1 = -x * (h - h_inf) * e - (1.0 - e) * h_inf / r1
+            return h_new, e, d_x, d_a, d_r1, 0.0
+        # crossing: x1 = log(1 - q) / r1 to reach zero (q = h r1 / (s a)), then x - x1 with r2
+        x1 = math.log((h - h_inf) / (-h_inf)) / r1
+        x2 = x - x1
+        h_inf2 = s * a / r2
+        e2 = math.exp(-r2 * x2)
+        h_new = h_inf2 + (0.0 - h_inf2) * e2
+        g_x2 = r2 * h_inf2 * e2
+        q = h * r1 / (s * a)
+        dx1_dh = -1.0 / (s * a - h * r1)
+        dx1_da = q / (a * r1 * (1.0 - q))
+        dx1_dr1 = -x1 / r1 - q / (r1 * r1 * (1.0 - q))
+        d_a = (1.0 - e2) * s / r2 - g_x2 * dx1_da
+        d_r2 = x2 * h_inf2 * e2 - (1.0 - e2) * h_inf2 / r2
+        return h_new, -g_x2 * dx1_dh, g_x2, d_a, -g_x2 * dx1_dr1, d_r2
+    h_inf = s * a / r2
+    e = math.exp(-r2 * x)
+    h_new = h_inf + (h - h_inf) * e
+    d_x = -r2 * (h - h_inf) * e
+    d_a = (1.0 - e) * s / r2
+    d_r2 = -x * (h - h_inf) * e - (1.0 - e) * h_inf / r2
+    return h_new, e, d_x, d_a, 0.0, d_r2
+
+
+@numba.njit(**JIT)
+def bw_states(
+    v: np.ndarray, v0: np.ndarray, h0: np.ndarray, a: np.ndarray, r1: np.ndarray,
+    r2: np.ndarray,
+) -> np.ndarray:
+    """States ``h`` (B, T, C) of ``C`` parallel elements for inputs ``v`` (B, T).
+
+    ``v0`` (B,): the input before the first sample; ``h0`` (B, C): the states there.
+    """
+    n_b, n_t = v.shape
+    n_c = a.shape[0]
+    out = np.empty((n_b, n_t, n_c))
+    for b in range(n_b):
+        for c in range(n_c):
+            h = h0[b, c]
+            v_prev = v0[b]
+            for k in range(n_t):
+                dv = v[b, k] - v_prev
+                if dv != 0.0:
+                    s = 1.0 if dv > 0.0 else -1.0
+                    h = advance(h, abs(dv), s, a[c], r1[c], r2[c])
+                out[b, k, c] = h
+                v_prev = v[b, k]
+    return out
+
+
+@numba.njit(**JIT)
+def bw_backward(
+    v: np.ndarray, v0: np.ndarray, h0: np.ndarray, hs: np.ndarray, a: np.ndarray,
+    r1: np.ndarray, r2: np.ndarray, g: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Adjoint of `bw_states`: ``g`` (B, T, C) = dL/dh; returns dL/d(v, v0, h0, a, r1, r2)."""
+    n_b, n_t = v.shape
+    n_c = a.shape[0]
+    dv = np.zeros((n_b, n_t))
+    dv0 = np.zeros(n_b)
+    dh0 = np.zeros((n_b, n_c))
+    da = np.zeros(n_c)
+    dr1 = np.zeros(n_c)
+    dr2 = np.zeros(n_c)
+    for b in range(n_b):
+        for c in range(n_c):
+            mu = 0.0  # dL/dh_k, accumulated backwards
+            for k in range(n_t - 1, -1, -1):
+                mu += g[b, k, c]
+                v_prev = v0[b] if k == 0 else v[b, k - 1]
+                step = v[b, k] - v_prev
+                if step == 0.0:
+                    continue
+                h_prev = h0[b, c] if k == 0 else hs[b, k - 1, c]
+                s = 1.0 if step > 0.0 else -1.0
+                _, d_h, d_x, d_a, d_r1, d_r2 = _advance_grad(
+                    h_prev, abs(step), s, a[c], r1[c], r2[c]
+                )
+                da[c] += mu * d_a
+                dr1[c] += mu * d_r1
+                dr2[c] += mu * d_r2
+                dv[b, k] += mu * s * d_x
+                if k == 0:
+                    dv0[b] -= mu * s * d_x
+                else:
+                    dv[b, k - 1] -= mu * s * d_x
+                mu *= d_h
+            dh0[b, c] = mu
+    return dv, dv0, dh0, da, dr1, dr2

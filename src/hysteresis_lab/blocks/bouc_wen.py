@@ -1,0 +1,182 @@
+"""Differentiable Bouc–Wen hysteresis (the simulator's exact discrete recursion).
+
+Model::
+
+    x = d v - sum_c h_c,   dh_c/dt = alpha_c d v' - beta_c |v'| h_c - gamma_c v' |h_c|
+
+updated per sample exactly as `hysteresis_lab.sim.bouc_wen` does (the input moves linearly
+between samples). The forward pass and its adjoint are numba kernels (float64) wrapped in a
+`torch.autograd.Function`; gradients are exact for the piecewise-smooth update (w.r.t. the
+input, the initial state and ``d, alpha, beta, gamma``; zero-length steps carry no input
+gradient).
+
+Scaling. With scaled signals ``v_s = v / U`` and ``x_s = x / Y`` (and ``h_s = h / Y``) the
+equations keep their form with::
+
+    d_s = d U / Y,   alpha_s = alpha,   beta_s = beta U,   gamma_s = gamma U
+
+(``h = Y h_s`` cancels in ``beta |v'| h`` and ``gamma v' |h|``, while ``v' = U v_s'`` does
+not), see `bouc_wen_scaled_params`. The simulator's d = 0.23 µm/V, alpha = 0.32, beta = 0.02,
+gamma = 0.006 with U = 100 V, Y = 20 µm become d = 1.15, alpha = 0.32, beta = 2, gamma = 0.6.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from hysteresis_lab.blocks._bw_kernels import bw_backward, bw_states
+from hysteresis_lab.blocks._util import as_float_array, from_numpy, to_numpy64
+
+GAMMA_RATIO_MAX = 0.999  # |gamma| < beta: both rates beta -/+ gamma stay positive
+
+
+def bouc_wen_scaled_params(
+    d: float, alpha: float, beta: float, gamma: float, u_scale: float, y_scale: float
+) -> dict[str, float]:
+    """Physical Bouc–Wen parameters -> those of the model on ``v / u_scale``, ``x / y_scale``."""
+    return {
+        "d": d * u_scale / y_scale,
+        "alpha": alpha,
+        "beta": beta * u_scale,
+        "gamma": gamma * u_scale,
+    }
+
+
+class _BoucWenFunction(torch.autograd.Function):
+    """``h (B, T, C)`` from ``v (B, T), v0 (B,), h0 (B, C), a, r1, r2 (C,)``."""
+
+    @staticmethod
+    def forward(ctx: Any, v: Tensor, v0: Tensor, h0: Tensor, a: Tensor, r1: Tensor,
+                r2: Tensor) -> Tensor:
+        arrays = [to_numpy64(t) for t in (v, v0, h0, a, r1, r2)]
+        hs = bw_states(*arrays)
+        ctx.arrays = arrays
+        ctx.hs = hs
+        return from_numpy(hs, v)
+
+    @staticmethod
+    def backward(ctx: Any, g: Tensor) -> tuple[Tensor, ...]:
+        v, v0, h0, a, r1, r2 = ctx.arrays
+        grads = bw_backward(v, v0, h0, ctx.hs, a, r1, r2, to_numpy64(g))
+        return tuple(from_numpy(gr, g) for gr in grads)
+
+
+def bouc_wen_free_run(
+    v: np.ndarray,
+    d: float,
+    alpha: float | np.ndarray,
+    beta: float | np.ndarray,
+    gamma: float | np.ndarray,
+    h0: np.ndarray | None = None,
+    v0: np.ndarray | None = None,
+) -> np.ndarray:
+    """``x = d v - sum_c h_c`` (B, T) for ``v`` (B, T) float64, compiled (no gradients).
+
+    ``alpha, beta, gamma``: one value per parallel element (or scalars for one element).
+    """
+    v = np.ascontiguousarray(np.atleast_2d(v), dtype=float)
+    n_c = max(np.size(alpha), np.size(beta), np.size(gamma))
+    alpha_, beta_, gamma_ = (as_float_array(p, n_c) for p in (alpha, beta, gamma))
+    h0_ = np.zeros((v.shape[0], n_c)) if h0 is None else np.asarray(h0, float).reshape(
+        v.shape[0], n_c)
+    v0_ = np.zeros(v.shape[0]) if v0 is None else np.asarray(v0, float).reshape(v.shape[0])
+    hs = bw_states(v, v0_, h0_, alpha_ * d, beta_ - gamma_, beta_ + gamma_)
+    return d * v - hs.sum(axis=2)
+
+
+class BoucWen(nn.Module):
+    """Bouc–Wen hysteresis ``x = d v - sum_c h_c`` with learnable ``d, alpha, beta, gamma``.
+
+    Parameters are given in the simulator's convention for the (scaled) signals the block sees
+    (see the module docstring and `bouc_wen_scaled_params`). ``d, alpha, beta > 0`` are
+    log-parametrised; ``gamma = beta * 0.999 * tanh(raw)`` keeps ``|gamma| < beta`` (both
+    rates positive, bounded state) for any raw value. With ``n_channels > 1`` the elements run
+    in parallel, ``alpha`` is split equally between them and their ``beta`` spread over half a
+    decade around ``beta`` (so they differ); the starting loop then differs slightly from one
+    element's.
+    """
+
+    def __init__(
+        self,
+        d: float = 1.0,
+        alpha: float = 0.3,
+        beta: float = 0.02,
+        gamma: float = 0.006,
+        n_channels: int = 1,
+    ) -> None:
+        super().__init__()
+        if min(d, alpha, beta) <= 0 or abs(gamma) >= GAMMA_RATIO_MAX * beta or n_channels < 1:
+            raise ValueError(
+                f"Bouc-Wen needs d, alpha, beta > 0, |gamma| < {GAMMA_RATIO_MAX} beta and "
+                f"n_channels >= 1 (got d={d}, alpha={alpha}, beta={beta}, gamma={gamma}, "
+                f"n_channels={n_channels})"
+            )
+        self.n_channels = int(n_channels)
+        spread = np.logspace(-0.25, 0.25, n_channels) if n_channels > 1 else np.ones(1)
+        ratio = gamma / (beta * GAMMA_RATIO_MAX)
+        self.raw_d = nn.Parameter(torch.tensor(math.log(d), dtype=torch.float64))
+        self.raw_alpha = nn.Parameter(torch.full((n_channels,), math.log(alpha / n_channels),
+                                                 dtype=torch.float64))
+        self.raw_beta = nn.Parameter(torch.tensor(np.log(beta * spread)))
+        self.raw_gamma = nn.Parameter(torch.full((n_channels,), math.atanh(ratio),
+                                                 dtype=torch.float64))
+
+    @property
+    def d(self) -> Tensor:
+        return self.raw_d.double().exp()
+
+    @property
+    def alpha(self) -> Tensor:
+        return self.raw_alpha.double().exp()
+
+    @property
+    def beta(self) -> Tensor:
+        return self.raw_beta.double().exp()
+
+    @property
+    def gamma(self) -> Tensor:
+        return self.beta * GAMMA_RATIO_MAX * torch.tanh(self.raw_gamma.double())
+
+    def forward(
+        self, v: Tensor, h0: Tensor | None = None, v0: Tensor | None = None
+    ) -> tuple[Tensor, Tensor]:
+        """``x`` (B, T) and the last states (B,) (``(B, C)`` when ``n_channels > 1``).
+
+        ``h0``: states before the first sample (default 0, at rest); ``v0``: the input there
+        (default 0). Computed in float64, returned in ``v``'s dtype.
+        """
+        n_b = v.shape[0]
+        v64 = v.double()
+        h0_ = torch.zeros(n_b, self.n_channels, dtype=torch.float64, device=v.device) \
+            if h0 is None else h0.double().reshape(n_b, self.n_channels)
+        v0_ = torch.zeros(n_b, dtype=torch.float64, device=v.device) if v0 is None \
+            else v0.double().reshape(n_b)
+        d, beta, gamma = self.d, self.beta, self.gamma
+        a = self.alpha * d
+        hs = _BoucWenFunction.apply(v64, v0_, h0_, a.to(v.device), (beta - gamma).to(v.device),
+                                    (beta + gamma).to(v.device))
+        x = d.to(v.device) * v64 - hs.sum(dim=2)
+        h_last = hs[:, -1, :]
+        if self.n_channels == 1:
+            h_last = h_last[:, 0]
+        return x.to(v.dtype), h_last.to(v.dtype)
+
+    def export(self) -> dict[str, Any]:
+        """Current parameters: ``d`` (float), ``alpha, beta, gamma`` (arrays, one per element)."""
+        with torch.no_grad():
+            return {
+                "d": float(self.d),
+                "alpha": self.alpha.cpu().numpy().copy(),
+                "beta": self.beta.cpu().numpy().copy(),
+                "gamma": self.gamma.cpu().numpy().copy(),
+            }
+
+    def numpy_kernel(self):  # noqa: ANN201 - returns a closure
+        """``f(v: np.ndarray (B, T) float64) -> x`` with the current parameters (compiled)."""
+        p = self.export()
+        return lambda v: bouc_wen_free_run(v, p["d"], p["alpha"], p["beta"], p["gamma"])
