@@ -24,7 +24,7 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
 from hysteresis_lab.data.datamodules import WindowDataModule
-from hysteresis_lab.data.segments import SegmentDataModule
+from hysteresis_lab.data.segments import simulation_data
 from hysteresis_lab.errors import ConfigError, TrainingDiverged
 from hysteresis_lab.models.registry import get_model_class
 
@@ -159,7 +159,7 @@ def _selection_loss(
     model.simulation_mode = True
     try:
         trainer = _trainer(settings)
-        segments = SegmentDataModule(datamodule, steps)
+        segments = simulation_data(datamodule, model, steps)
         return float(trainer.validate(model, datamodule=segments, verbose=False)[0]["val_loss"])
     finally:
         model.simulation_mode = False
@@ -203,6 +203,7 @@ def _fit(
     steps = model.simulation_horizon
     fine_tune_epochs = model.hparams.get("simulation_epochs")
     stages = (model, datamodule, trainer_cfg, output_dir, logger)
+    _initialise_from_data(model, datamodule)
     if steps > 0 and fine_tune_epochs is None:  # the free-run error is the only objective
         model.stage_lr = stage_lr(model, "simulation")
         best, _, val_mse = _fit_free_run(
@@ -234,6 +235,16 @@ def _fit(
     seconds = time.perf_counter() - start
     log.info("trained in %.1f s", seconds)
     return TrainResult(model.eval(), val_mse, seconds, best)
+
+
+def _initialise_from_data(model: L.LightningModule, datamodule: WindowDataModule) -> None:
+    """Starting values read off the longest training recording, for models that take them
+    (``initialise_from_data``, e.g. the grey-box's mode); not for a warm-started refit."""
+    initialise = getattr(model, "initialise_from_data", None)
+    if initialise is None or getattr(model, "_new_entries", None):
+        return
+    longest = max(datamodule.splits.train, key=lambda rec: rec.n_samples)
+    initialise(longest.u[:, 0], longest.y[:, 0], longest.fs)
 
 
 def _fit_one_step(
@@ -390,7 +401,7 @@ def _fit_free_run(
     ``starting_checkpoint`` and False are returned. Returns the checkpoint, whether training
     improved on the start, and the validation free-run MSE (scaled) of the weights kept.
     """
-    segments = SegmentDataModule(datamodule, steps)
+    segments = simulation_data(datamodule, model, steps)
     checkpoint = _best_checkpoint(output_dir / folder)
     all_callbacks: list[Any] = [checkpoint, *(callbacks or [])]
     patience = model.hparams.get("patience")
@@ -441,10 +452,10 @@ def _fit_free_run(
         )
         return starting_checkpoint, False, starting_loss
     log.info(
-        "free-run training: validation free-run MSE %.4e -> %.4e (scaled) over %d steps",
+        "free-run training: validation free-run MSE %.4e -> %.4e (scaled) over %s",
         starting_loss,
         val_free_run,
-        steps,
+        "whole recordings" if getattr(model, "whole_recordings", False) else f"{steps} steps",
     )
     return best, True, val_free_run
 

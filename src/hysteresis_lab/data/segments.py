@@ -112,3 +112,59 @@ class SegmentDataModule(L.LightningDataModule):
     def val_dataloader(self) -> DataLoader:
         self.setup()
         return DataLoader(self._data["val"], batch_size=self.windows.batch_size)
+
+
+class RecordingDataModule(L.LightningDataModule):
+    """Whole recordings ``(u, y)`` (1, N, nu / ny), scaled, one per batch, for models that
+    simulate from rest (a grey-box's physical state is known only there).
+
+    An epoch visits every training recording ``repeats`` times; validation uses the
+    validation recordings, or the training recordings when there are none (said in the log).
+    """
+
+    def __init__(self, windows: WindowDataModule, repeats: int = 1) -> None:
+        super().__init__()
+        self.windows = windows
+        self.repeats = repeats
+        self._data: dict[str, list[tuple[torch.Tensor, torch.Tensor]]] = {}
+
+    def setup(self, stage: str | None = None) -> None:
+        if self._data:
+            return
+        splits = self.windows.splits
+        if not splits.val:
+            log.warning(
+                "no validation recordings: model selection reads the free run of the training "
+                "recordings (give data.val, or for data=default data.splits.val_samples > 0)"
+            )
+        self._data = {"train": self._scaled(splits.train) * self.repeats,
+                      "val": self._scaled(splits.val or splits.train)}
+        log.info("simulation-error training on %d whole recording(s), validation on %d",
+                 len(splits.train), len(self._data["val"]))
+
+    def _scaled(self, recordings: list[Recording]) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        s = self.windows.scaler
+        return [
+            (torch.from_numpy(((rec.u - s.u_offset) / s.u_scale).astype(np.float32))[None],
+             torch.from_numpy(((rec.y - s.y_offset) / s.y_scale).astype(np.float32))[None])
+            for rec in recordings
+        ]
+
+    def train_dataloader(self) -> DataLoader:
+        self.setup()
+        generator = torch.Generator().manual_seed(self.windows.seed)
+        return DataLoader(self._data["train"], batch_size=None, shuffle=True,
+                          generator=generator)
+
+    def val_dataloader(self) -> DataLoader:
+        self.setup()
+        return DataLoader(self._data["val"], batch_size=None)
+
+
+def simulation_data(windows: WindowDataModule, model: L.LightningModule, steps: int
+                    ) -> L.LightningDataModule:
+    """The free-run training data a model takes: whole recordings for models that simulate
+    from rest (``whole_recordings``), else ``steps``-sample segments."""
+    if getattr(model, "whole_recordings", False):
+        return RecordingDataModule(windows, int(model.hparams.get("recording_repeats", 1)))
+    return SegmentDataModule(windows, steps)

@@ -90,7 +90,10 @@ def _scaler(model: Any) -> Scaler:
 def one_step(
     model: Any, recordings: Sequence[Recording], window: WindowSpec, batch_size: int = 65_536
 ) -> list[np.ndarray]:
-    """Predict each sample from measured past inputs and outputs."""
+    """Predict each sample from measured past inputs and outputs (a model that does not read
+    measured outputs, ``predicts_from_outputs = False``, predicts by its free run)."""
+    if not getattr(model, "predicts_from_outputs", True):
+        return free_run(model, recordings, window)
     _check(model, recordings, window)
     s = _scaler(model)
     outputs = []

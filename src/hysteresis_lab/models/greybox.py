@@ -1,0 +1,218 @@
+"""`greybox`: a physics-structured positioner model with a few physical parameters.
+
+    u -> amplifier (first-order lag) -> delay -> hysteresis -> creep -> mode(s) -> + offset -> y
+
+* hysteresis (``model.hysteresis``): ``bouc_wen`` (a differentiable Bouc–Wen state
+  recursion, the default), ``prandtl_ishlinskii`` (play operators with learnable thresholds
+  and non-negative weights, the recursion the effect catalogue's ``hysteresis`` uses) or
+  ``none`` (a static gain);
+* creep when ``model.effects`` holds ``creep`` (a first-order filter bank, fixed time
+  constants, learnable weights), a second mode when it holds ``resonance``;
+* every linear block is stable for any parameter value (`hysteresis_lab.blocks`).
+
+The model starts from values read off the data (`initialise_from_data`: the static gain by
+least squares, the mode from the best linear approximation's resonance peak, the output
+offset) and is fitted on the free-run error of whole recordings, each simulated from rest
+(the physical state is known there; a segment cut from the middle of a recording would start
+from an unknown hysteresis state). It simulates from the input alone, so its one-step
+prediction is its free run (an output-error model's predictor) and it extrapolates to
+amplitudes beyond the training data as its physics does.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from hysteresis_lab.blocks import (
+    BoucWen,
+    CreepBank,
+    Delay,
+    FirstOrderLag,
+    PlayOperators,
+    SecondOrderMode,
+    bouc_wen_scaled_params,
+    estimate_mode,
+    estimate_static_gain,
+)
+from hysteresis_lab.data.windows import WindowSpec
+from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.models.base import NarxModule
+
+log = logging.getLogger(__name__)
+
+HYSTERESIS = ("bouc_wen", "prandtl_ishlinskii", "none")
+#: catalogue effects the grey-box carries as physical blocks
+BLOCK_EFFECTS = ("hysteresis", "creep", "resonance")
+
+
+class GreyBox(NarxModule):
+    """Amplifier, delay, hysteresis, creep and modes in series (see the module docstring)."""
+
+    layout = "flat"
+    #: trains on whole recordings simulated from rest (`hysteresis_lab.data.segments`)
+    whole_recordings = True
+
+    def __init__(
+        self,
+        nu: int,
+        ny: int,
+        fs: float = 20_000.0,
+        hysteresis: str = "bouc_wen",
+        n_modes: int = 1,
+        mode_hz: float | None = None,
+        mode_damping: float | None = None,
+        amplifier_hz: float | None = None,
+        delay: int = 1,
+        creep_time_constants_s: Sequence[float] = (0.1, 1.0, 10.0, 100.0),
+        operators: int = 8,
+        recording_repeats: int = 10,
+        objective: str = "simulation",
+        lr: float = 0.02,
+        **kwargs: Any,
+    ) -> None:
+        super().__init__(nu=nu, ny=ny, objective=objective, lr=lr, **kwargs)
+        fs = float((kwargs.get("trained_on") or {}).get("fs") or fs)  # the data's rate
+        effects = list(self.hparams.get("effects") or [])
+        unknown = [e for e in effects if e not in BLOCK_EFFECTS]
+        problems = []
+        if hysteresis not in HYSTERESIS:
+            problems.append(f"model.hysteresis='{hysteresis}' (one of {list(HYSTERESIS)})")
+        if self.n_base_inputs != 1 or ny != 1:
+            problems.append(f"{self.n_base_inputs} input(s) and {ny} output(s) (it models one "
+                            "actuator axis: 1 and 1; model=subnet takes MIMO data)")
+        if unknown:
+            problems.append(f"effects {unknown} (its blocks: {list(BLOCK_EFFECTS)}; model=subnet "
+                            "or model=ffnn take any catalogue effect as an input)")
+        if objective != "simulation":
+            problems.append(f"model.objective='{objective}' (it is fitted on the simulation "
+                            "error only)")
+        if not (isinstance(n_modes, int) and 0 <= n_modes <= 3):
+            problems.append(f"model.n_modes={n_modes!r} (0-3)")
+        if not (isinstance(delay, int) and delay >= 0):
+            problems.append(f"model.delay={delay!r} (whole samples >= 0)")
+        if not (isinstance(recording_repeats, int) and recording_repeats >= 1):
+            problems.append(f"model.recording_repeats={recording_repeats!r} (>= 1)")
+        if problems:
+            raise ConfigError(
+                "model=greybox cannot take " + "; ".join(problems) + ". Fix: change those "
+                "settings (conf/model/greybox.yaml has the defaults)."
+            )
+        nyquist = 0.5 * fs
+        self.amplifier = FirstOrderLag(fs, amplifier_hz or 0.25 * fs)
+        self.delay = Delay(delay)
+        self.hysteresis: nn.Module | None
+        if hysteresis == "bouc_wen":
+            self.hysteresis = BoucWen(**bouc_wen_scaled_params(0.23, 0.32, 0.02, 0.006,
+                                                               100.0, 20.0))
+        elif hysteresis == "prandtl_ishlinskii":
+            self.hysteresis = PlayOperators(n_operators=operators, max_threshold=0.8)
+        else:
+            self.hysteresis = None
+        self.gain = nn.Parameter(torch.ones((), dtype=torch.float64))  # after the hysteresis
+        self.creep = CreepBank(fs, creep_time_constants_s) if "creep" in effects else None
+        modes = n_modes + int("resonance" in effects)
+        self.mode = (
+            SecondOrderMode(fs, mode_hz or 0.1 * nyquist, mode_damping or 0.05, n_modes=modes)
+            if modes else None
+        )
+        self.offset = nn.Parameter(torch.zeros((), dtype=torch.float64))
+
+    def _channel_routes(
+        self, effects: Sequence[str], feature_context: dict[str, Any] | None, effect_path: str
+    ) -> list[str]:
+        """Effects are blocks here; their operator channels are not read."""
+        return ["base"] * self.nu
+
+    # ------------------------------------------------------------------ the model
+    def _physical_input(self, u_scaled: torch.Tensor) -> torch.Tensor:
+        """Scaled input (B, T, nu) -> the measured input over its scale (B, T): zero volts
+        is zero here, so "at rest" means what it does physically."""
+        return (u_scaled[..., 0].double() + self.u_offset[0] / self.u_scale[0]).double()
+
+    def chain(self, v: torch.Tensor) -> torch.Tensor:
+        """Input over its scale (B, T) -> output before the offset (B, T), from rest."""
+        x = self.delay(self.amplifier(v))
+        if self.hysteresis is not None:
+            x = self.hysteresis(x)
+            x = x[0] if isinstance(x, tuple) else x
+        x = self.gain * x
+        if self.creep is not None:
+            x = self.creep(x)
+        if self.mode is not None:
+            x = self.mode(x)
+        return x
+
+    def simulate_full(self, u_scaled: torch.Tensor) -> torch.Tensor:
+        """Scaled inputs (B, T, nu) -> scaled outputs (B, T, 1), every row from rest."""
+        x = self.chain(self._physical_input(u_scaled))
+        y_scaled = x + self.offset - self.y_offset[0] / self.y_scale[0]
+        return y_scaled.to(u_scaled.dtype)[..., None]
+
+    def simulate_scaled(self, u: torch.Tensor, y_initial: torch.Tensor) -> torch.Tensor:
+        """Training's free run: from rest at the first sample (``y_initial`` is not needed);
+        predictions of samples first_target..T-1."""
+        return self.simulate_full(u)[:, self.window.first_target :]
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        raise ConfigError(
+            "a grey-box model simulates whole recordings from rest; it has no prediction from "
+            "a single regression window. Fix: use hysteresis_lab.evaluation.predict.free_run "
+            "(one_step and n_step give the free run for it)."
+        )
+
+    def simulate_recordings(
+        self, u: np.ndarray, y_meas: np.ndarray, reset: np.ndarray, window: WindowSpec
+    ) -> np.ndarray:
+        """Evaluation's free run of all rows (scaled); restarts change nothing (an
+        output-error model does not read measured outputs)."""
+        device = next(self.parameters()).device
+        with torch.inference_mode():
+            y = self.simulate_full(torch.as_tensor(u, dtype=torch.float64, device=device))
+        out = np.array(y_meas, dtype=np.float64)
+        ft = window.first_target
+        out[:, ft:] = y[:, ft:].double().cpu().numpy()
+        return out
+
+    predicts_from_outputs = False
+
+    # ------------------------------------------------------------------ initial values
+    def initialise_from_data(self, u: np.ndarray, y: np.ndarray, fs: float) -> None:
+        """Starting values from a training recording (physical units, 1-D): the static gain
+        (least squares), the mode (the BLA's resonance peak) and the output offset."""
+        u_s = u / float(self.u_scale[0])
+        y_s = y / float(self.y_scale[0])
+        gain = estimate_static_gain(u_s - u_s.mean(), y_s - y_s.mean())
+        with torch.no_grad():
+            if self.mode is not None and self.hparams.get("mode_hz") is None:
+                try:
+                    frequency, damping = estimate_mode(u, y, fs)
+                except ValueError as exc:
+                    log.warning("no resonance found in the training data (%s): the mode starts "
+                                "at %.0f Hz", exc, float(self.mode.frequency_hz[0]))
+                else:
+                    fresh = SecondOrderMode(fs, frequency, damping, n_modes=self.mode.n_modes)
+                    self.mode.load_state_dict(fresh.state_dict())
+            base = self.chain(torch.as_tensor(u_s[None], dtype=torch.float64))[0].numpy()
+            scale = estimate_static_gain(base - base.mean(), y_s - y_s.mean())
+            if not np.isfinite(scale) or scale <= 0:
+                scale = gain
+            self.gain.fill_(float(scale))
+            fitted = scale * base
+            self.offset.fill_(float(np.mean(y_s - fitted)))
+        log.info("grey-box start: gain %.4g, mode %s Hz, offset %.4g (scaled)", float(self.gain),
+                 None if self.mode is None else np.round(self.mode.export()["frequency_hz"], 1),
+                 float(self.offset))
+
+    def physical_parameters(self) -> dict[str, Any]:
+        """Every block's current parameters (for reports)."""
+        blocks = {"amplifier": self.amplifier, "hysteresis": self.hysteresis,
+                  "creep": self.creep, "mode": self.mode}
+        out = {name: block.export() for name, block in blocks.items() if block is not None}
+        out.update(gain=float(self.gain), offset=float(self.offset), delay=self.delay.samples)
+        return out

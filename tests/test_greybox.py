@@ -1,0 +1,81 @@
+"""The grey-box model: fitted on the simulation error of a simulated positioner it reaches
+the noise floor, extrapolates in amplitude, and refuses what it cannot model."""
+
+from __future__ import annotations
+
+import lightning as L
+import numpy as np
+import pytest
+
+from hysteresis_lab.data.datamodules import WindowDataModule
+from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.evaluation.predict import free_run, one_step
+from hysteresis_lab.models.io import load_model, save_model
+from hysteresis_lab.sim.default_dataset import make_default_dataset
+from hysteresis_lab.training import build_model, fit
+
+TRAINER = {"max_epochs": 6, "accelerator": "cpu", "enable_progress_bar": False,
+           "enable_model_summary": False, "logger": False}
+NOISE_UM = 0.01  # the simulator's sensor noise (conf/sim/positioner.yaml)
+
+
+def small_positioner(amplitude: float = 100.0, test_amplitude: float | None = None):
+    """0.4 s of multisine (creep off: too slow to show in 0.4 s) and two short sine tests."""
+    effects = {"creep": {"enabled": False}}
+    data = make_default_dataset(effects=effects, n_train=8000, amplitude=amplitude,
+                                test_frequencies=(10.0, 100.0), max_test_samples=3000,
+                                val_samples=4000)
+    if test_amplitude is not None:  # the tests at another amplitude than the training
+        data.test = make_default_dataset(effects=effects, n_train=100, amplitude=test_amplitude,
+                                         test_frequencies=(10.0, 100.0),
+                                         max_test_samples=3000).test
+    return data
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory):
+    data = small_positioner(amplitude=50.0, test_amplitude=100.0)
+    dm = WindowDataModule(data, scaling="paper")
+    L.seed_everything(0)
+    model = build_model({"name": "greybox"}, dm, trained_on={"fs": data.fs})
+    result = fit(model, dm, TRAINER, tmp_path_factory.mktemp("greybox"))
+    return result.model, dm
+
+
+def rmse(predicted, recordings, start):
+    return [float(np.sqrt(np.mean((p[start:] - r.y[start:]) ** 2)))
+            for p, r in zip(predicted, recordings, strict=True)]
+
+
+def test_fitted_on_half_amplitude_it_simulates_full_amplitude_at_the_noise_floor(fitted):
+    """Trained on a ±50 V multisine, scored on ±100 V sines: the physics extrapolates."""
+    model, dm = fitted
+    errors = rmse(free_run(model, dm.splits.test, dm.window), dm.splits.test,
+                  dm.window.first_target)
+    assert max(errors) < 5 * NOISE_UM, errors
+    mode = model.physical_parameters()["mode"]["frequency_hz"][0]
+    assert mode == pytest.approx(900.0, rel=0.02)  # the simulator's first mode
+
+
+def test_its_one_step_prediction_is_its_free_run(fitted):
+    model, dm = fitted
+    for a, b in zip(one_step(model, dm.splits.test, dm.window),
+                    free_run(model, dm.splits.test, dm.window), strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_a_saved_greybox_loads_and_simulates_the_same(fitted, tmp_path):
+    model, dm = fitted
+    loaded = load_model(save_model(model, tmp_path / "model"))
+    for a, b in zip(free_run(model, dm.splits.test, dm.window),
+                    free_run(loaded, dm.splits.test, dm.window), strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_settings_it_cannot_model_are_refused():
+    data = small_positioner()
+    dm = WindowDataModule(data, scaling="paper")
+    with pytest.raises(ConfigError, match=r"model.hysteresis='preisach'"):
+        build_model({"name": "greybox", "hysteresis": "preisach"}, dm)
+    with pytest.raises(ConfigError, match=r"objective='one_step'"):
+        build_model({"name": "greybox", "objective": "one_step"}, dm)
