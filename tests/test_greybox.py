@@ -3,6 +3,8 @@ the noise floor, extrapolates in amplitude, and refuses what it cannot model."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import lightning as L
 import numpy as np
 import pytest
@@ -15,7 +17,7 @@ from hysteresis_lab.sim.default_dataset import make_default_dataset
 from hysteresis_lab.training import build_model, fit
 
 TRAINER = {"max_epochs": 6, "accelerator": "cpu", "enable_progress_bar": False,
-           "enable_model_summary": False, "logger": False}
+           "enable_model_summary": False}
 NOISE_UM = 0.01  # the simulator's sensor noise (conf/sim/positioner.yaml)
 
 
@@ -26,9 +28,9 @@ def small_positioner(amplitude: float = 100.0, test_amplitude: float | None = No
                                 test_frequencies=(10.0, 100.0), max_test_samples=3000,
                                 val_samples=4000)
     if test_amplitude is not None:  # the tests at another amplitude than the training
-        data.test = make_default_dataset(effects=effects, n_train=100, amplitude=test_amplitude,
-                                         test_frequencies=(10.0, 100.0),
-                                         max_test_samples=3000).test
+        tests = make_default_dataset(effects=effects, n_train=100, amplitude=test_amplitude,
+                                     test_frequencies=(10.0, 100.0), max_test_samples=3000).test
+        data = dataclasses.replace(data, test=tests)
     return data
 
 

@@ -27,5 +27,5 @@ class ConfigError(HysteresisLabError, ValueError):
     """A configuration value or override is invalid."""
 
 
-class TrainingDiverged(HysteresisLabError, RuntimeError):
+class DivergedError(HysteresisLabError, RuntimeError):
     """Training produced only non-finite losses (a diverging free run, a too-large step)."""

@@ -25,7 +25,7 @@ from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
 from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.data.segments import simulation_data
-from hysteresis_lab.errors import ConfigError, TrainingDiverged
+from hysteresis_lab.errors import ConfigError, DivergedError
 from hysteresis_lab.models.registry import get_model_class
 
 log = logging.getLogger(__name__)
@@ -100,10 +100,10 @@ def fit(
     """Fit ``model``; nets keep the checkpoint with the best validation loss.
 
     ``one_step=False`` skips the one-step stage when the model fine-tunes on the free-run
-    error anyway (``objective="simulation"`` with ``simulation_epochs``). ``keep_start_unless_beaten`` (a warm-started
-    refit): the weights ``model`` starts with are kept unless training beats them on the
-    validation free-run loss (one-step MSE without free-run fine-tuning) by more than the
-    share ``min_gain``.
+    error anyway (``objective="simulation"`` with ``simulation_epochs``).
+    ``keep_start_unless_beaten`` (a warm-started refit): the weights ``model`` starts with
+    are kept unless training beats them on the validation free-run loss (one-step MSE with
+    the one-step objective) by more than the share ``min_gain``.
     """
     if isinstance(model, L.LightningModule):
         _check_max_epochs(trainer_cfg)
@@ -428,14 +428,14 @@ def _fit_free_run(
             trainer.validate(model, datamodule=segments, verbose=False)[0]["val_loss"]
         )
         if not np.isfinite(starting_loss) and not keep_start:
-            raise TrainingDiverged(
+            raise DivergedError(
                 "the initial model's free run is not finite on the validation segments (an "
                 "unstable initial model). Fix: a shorter model.horizon, or check the data "
                 "scaling (data.scaling) and the model's initial settings."
             )
         try:
             trainer.fit(model, datamodule=segments)
-        except TrainingDiverged as exc:
+        except DivergedError as exc:
             if not keep_start:
                 raise
             log.warning("free-run fine-tuning diverged (%s)", exc)

@@ -36,7 +36,7 @@ from torch import nn
 from hysteresis_lab.data.windows import Layout, WindowSpec, assemble
 from hysteresis_lab.effects.augment import context_from_dict
 from hysteresis_lab.effects.registry import check_effects, get_effect
-from hysteresis_lab.errors import ConfigError, TrainingDiverged
+from hysteresis_lab.errors import ConfigError, DivergedError
 from hysteresis_lab.models.fast import input_lags
 
 log = logging.getLogger(__name__)
@@ -426,7 +426,7 @@ class NarxModule(L.LightningModule):
 
     def on_train_epoch_end(self) -> None:
         if self._skipped_batches and not self._train_loss_count:
-            raise TrainingDiverged(
+            raise DivergedError(
                 f"every batch of epoch {self.current_epoch} gave a non-finite loss "
                 f"({'free-run' if self.simulation_mode else 'one-step'} error): the model "
                 "diverged. Fix: a smaller model.lr (or model.simulation_lr), a shorter "

@@ -205,14 +205,16 @@ class GreyBox(NarxModule):
             self.gain.fill_(float(scale))
             fitted = scale * base
             self.offset.fill_(float(np.mean(y_s - fitted)))
-        log.info("grey-box start: gain %.4g, mode %s Hz, offset %.4g (scaled)", float(self.gain),
+        log.info("grey-box start: gain %.4g, mode %s Hz, offset %.4g (scaled)",
+                 float(self.gain.detach()),
                  None if self.mode is None else np.round(self.mode.export()["frequency_hz"], 1),
-                 float(self.offset))
+                 float(self.offset.detach()))
 
     def physical_parameters(self) -> dict[str, Any]:
         """Every block's current parameters (for reports)."""
         blocks = {"amplifier": self.amplifier, "hysteresis": self.hysteresis,
                   "creep": self.creep, "mode": self.mode}
         out = {name: block.export() for name, block in blocks.items() if block is not None}
-        out.update(gain=float(self.gain), offset=float(self.offset), delay=self.delay.samples)
+        out.update(gain=float(self.gain.detach()), offset=float(self.offset.detach()),
+                   delay=self.delay.samples)
         return out
