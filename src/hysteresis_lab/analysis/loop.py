@@ -177,7 +177,12 @@ def run_loop(
                 result, splits, context, effects, settings, round_dir, use_tensorboard, number
             )
             entry["diagnosis"] = [d.to_dict() for d in diagnosis]
-        top, reported = next_effect(diagnosis, tried)
+        uncarried = _not_carried(model_cfg, diagnosis, tried)
+        if uncarried:
+            entry["not_carried"] = uncarried
+            log.info("model '%s' has no block for the significant effect(s) %s: not added",
+                     model_cfg.get("name"), uncarried)
+        top, reported = next_effect(diagnosis, tried | set(uncarried))
         if reported:
             entry["reported"] = reported
         if top is None:
@@ -234,6 +239,19 @@ def next_effect(
     candidates = [d for d in diagnosis if d.significant and d.effect not in tried]
     reported = [d.effect for d in candidates if not d.predictable]
     return next((d for d in candidates if d.predictable), None), reported
+
+
+def _not_carried(
+    model_cfg: Mapping[str, Any], diagnosis: Sequence[EffectScore], tried: set[str]
+) -> list[str]:
+    """Significant, input-driven effects the start model's class cannot take (a grey-box
+    carries only the effects it has physical blocks for)."""
+    carried = getattr(get_model_class(str(model_cfg.get("name"))), "carried_effects", None)
+    if carried is None:
+        return []
+    return [d.effect for d in diagnosis
+            if d.significant and d.predictable and d.effect not in tried
+            and d.effect not in carried]
 
 
 def judge_cold_refit(refit: RunResult, last: RunResult, min_gain: float) -> RunResult:

@@ -51,6 +51,8 @@ class NarxModule(L.LightningModule):
 
     layout: ClassVar[Layout] = "flat"
     registry_name: ClassVar[str] = ""
+    #: the catalogue effects the model can take in ``effects`` (None: every one)
+    carried_effects: ClassVar[tuple[str, ...] | None] = None
 
     def __init__(
         self,

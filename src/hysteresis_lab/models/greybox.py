@@ -55,6 +55,7 @@ class GreyBox(NarxModule):
     """Amplifier, delay, hysteresis, creep and modes in series (see the module docstring)."""
 
     layout = "flat"
+    carried_effects = BLOCK_EFFECTS
     #: trains on whole recordings simulated from rest (`hysteresis_lab.data.segments`)
     whole_recordings = True
 
@@ -180,6 +181,37 @@ class GreyBox(NarxModule):
         return out
 
     predicts_from_outputs = False
+
+    def warm_start_from(self, previous: NarxModule) -> None:
+        """Start from a fitted grey-box with fewer blocks (the loop adds one): every shared
+        parameter is copied; a new block starts where it changes nothing (creep weights 0,
+        a new mode at weight 0), so the grown model simulates what the fitted one did."""
+        if type(previous) is not type(self):
+            raise ConfigError(
+                f"cannot warm-start a grey-box from a {type(previous).__name__}."
+            )
+        old = dict(previous.named_parameters())
+        self._new_entries = {}
+        with torch.no_grad():
+            for name, new in self.named_parameters():
+                before = old.get(name)
+                if before is not None and before.shape == new.shape:
+                    new.copy_(before)
+                    continue
+                if name.startswith("mode.") and self.mode is not None and previous.mode:
+                    self._grow_mode(previous.mode)
+                elif name.startswith("creep."):
+                    new.zero_()
+                self._new_entries[name] = torch.ones_like(new, dtype=torch.bool)
+
+    def _grow_mode(self, fitted: SecondOrderMode) -> None:
+        """The fitted modes, plus new ones at zero weight."""
+        assert self.mode is not None
+        n = fitted.n_modes
+        self.mode.raw_frequency[:n] = fitted.raw_frequency
+        self.mode.raw_damping[:n] = fitted.raw_damping
+        self.mode.raw_weights.zero_()
+        self.mode.raw_weights[: n - 1] = fitted.raw_weights
 
     # ------------------------------------------------------------------ initial values
     def initialise_from_data(self, u: np.ndarray, y: np.ndarray, fs: float) -> None:
