@@ -204,6 +204,10 @@ def _fit(
     fine_tune_epochs = model.hparams.get("simulation_epochs")
     stages = (model, datamodule, trainer_cfg, output_dir, logger)
     _initialise_from_data(model, datamodule)
+    if steps > 0 and fine_tune_epochs is not None and model.simulation_trained:
+        log.info("%s trains on the free-run error alone: simulation_epochs=%s (a one-step stage "
+                 "first) does not apply to it", type(model).__name__, fine_tune_epochs)
+        fine_tune_epochs = None
     if steps > 0 and fine_tune_epochs is None:  # the free-run error is the only objective
         model.stage_lr = stage_lr(model, "simulation")
         best, _, val_mse = _fit_free_run(

@@ -228,7 +228,8 @@ def _run(
         model_device = next(model.parameters()).device
         model.to(torch.device(device) if device is not None else model_device)
         try:
-            return simulate(u, y_meas, reset, window)
+            lengths = (active[None, :] > np.arange(u.shape[0])[:, None]).sum(axis=1)
+            return simulate(u, y_meas, reset, window, lengths)
         finally:
             model.to(model_device)
     split = getattr(model, "free_run_split", None)

@@ -53,6 +53,8 @@ class NarxModule(L.LightningModule):
     registry_name: ClassVar[str] = ""
     #: the catalogue effects the model can take in ``effects`` (None: every one)
     carried_effects: ClassVar[tuple[str, ...] | None] = None
+    #: True for models built to train on the free-run error alone (no one-step stage)
+    simulation_trained: ClassVar[bool] = False
 
     def __init__(
         self,

@@ -56,6 +56,7 @@ class GreyBox(NarxModule):
 
     layout = "flat"
     carried_effects = BLOCK_EFFECTS
+    simulation_trained = True
     #: trains on whole recordings simulated from rest (`hysteresis_lab.data.segments`)
     whole_recordings = True
 
@@ -168,7 +169,8 @@ class GreyBox(NarxModule):
         )
 
     def simulate_recordings(
-        self, u: np.ndarray, y_meas: np.ndarray, reset: np.ndarray, window: WindowSpec
+        self, u: np.ndarray, y_meas: np.ndarray, reset: np.ndarray, window: WindowSpec,
+        lengths: np.ndarray | None = None,
     ) -> np.ndarray:
         """Evaluation's free run of all rows (scaled); restarts change nothing (an
         output-error model does not read measured outputs)."""

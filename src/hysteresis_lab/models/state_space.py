@@ -29,6 +29,7 @@ class StateSpaceModule(NarxModule):
     """Base of encoder + state-transition + output models (see the module docstring)."""
 
     layout = "flat"
+    simulation_trained = True
 
     # ------------------------------------------------------------------ the model
     def encode(self, regressor: torch.Tensor) -> torch.Tensor:  # pragma: no cover
@@ -44,11 +45,11 @@ class StateSpaceModule(NarxModule):
         raise NotImplementedError
 
     def compiled_free_run(
-        self, x0: np.ndarray, u: np.ndarray, first_target: int
+        self, x0: np.ndarray, u: np.ndarray, lengths: np.ndarray, first_target: int
     ) -> np.ndarray | None:
         """Optional fast free run: states (B, nx) at ``first_target``, scaled inputs (B, T, nu)
-        -> scaled outputs (B, T, ny) from ``first_target`` on (earlier rows untouched); None
-        when the model has none (the torch loop runs)."""
+        of which row b runs ``lengths[b]`` samples -> scaled outputs (B, T, ny) from
+        ``first_target`` on; None when the model has none (the torch loop runs)."""
         return None
 
     def _channel_routes(
@@ -94,10 +95,14 @@ class StateSpaceModule(NarxModule):
         return torch.stack(predictions, 1)
 
     def simulate_recordings(
-        self, u: np.ndarray, y_meas: np.ndarray, reset: np.ndarray, window: WindowSpec
+        self, u: np.ndarray, y_meas: np.ndarray, reset: np.ndarray, window: WindowSpec,
+        lengths: np.ndarray | None = None,
     ) -> np.ndarray:
-        """Evaluation's free run of all rows (scaled, (B, T, ·)); the state is re-encoded from
-        the measurement where ``reset`` (T, B) is set (n-step prediction)."""
+        """Evaluation's free run of all rows (scaled, (B, T, ·)), row b over its first
+        ``lengths[b]`` samples (default: all); the state is re-encoded from the measurement
+        where ``reset`` (T, B) is set (n-step prediction)."""
+        if lengths is None:
+            lengths = np.full(u.shape[0], u.shape[1])
         ft = window.first_target
         device = next(self.parameters()).device
         with torch.inference_mode():
@@ -106,7 +111,9 @@ class StateSpaceModule(NarxModule):
             x = self.encode(self._regressor_at(u_t, y_t, ft))
             out = np.array(y_meas, dtype=np.float64)
             if not reset.any() and device.type == "cpu":
-                compiled = self.compiled_free_run(x.double().numpy(), u, ft)
+                compiled = self.compiled_free_run(
+                    x.double().numpy(), u, np.asarray(lengths, dtype=np.int64), ft
+                )
                 if compiled is not None:
                     out[:, ft:] = compiled[:, ft:]
                     return out

@@ -76,14 +76,14 @@ class SUBNET(StateSpaceModule):
         return self.C(x) + self.h(x)
 
     def compiled_free_run(
-        self, x0: np.ndarray, u: np.ndarray, first_target: int
+        self, x0: np.ndarray, u: np.ndarray, lengths: np.ndarray, first_target: int
     ) -> np.ndarray | None:
         def weight(layer: nn.Linear) -> np.ndarray:
             return np.ascontiguousarray(layer.weight.detach().cpu().double().numpy())
 
         return subnet_free_run(
             np.ascontiguousarray(x0, dtype=np.float64),
-            np.ascontiguousarray(u, dtype=np.float64),
+            np.ascontiguousarray(u, dtype=np.float64), lengths,
             first_target, self.window.nk,
             weight(self.A), weight(self.B), weight(self.C),
             *packed_mlp(self.f), *packed_mlp(self.h),

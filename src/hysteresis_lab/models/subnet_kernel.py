@@ -47,14 +47,15 @@ def _mlp(
 
 @numba.njit(**JIT_FMA)
 def subnet_free_run(
-    x0: np.ndarray, u: np.ndarray, first_target: int, nk: int,
+    x0: np.ndarray, u: np.ndarray, lengths: np.ndarray, first_target: int, nk: int,
     A: np.ndarray, B: np.ndarray, C: np.ndarray,
     f_w: np.ndarray, f_b: np.ndarray, f_dims: np.ndarray,
     h_w: np.ndarray, h_b: np.ndarray, h_dims: np.ndarray,
 ) -> np.ndarray:
     """``y[k] = C x + h(x)``, ``x <- A x + B u[k-nk+1] + f([x, u[k-nk+1]])`` for every row.
 
-    ``x0`` (R, nx) is the state at ``first_target``; ``u`` (R, T, nu) the scaled inputs;
+    ``x0`` (R, nx) is the state at ``first_target``; ``u`` (R, T, nu) the scaled inputs, of
+    which row ``r`` runs ``lengths[r]`` samples (the rest is padding, left at zero);
     ``A`` (nx, nx), ``B`` (nx, nu), ``C`` (ny, nx) as torch stores them (out x in).
     """
     rows, length, nu = u.shape
@@ -68,6 +69,7 @@ def subnet_free_run(
     x_next = np.empty(nx)
     for r in range(rows):
         x[:] = x0[r]
+        length = lengths[r]
         for k in range(first_target, length):
             h = _mlp(x, h_w, h_b, h_dims, a, b)
             for j in range(ny):
