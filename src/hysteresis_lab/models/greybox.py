@@ -8,7 +8,11 @@
   ``none`` (a static gain);
 * creep when ``model.effects`` holds ``creep`` (a first-order filter bank, fixed time
   constants, learnable weights), a second mode when it holds ``resonance``;
-* every linear block is stable for any parameter value (`hysteresis_lab.blocks`).
+* every linear block is stable for any parameter value (`hysteresis_lab.blocks`);
+* optionally (``model.residual_neurons > 0``) a small ReLU network adds a static correction
+  from the last ``nb`` inputs and the last ``na`` outputs of the physical chain (not fed
+  back, so the physics keeps the memory and the model stays stable); its output layer
+  starts at zero, so training starts from the physical model.
 
 The model starts from values read off the data (`initialise_from_data`: the static gain by
 least squares, the mode from the best linear approximation's resonance peak, the output
@@ -42,7 +46,7 @@ from hysteresis_lab.blocks import (
 )
 from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.errors import ConfigError
-from hysteresis_lab.models.base import NarxModule
+from hysteresis_lab.models.base import NarxModule, mlp
 
 log = logging.getLogger(__name__)
 
@@ -73,6 +77,8 @@ class GreyBox(NarxModule):
         delay: int = 1,
         creep_time_constants_s: Sequence[float] = (0.1, 1.0, 10.0, 100.0),
         operators: int = 8,
+        residual_neurons: int = 0,
+        residual_layers: int = 2,
         recording_repeats: int = 10,
         objective: str = "simulation",
         lr: float = 0.02,
@@ -98,6 +104,10 @@ class GreyBox(NarxModule):
             problems.append(f"model.n_modes={n_modes!r} (0-3)")
         if not (isinstance(delay, int) and delay >= 0):
             problems.append(f"model.delay={delay!r} (whole samples >= 0)")
+        if not (isinstance(residual_neurons, int) and residual_neurons >= 0
+                and isinstance(residual_layers, int) and residual_layers >= 1):
+            problems.append(f"model.residual_neurons={residual_neurons!r} / residual_layers="
+                            f"{residual_layers!r} (>= 0 / >= 1; 0 neurons: no network)")
         if not (isinstance(recording_repeats, int) and recording_repeats >= 1):
             problems.append(f"model.recording_repeats={recording_repeats!r} (>= 1)")
         if problems:
@@ -124,6 +134,13 @@ class GreyBox(NarxModule):
             if modes else None
         )
         self.offset = nn.Parameter(torch.zeros((), dtype=torch.float64))
+        self.residual: nn.Sequential | None = None
+        if residual_neurons:
+            self.residual = mlp(self.window.nb + self.window.na, 1, residual_neurons,
+                                residual_layers).double()
+            with torch.no_grad():
+                self.residual[-1].weight.zero_()
+                self.residual[-1].bias.zero_()
 
     def _channel_routes(
         self, effects: Sequence[str], feature_context: dict[str, Any] | None, effect_path: str
@@ -152,9 +169,21 @@ class GreyBox(NarxModule):
 
     def simulate_full(self, u_scaled: torch.Tensor) -> torch.Tensor:
         """Scaled inputs (B, T, nu) -> scaled outputs (B, T, 1), every row from rest."""
-        x = self.chain(self._physical_input(u_scaled))
+        v = self._physical_input(u_scaled)
+        x = self.chain(v)
+        if self.residual is not None:
+            x = x + self._residual_correction(v, x)
         y_scaled = x + self.offset - self.y_offset[0] / self.y_scale[0]
         return y_scaled.to(u_scaled.dtype)[..., None]
+
+    def _residual_correction(self, v: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        """The residual network on the last ``nb`` inputs and ``na`` chain outputs of every
+        sample (zeros before the start), (B, T)."""
+        assert self.residual is not None
+        nb, na = self.window.nb, self.window.na
+        v_lags = nn.functional.pad(v, (nb - 1, 0)).unfold(1, nb, 1)  # (B, T, nb)
+        x_lags = nn.functional.pad(x, (na - 1, 0)).unfold(1, na, 1)
+        return self.residual(torch.cat([v_lags, x_lags], dim=-1))[..., 0]
 
     def simulate_scaled(self, u: torch.Tensor, y_initial: torch.Tensor) -> torch.Tensor:
         """Training's free run: from rest at the first sample (``y_initial`` is not needed);
