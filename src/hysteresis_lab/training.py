@@ -212,7 +212,7 @@ def _fit(
         model.stage_lr = stage_lr(model, "simulation")
         best, _, val_mse = _fit_free_run(
             *stages, steps, int(trainer_cfg["max_epochs"]), callbacks, "checkpoints",
-            starting_checkpoint=None, keep_start=False,
+            starting_checkpoint=None, keep_start=True, finite_start=True,
         )
         seconds = time.perf_counter() - start
         log.info("trained in %.1f s (validation free-run MSE %.4e, scaled)", seconds, val_mse)
@@ -395,14 +395,17 @@ def _fit_free_run(
     folder: str,
     starting_checkpoint: Path | None,
     keep_start: bool,
+    finite_start: bool = False,
 ) -> tuple[Path | None, bool, float]:
     """Simulation-error training: minimise the free-run MSE over ``steps``-sample segments.
 
     Runs ``epochs`` epochs from the current weights at ``model.stage_lr`` and keeps the
     checkpoint with the best validation free-run loss (model selection on the free run;
-    ``model.patience`` epochs without a better one stop it early). ``keep_start`` (a
-    fine-tuning stage): when no epoch beat the starting weights on that loss, those stay and
-    ``starting_checkpoint`` and False are returned. Returns the checkpoint, whether training
+    ``model.patience`` epochs without a better one stop it early). ``keep_start``: the
+    starting weights are a candidate too (a fitted network, or a model started from the
+    data): when no epoch beat them on that loss, they stay and ``starting_checkpoint`` and
+    False are returned. ``finite_start``: an initial model whose free run is not finite is
+    an error (the model trains from it alone). Returns the checkpoint, whether training
     improved on the start, and the validation free-run MSE (scaled) of the weights kept.
     """
     segments = simulation_data(datamodule, model, steps)
@@ -431,7 +434,7 @@ def _fit_free_run(
         starting_loss = float(
             trainer.validate(model, datamodule=segments, verbose=False)[0]["val_loss"]
         )
-        if not np.isfinite(starting_loss) and not keep_start:
+        if not np.isfinite(starting_loss) and finite_start:
             raise DivergedError(
                 "the initial model's free run is not finite on the validation segments (an "
                 "unstable initial model). Fix: a shorter model.horizon, or check the data "
@@ -440,7 +443,7 @@ def _fit_free_run(
         try:
             trainer.fit(model, datamodule=segments)
         except DivergedError as exc:
-            if not keep_start:
+            if finite_start:
                 raise
             log.warning("free-run fine-tuning diverged (%s)", exc)
         best, val_free_run = _restore_best(model, checkpoint)

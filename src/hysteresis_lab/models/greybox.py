@@ -44,9 +44,9 @@ from hysteresis_lab.blocks import (
     estimate_mode,
     estimate_static_gain,
 )
-from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.base import NarxModule, mlp
+from hysteresis_lab.models.physical_chain import PhysicalChainModule
 
 log = logging.getLogger(__name__)
 
@@ -55,14 +55,10 @@ HYSTERESIS = ("bouc_wen", "prandtl_ishlinskii", "none")
 BLOCK_EFFECTS = ("hysteresis", "creep", "resonance")
 
 
-class GreyBox(NarxModule):
+class GreyBox(PhysicalChainModule):
     """Amplifier, delay, hysteresis, creep and modes in series (see the module docstring)."""
 
-    layout = "flat"
     carried_effects = BLOCK_EFFECTS
-    simulation_trained = True
-    #: trains on whole recordings simulated from rest (`hysteresis_lab.data.segments`)
-    whole_recordings = True
 
     def __init__(
         self,
@@ -142,21 +138,11 @@ class GreyBox(NarxModule):
                 self.residual[-1].weight.zero_()
                 self.residual[-1].bias.zero_()
 
-    def _channel_routes(
-        self, effects: Sequence[str], feature_context: dict[str, Any] | None, effect_path: str
-    ) -> list[str]:
-        """Effects are blocks here; their operator channels are not read."""
-        return ["base"] * self.nu
-
     # ------------------------------------------------------------------ the model
-    def _physical_input(self, u_scaled: torch.Tensor) -> torch.Tensor:
-        """Scaled input (B, T, nu) -> the measured input over its scale (B, T): zero volts
-        is zero here, so "at rest" means what it does physically."""
-        return (u_scaled[..., 0].double() + self.u_offset[0] / self.u_scale[0]).double()
-
     def chain(self, v: torch.Tensor) -> torch.Tensor:
         """Input over its scale (B, T) -> output before the offset (B, T), from rest."""
         x = self.delay(self.amplifier(v))
+        v_in = v
         if self.hysteresis is not None:
             x = self.hysteresis(x)
             x = x[0] if isinstance(x, tuple) else x
@@ -165,16 +151,9 @@ class GreyBox(NarxModule):
             x = self.creep(x)
         if self.mode is not None:
             x = self.mode(x)
-        return x
-
-    def simulate_full(self, u_scaled: torch.Tensor) -> torch.Tensor:
-        """Scaled inputs (B, T, nu) -> scaled outputs (B, T, 1), every row from rest."""
-        v = self._physical_input(u_scaled)
-        x = self.chain(v)
         if self.residual is not None:
-            x = x + self._residual_correction(v, x)
-        y_scaled = x + self.offset - self.y_offset[0] / self.y_scale[0]
-        return y_scaled.to(u_scaled.dtype)[..., None]
+            x = x + self._residual_correction(v_in, x)
+        return x
 
     def _residual_correction(self, v: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
         """The residual network on the last ``nb`` inputs and ``na`` chain outputs of every
@@ -185,55 +164,13 @@ class GreyBox(NarxModule):
         x_lags = nn.functional.pad(x, (na - 1, 0)).unfold(1, na, 1)
         return self.residual(torch.cat([v_lags, x_lags], dim=-1))[..., 0]
 
-    def simulate_scaled(self, u: torch.Tensor, y_initial: torch.Tensor) -> torch.Tensor:
-        """Training's free run: from rest at the first sample (``y_initial`` is not needed);
-        predictions of samples first_target..T-1."""
-        return self.simulate_full(u)[:, self.window.first_target :]
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        raise ConfigError(
-            "a grey-box model simulates whole recordings from rest; it has no prediction from "
-            "a single regression window. Fix: use hysteresis_lab.evaluation.predict.free_run "
-            "(one_step and n_step give the free run for it)."
-        )
-
-    def simulate_recordings(
-        self, u: np.ndarray, y_meas: np.ndarray, reset: np.ndarray, window: WindowSpec,
-        lengths: np.ndarray | None = None,
-    ) -> np.ndarray:
-        """Evaluation's free run of all rows (scaled); restarts change nothing (an
-        output-error model does not read measured outputs)."""
-        device = next(self.parameters()).device
-        with torch.inference_mode():
-            y = self.simulate_full(torch.as_tensor(u, dtype=torch.float64, device=device))
-        out = np.array(y_meas, dtype=np.float64)
-        ft = window.first_target
-        out[:, ft:] = y[:, ft:].double().cpu().numpy()
-        return out
-
-    predicts_from_outputs = False
-
-    def warm_start_from(self, previous: NarxModule) -> None:
-        """Start from a fitted grey-box with fewer blocks (the loop adds one): every shared
-        parameter is copied; a new block starts where it changes nothing (creep weights 0,
-        a new mode at weight 0), so the grown model simulates what the fitted one did."""
-        if type(previous) is not type(self):
-            raise ConfigError(
-                f"cannot warm-start a grey-box from a {type(previous).__name__}."
-            )
-        old = dict(previous.named_parameters())
-        self._new_entries = {}
-        with torch.no_grad():
-            for name, new in self.named_parameters():
-                before = old.get(name)
-                if before is not None and before.shape == new.shape:
-                    new.copy_(before)
-                    continue
-                if name.startswith("mode.") and self.mode is not None and previous.mode:
-                    self._grow_mode(previous.mode)
-                elif name.startswith("creep."):
-                    new.zero_()
-                self._new_entries[name] = torch.ones_like(new, dtype=torch.bool)
+    def _start_new_parameter(self, name: str, value: torch.Tensor, previous: NarxModule) -> None:
+        """A new block starts where it changes nothing: creep weights 0, a new mode at
+        weight 0 beside the fitted ones."""
+        if name.startswith("mode.") and self.mode is not None and previous.mode:
+            self._grow_mode(previous.mode)
+        elif name.startswith("creep."):
+            value.zero_()
 
     def _grow_mode(self, fitted: SecondOrderMode) -> None:
         """The fitted modes, plus new ones at zero weight."""

@@ -1,0 +1,194 @@
+"""`linear`: stable linear dynamics from the input to the output, grown into a physical model
+by the effect catalogue.
+
+    u -> [saturation] -> [dead zone] -> [backlash] -> [hysteresis] -> [creep]
+      -> dynamics (+ [resonance] in parallel) -> + offset -> y
+
+The dynamics are an output-error model of ``model.order`` poles, stable for any parameter
+value (`hysteresis_lab.blocks.StableSections`), started from a least-squares ARX fit and
+refined on the free-run error of whole recordings. Each declared effect (``model.effects``)
+puts its block where the physics puts it, and every block starts where it changes nothing
+(its weight at zero), so ``effects=[hysteresis]`` starts as the linear model and a loop
+refit that adds an effect starts exactly from the model it grows:
+
+* ``saturation``: ``v - w (v - clip(v, ±c))``, amplifier clipping ahead of the actuator;
+* ``dead_zone``: ``v - w clip(v, ±c)``; ``backlash``: ``v + w (play_c(v) - v)``;
+* ``hysteresis``: ``v - w h(v)``, ``h`` the Bouc–Wen state (the grey-box's cell);
+* ``creep``: a first-order filter bank (the grey-box's block), weights from zero;
+* ``resonance``: a second-order section in parallel with the dynamics, numerator from zero.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from hysteresis_lab.blocks import BoucWen, CreepBank, bouc_wen_scaled_params, play
+from hysteresis_lab.blocks.sections import StableSections, arx_least_squares
+from hysteresis_lab.effects.augment import context_from_dict
+from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.models.physical_chain import PhysicalChainModule
+
+log = logging.getLogger(__name__)
+
+#: catalogue effects the linear model carries as blocks, in physical order
+LINEAR_EFFECTS = ("saturation", "dead_zone", "backlash", "hysteresis", "creep", "resonance")
+
+
+class _Level(nn.Module):
+    """A weighted input nonlinearity ``v + w g(v, c)`` with ``w`` from zero and a level
+    ``c > 0`` (in the input's scaled units) from ``level``."""
+
+    def __init__(self, level: float) -> None:
+        super().__init__()
+        self.weight = nn.Parameter(torch.zeros((), dtype=torch.float64))
+        self.raw_level = nn.Parameter(torch.tensor(float(np.log(level)), dtype=torch.float64))
+
+    @property
+    def level(self) -> torch.Tensor:
+        return self.raw_level.exp()
+
+
+class Saturation(_Level):
+    def forward(self, v: torch.Tensor) -> torch.Tensor:
+        c = self.level
+        return v - self.weight * (v - torch.maximum(torch.minimum(v, c), -c))
+
+
+class DeadZone(_Level):
+    def forward(self, v: torch.Tensor) -> torch.Tensor:
+        c = self.level
+        return v - self.weight * torch.maximum(torch.minimum(v, c), -c)
+
+
+class Backlash(_Level):
+    def forward(self, v: torch.Tensor) -> torch.Tensor:
+        return v + self.weight * (play(v, self.level.reshape(1))[..., 0] - v)
+
+
+class HysteresisCell(nn.Module):
+    """``v - w h(v)``: the Bouc–Wen state ``h`` (`hysteresis_lab.blocks.BoucWen`) subtracted
+    with a weight from zero."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.bouc_wen = BoucWen(**bouc_wen_scaled_params(1.0, 0.32, 0.02, 0.006, 100.0, 100.0))
+        self.weight = nn.Parameter(torch.zeros((), dtype=torch.float64))
+
+    def forward(self, v: torch.Tensor) -> torch.Tensor:
+        x, _ = self.bouc_wen(v)
+        h = self.bouc_wen.d * v - x
+        return v - self.weight * h
+
+
+class LinearModel(PhysicalChainModule):
+    """Stable linear dynamics with the declared effects' blocks (see the module docstring)."""
+
+    carried_effects = LINEAR_EFFECTS
+
+    def __init__(
+        self,
+        nu: int,
+        ny: int,
+        order: int = 6,
+        delay: int = 1,
+        fs: float = 20_000.0,
+        creep_time_constants_s: Sequence[float] = (0.1, 1.0, 10.0, 100.0),
+        recording_repeats: int = 10,
+        objective: str = "simulation",
+        lr: float = 0.002,
+        **kwargs: Any,
+    ) -> None:
+        super().__init__(nu=nu, ny=ny, objective=objective, lr=lr, **kwargs)
+        fs = float((kwargs.get("trained_on") or {}).get("fs") or fs)
+        effects = list(self.hparams.get("effects") or [])
+        problems = []
+        if self.n_base_inputs != 1 or ny != 1:
+            problems.append(f"{self.n_base_inputs} input(s) and {ny} output(s) (it models one "
+                            "input and one output; model=subnet takes MIMO data)")
+        unknown = [e for e in effects if e not in LINEAR_EFFECTS]
+        if unknown:
+            problems.append(f"effects {unknown} (its blocks: {list(LINEAR_EFFECTS)})")
+        if not (isinstance(order, int) and order >= 1):
+            problems.append(f"model.order={order!r} (poles, >= 1)")
+        if not (isinstance(delay, int) and delay >= 0):
+            problems.append(f"model.delay={delay!r} (whole samples >= 0)")
+        if objective != "simulation":
+            problems.append(f"model.objective='{objective}' (it is fitted on the simulation "
+                            "error only)")
+        if problems:
+            raise ConfigError(
+                "model=linear cannot take " + "; ".join(problems) + ". Fix: change those "
+                "settings (conf/model/linear.yaml has the defaults)."
+            )
+        amplitude = self._input_amplitude()
+        self.input_blocks = nn.ModuleDict()
+        for name, block in (("saturation", lambda: Saturation(0.9 * amplitude)),
+                            ("dead_zone", lambda: DeadZone(0.05 * amplitude)),
+                            ("backlash", lambda: Backlash(0.05 * amplitude)),
+                            ("hysteresis", HysteresisCell)):
+            if name in effects:
+                self.input_blocks[name] = block()
+        self.creep = CreepBank(fs, creep_time_constants_s) if "creep" in effects else None
+        self.dynamics = StableSections(order)
+        self.resonance: StableSections | None = None
+        if "resonance" in effects:
+            self.resonance = StableSections(2)
+            with torch.no_grad():
+                self.resonance.numerators.zero_()
+                self.resonance.raw_denominators[:, 1] = 2.0  # a lightly damped pair to start
+        self.offset = nn.Parameter(torch.zeros((), dtype=torch.float64))
+
+    def _input_amplitude(self) -> float:
+        """The measured input's amplitude over its scale (for the levels of input blocks)."""
+        context = self.hparams.get("feature_context")
+        if context is None:
+            return 1.0
+        amplitude = float(context_from_dict(context).u_amplitude[0])
+        scale = float(self.u_scale[0])
+        return max(amplitude / scale, 1e-6) if scale > 0 else 1.0
+
+    def chain(self, v: torch.Tensor) -> torch.Tensor:
+        x = v
+        for block in self.input_blocks.values():
+            x = block(x)
+        if self.creep is not None:
+            x = self.creep(x)
+        y = self.dynamics(x)
+        if self.resonance is not None:
+            y = y + self.resonance(x)
+        return y
+
+    def initialise_from_data(self, u: np.ndarray, y: np.ndarray, fs: float) -> None:
+        """The dynamics from a least-squares ARX fit (``order`` poles, ``delay``) and the
+        output offset, on a training recording (physical units, 1-D)."""
+        v = u / float(self.u_scale[0])
+        y_s = y / float(self.y_scale[0])
+        order, delay = self.hparams.order, self.hparams.delay
+        nb = max(1, order - max(delay, 1) + 1)
+        b, a = arx_least_squares(v, y_s, na=order, nb=nb, nk=delay)
+        self.dynamics.set_transfer_function(b, a)
+        with torch.no_grad():
+            base = self.chain(torch.as_tensor(v[None], dtype=torch.float64))[0].numpy()
+            self.offset.fill_(float(np.mean(y_s - base)))
+        log.info("linear start: ARX(%d, %d, %d) by least squares, poles |p| <= %.4f", order, nb,
+                 delay, float(np.max(np.abs(np.roots(a)))) if order else 0.0)
+
+    def physical_parameters(self) -> dict[str, Any]:
+        """Every block's current parameters (for reports)."""
+        with torch.no_grad():
+            out: dict[str, Any] = {"dynamics": self.dynamics.export(),
+                                   "offset": float(self.offset)}
+            for name, block in self.input_blocks.items():
+                out[name] = {k: v.detach().cpu().numpy().tolist()
+                             for k, v in block.named_parameters()}
+            if self.creep is not None:
+                out["creep"] = self.creep.export()
+            if self.resonance is not None:
+                out["resonance"] = self.resonance.export()
+        return out

@@ -1,0 +1,109 @@
+"""`PhysicalChainModule`: models that simulate whole recordings from rest through a chain of
+physical blocks (`hysteresis_lab.blocks`): the grey-box and the linear model.
+
+Such a model reads the input alone (an output-error model): its one-step prediction is its
+free run, it trains on the free-run error of whole recordings (each simulated from rest, the
+one state that is known; `hysteresis_lab.data.segments.RecordingDataModule`), and its output
+is ``chain(v) + offset`` with ``v`` the measured input over its scale (zero volts is zero).
+Subclasses build their blocks and implement `chain`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import torch
+
+from hysteresis_lab.data.windows import WindowSpec
+from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.models.base import NarxModule
+
+
+class PhysicalChainModule(NarxModule):
+    """Base of the models that simulate from rest through physical blocks (see above)."""
+
+    layout = "flat"
+    simulation_trained = True
+    #: trains on whole recordings simulated from rest (`hysteresis_lab.data.segments`)
+    whole_recordings = True
+    predicts_from_outputs = False
+
+    def _channel_routes(
+        self, effects: Sequence[str], feature_context: dict[str, Any] | None, effect_path: str
+    ) -> list[str]:
+        """Effects are blocks here; their operator channels are not read."""
+        return ["base"] * self.nu
+
+    # ------------------------------------------------------------------ the model
+    def chain(self, v: torch.Tensor) -> torch.Tensor:  # pragma: no cover
+        """Input over its scale (B, T) -> output over its scale before the offset (B, T)."""
+        raise NotImplementedError
+
+    def _physical_input(self, u_scaled: torch.Tensor) -> torch.Tensor:
+        """Scaled input (B, T, nu) -> the measured input over its scale (B, T): zero volts
+        is zero here, so "at rest" means what it does physically."""
+        return (u_scaled[..., 0].double() + self.u_offset[0] / self.u_scale[0]).double()
+
+    def simulate_full(self, u_scaled: torch.Tensor) -> torch.Tensor:
+        """Scaled inputs (B, T, nu) -> scaled outputs (B, T, 1), every row from rest."""
+        x = self.chain(self._physical_input(u_scaled))
+        y_scaled = x + self.offset - self.y_offset[0] / self.y_scale[0]
+        return y_scaled.to(u_scaled.dtype)[..., None]
+
+    def simulate_scaled(self, u: torch.Tensor, y_initial: torch.Tensor) -> torch.Tensor:
+        """Training's free run: from rest at the first sample (``y_initial`` is not needed);
+        predictions of samples first_target..T-1."""
+        return self.simulate_full(u)[:, self.window.first_target :]
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        raise ConfigError(
+            "a grey-box model simulates whole recordings from rest; it has no prediction from "
+            "a single regression window. Fix: use hysteresis_lab.evaluation.predict.free_run "
+            "(one_step and n_step give the free run for it)."
+        )
+
+    def simulate_recordings(
+        self, u: np.ndarray, y_meas: np.ndarray, reset: np.ndarray, window: WindowSpec,
+        lengths: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Evaluation's free run of all rows (scaled); restarts change nothing (an
+        output-error model does not read measured outputs)."""
+        device = next(self.parameters()).device
+        with torch.inference_mode():
+            y = self.simulate_full(torch.as_tensor(u, dtype=torch.float64, device=device))
+        out = np.array(y_meas, dtype=np.float64)
+        ft = window.first_target
+        out[:, ft:] = y[:, ft:].double().cpu().numpy()
+        return out
+
+
+    def warm_start_from(self, previous: NarxModule) -> None:
+        """Start from a fitted model of the same class with fewer blocks (the loop adds
+        one): every shared parameter is copied, each new one starts where it changes nothing
+        (`_start_new_parameter`), so the grown model simulates what the fitted one did; the
+        new parameters are what `train_new_inputs_only` trains."""
+        if type(previous) is not type(self):
+            raise ConfigError(
+                f"cannot warm-start a {type(self).__name__} from a {type(previous).__name__}."
+            )
+        old = dict(previous.named_parameters())
+        self._new_entries = {}
+        with torch.no_grad():
+            for name, new in self.named_parameters():
+                before = old.get(name)
+                if before is not None and before.shape == new.shape:
+                    new.copy_(before)
+                    continue
+                self._start_new_parameter(name, new, previous)
+                self._new_entries[name] = torch.ones_like(new, dtype=torch.bool)
+            old_buffers = dict(previous.named_buffers())
+            for name, buffer in self.named_buffers():  # block state such as a fitted delay
+                before = old_buffers.get(name)
+                if before is not None and before.shape == buffer.shape and "." in name:
+                    buffer.copy_(before)
+
+    def _start_new_parameter(self, name: str, value: torch.Tensor, previous: NarxModule) -> None:
+        """Set a parameter the fitted model lacks so that it changes nothing (default: its
+        initial value already does)."""

@@ -1,0 +1,90 @@
+"""The linear model: stable dynamics from a least-squares ARX start, fitted on the free-run
+error; the effect catalogue's blocks grow it and start where they change nothing."""
+
+from __future__ import annotations
+
+import lightning as L
+import numpy as np
+import pytest
+import torch
+from scipy import signal
+
+from hysteresis_lab.blocks.sections import StableSections, arx_least_squares
+from hysteresis_lab.data.datamodules import WindowDataModule
+from hysteresis_lab.effects.augment import augment_splits, context_to_dict
+from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.evaluation.predict import free_run
+from hysteresis_lab.sim.default_dataset import make_default_dataset
+from hysteresis_lab.training import build_model, fit
+
+TRAINER = {"max_epochs": 5, "accelerator": "cpu", "enable_progress_bar": False,
+           "enable_model_summary": False}
+NOISE_UM = 0.01
+
+
+def test_arx_start_reproduces_a_linear_system_and_stays_stable():
+    rng = np.random.default_rng(0)
+    u = rng.normal(size=4000)
+    b_true, a_true = [0.0, 0.1, 0.05], [1.0, -1.5, 0.7]
+    y = signal.lfilter(b_true, a_true, u)
+    b, a = arx_least_squares(u, y + 1e-3 * rng.normal(size=len(u)), na=4, nb=4, nk=1)
+    sections = StableSections(order=4)
+    sections.set_transfer_function(b, a)
+    with torch.no_grad():
+        simulated = sections(torch.as_tensor(u[None]))[0].numpy()
+    assert np.sqrt(np.mean((simulated - y) ** 2)) < 1e-3 * np.std(y)
+    sections.set_transfer_function(np.array([0.0, 1.0]), np.array([1.0, -1.2]))  # unstable
+    poles = np.roots(sections.denominators()[0].detach().numpy())
+    assert np.all(np.abs(poles) < 1.0)
+
+
+def test_any_raw_parameters_give_stable_dynamics():
+    sections = StableSections(order=6)
+    with torch.no_grad():
+        sections.raw_denominators.copy_(torch.randn(3, 2, dtype=torch.float64) * 30)
+    for row in sections.denominators().detach().numpy():
+        assert np.all(np.abs(np.roots(row)) < 1.0)
+
+
+def positioner(effects: dict) -> tuple:
+    data = make_default_dataset(effects=effects, n_train=8000, test_frequencies=(10.0, 100.0),
+                                max_test_samples=3000, val_samples=4000)
+    return data, WindowDataModule(data, scaling="paper")
+
+
+def test_a_linear_positioner_is_identified_to_the_noise_floor(tmp_path):
+    """Amplifier, delay and mode with the hysteresis and creep switched off: a linear
+    system, which the linear model simulates at the sensor noise."""
+    data, dm = positioner({"hysteresis": {"enabled": False}, "creep": {"enabled": False}})
+    L.seed_everything(0)
+    model = build_model({"name": "linear"}, dm, trained_on={"fs": data.fs})
+    fitted = fit(model, dm, TRAINER, tmp_path).model
+    ft = dm.window.first_target
+    for predicted, rec in zip(free_run(fitted, data.test, dm.window), data.test, strict=True):
+        assert np.sqrt(np.mean((predicted[ft:] - rec.y[ft:]) ** 2)) < 5 * NOISE_UM
+
+
+def test_an_added_effect_block_starts_where_it_changes_nothing(tmp_path):
+    """The loop grows a fitted linear model by an effect: the grown model simulates exactly
+    what the fitted one did until its new block is trained."""
+    data, dm = positioner({})
+    L.seed_everything(0)
+    plain = fit(build_model({"name": "linear"}, dm, trained_on={"fs": data.fs}), dm,
+                {**TRAINER, "max_epochs": 1}, tmp_path).model
+    effects = ["saturation", "dead_zone", "backlash", "hysteresis", "creep", "resonance"]
+    augmented, context = augment_splits(data, effects)
+    dm_grown = WindowDataModule(augmented, scaling="paper")
+    grown = build_model({"name": "linear", "effects": effects}, dm_grown,
+                        trained_on={"fs": data.fs}, feature_context=context_to_dict(context),
+                        n_base_inputs=1)
+    grown.warm_start_from(plain)
+    for a, b in zip(free_run(plain, data.test, dm.window),
+                    free_run(grown, augmented.test, dm.window), strict=True):
+        np.testing.assert_allclose(a, b, atol=1e-9)
+    assert set(grown._new_entries) >= {"creep.weights", "input_blocks.hysteresis.weight"}
+
+
+def test_effects_without_a_block_are_refused():
+    data, dm = positioner({})
+    with pytest.raises(ConfigError, match=r"effects \['drift'\]"):
+        build_model({"name": "linear", "effects": ["drift"]}, dm, feature_context={})
