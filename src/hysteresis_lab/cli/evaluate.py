@@ -16,7 +16,7 @@ import torch
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
-from hysteresis_lab.cli._app import config_dir, report_errors
+from hysteresis_lab.cli._app import CONFIG_PATH, report_errors
 from hysteresis_lab.errors import ConfigError
 
 log = logging.getLogger(__name__)
@@ -85,7 +85,7 @@ def resolve_checkpoint(path: Path) -> Path:
     return path
 
 
-@hydra.main(config_path=config_dir(), config_name="evaluate")
+@hydra.main(config_path=CONFIG_PATH, config_name="evaluate")
 def _main(cfg: DictConfig) -> None:
     run(cfg)
 

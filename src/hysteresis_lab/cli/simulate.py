@@ -14,7 +14,7 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from hysteresis_lab.cli._app import config_dir, report_errors
+from hysteresis_lab.cli._app import CONFIG_PATH, report_errors
 from hysteresis_lab.errors import ConfigError
 
 log = logging.getLogger(__name__)
@@ -58,7 +58,7 @@ def run(cfg: DictConfig) -> Path:
     return path
 
 
-@hydra.main(config_path=config_dir(), config_name="simulate")
+@hydra.main(config_path=CONFIG_PATH, config_name="simulate")
 def _main(cfg: DictConfig) -> None:
     run(cfg)
 

@@ -19,7 +19,7 @@ import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
-from hysteresis_lab.cli._app import config_dir, report_errors
+from hysteresis_lab.cli._app import CONFIG_PATH, report_errors
 from hysteresis_lab.errors import ConfigError
 
 log = logging.getLogger(__name__)
@@ -67,7 +67,7 @@ def run(cfg: DictConfig) -> float | None:
     return result.val_mse
 
 
-@hydra.main(config_path=config_dir(), config_name="train")
+@hydra.main(config_path=CONFIG_PATH, config_name="train")
 def _main(cfg: DictConfig) -> float | None:
     return run(cfg)
 

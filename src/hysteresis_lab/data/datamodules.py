@@ -176,7 +176,8 @@ class PaperDataModule(WindowDataModule):
 
     Training/validation: a 500-component multisine (0-500 Hz, +-100 V, 80,000 samples at
     20 kHz) cut into windows and split 90/10 at random; test: the twelve sines.
-    ``effects`` switches and parameterises the simulator's blocks (``conf/sim/positioner.yaml``).
+    ``effects`` switches and parameterises the simulator's blocks
+    (``hysteresis_lab/conf/sim/positioner.yaml``).
     """
 
     def __init__(self, effects: dict[str, Any] | None = None, data_seed: int = 0, **kwargs: Any):
