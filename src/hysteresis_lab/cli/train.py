@@ -13,6 +13,7 @@ The return value is the validation MSE (scaled units), the objective of sweeps.
 from __future__ import annotations
 
 import logging
+import warnings
 from pathlib import Path
 
 import hydra
@@ -72,12 +73,14 @@ def _main(cfg: DictConfig) -> float | None:
     return run(cfg)
 
 
-BEST_CONFIGS = Path("outputs/optuna/best")  # on the search path: experiment=best_<study>
-
-
 def main() -> None:
     """Console-script entry point."""
-    (BEST_CONFIGS / "experiment").mkdir(parents=True, exist_ok=True)
+    # outputs/optuna/best exists only after a finished sweep (experiment=best_<study>); until
+    # then its search-path entry is empty, which is normal, not worth a warning
+    warnings.filterwarnings(
+        "ignore", message=r"provider=hydra\.searchpath in main, path=outputs/optuna/best is not",
+        category=UserWarning,
+    )
     _main()
 
 
