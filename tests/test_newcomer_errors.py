@@ -19,6 +19,14 @@ def one_line_error(proc, message: str) -> str:
     return output
 
 
+# ----------------------------------------------------------------------------- evaluate
+@pytest.mark.slow
+def test_evaluate_without_a_checkpoint_says_so(tmp_path):
+    proc = run_app("evaluate", f"hydra.run.dir={tmp_path}/a", cwd=tmp_path)
+    one_line_error(proc, "checkpoint is not set. Fix: checkpoint=")
+    assert "MissingMandatoryValue" not in proc.stdout + proc.stderr
+
+
 # ----------------------------------------------------------------------------- train
 @pytest.mark.slow
 def test_train_help_writes_nothing(tmp_path):

@@ -32,9 +32,14 @@ def run(cfg: DictConfig) -> dict:
     from hysteresis_lab.evaluation.report import metrics_document, write_json
     from hysteresis_lab.models.io import load_model, model_window
 
+    if OmegaConf.is_missing(cfg, "checkpoint") or not cfg.checkpoint:
+        raise ConfigError(
+            "no model to evaluate: checkpoint is not set. Fix: checkpoint=<model.ckpt or "
+            "model.skops, or the run folder of hysteresis-lab-train that holds it>."
+        )
+    data_cfg = OmegaConf.to_container(cfg.data, resolve=True)
     output_dir = Path(HydraConfig.get().runtime.output_dir)
     model = load_model(resolve_checkpoint(Path(str(cfg.checkpoint))))
-    data_cfg = OmegaConf.to_container(cfg.data, resolve=True)
     splits_cfg = data_cfg.get("splits") or {}
     if "train" in splits_cfg and not splits_cfg["train"] and data_cfg.get("test"):
         splits_cfg["train"] = data_cfg["test"][0]  # nothing is fitted; a stand-in for validation
