@@ -6,6 +6,8 @@ from __future__ import annotations
 import pytest
 
 from helpers import data_overrides, run_app, small_dataset
+from hysteresis_lab.data.readers import read_recording
+from hysteresis_lab.errors import DataError
 
 QUIET = ["trainer.enable_progress_bar=false", "trainer.enable_model_summary=false"]
 
@@ -17,6 +19,50 @@ def one_line_error(proc, message: str) -> str:
     assert message in output and "Fix: " in output, output[-3000:]
     assert "Traceback" not in output and "Error executing job" not in output, output[-3000:]
     return output
+
+
+# ----------------------------------------------------------------------------- readers
+@pytest.mark.parametrize(
+    ("text", "message", "fix"),
+    [
+        ("t;u;y\n0,0;1,5;2,5\n0,5;1,5;2,5\n", "has a decimal comma", "decimal point"),
+        (
+            "t,u,y\n0,0,1,5,2,5\n0,5,1,5,2,5\n",
+            "decimal commas between comma separators",
+            "decimal point",
+        ),
+        ("t,u,y,y\n0,1,2,3\n0.5,1,2,3\n", "names column(s) ['y'] more than once", "its own name"),
+    ],
+    ids=["semicolon", "comma", "duplicate_header"],
+)
+def test_a_malformed_csv_is_named_for_what_it_is(tmp_path, text, message, fix):
+    path = tmp_path / "run.csv"
+    path.write_text(text)
+    with pytest.raises(DataError, match="Fix: ") as info:
+        read_recording(path)
+    assert message in str(info.value) and fix in str(info.value.fix)
+    assert "non-numeric" not in str(info.value) and "different lengths" not in str(info.value)
+
+
+def test_a_folder_given_as_a_file_is_called_a_folder(tmp_path):
+    with pytest.raises(DataError, match="is a folder, not a file") as info:
+        read_recording(tmp_path)
+    assert "unknown file type" not in str(info.value)
+    with pytest.raises(DataError, match="no such file"):
+        read_recording(tmp_path / "no_suffix")
+
+
+@pytest.mark.slow
+def test_evaluate_without_a_test_file_says_so(tmp_path):
+    proc = run_app(
+        "evaluate",
+        f"checkpoint={tmp_path}",
+        "data=csv",
+        f"hydra.run.dir={tmp_path}/b",
+        cwd=tmp_path,
+    )
+    output = one_line_error(proc, "no test file to evaluate on: data.test is empty")
+    assert "data.train" not in output
 
 
 # ----------------------------------------------------------------------------- evaluate

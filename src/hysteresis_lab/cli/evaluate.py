@@ -38,6 +38,11 @@ def run(cfg: DictConfig) -> dict:
             "model.skops, or the run folder of hysteresis-lab-train that holds it>."
         )
     data_cfg = OmegaConf.to_container(cfg.data, resolve=True)
+    if "test" in data_cfg and not data_cfg["test"]:
+        raise ConfigError(
+            f"no test file to evaluate on: data.test is empty (data={data_cfg.get('name')}). "
+            "Fix: data.test=[new.csv] (a list of recordings to score)."
+        )
     output_dir = Path(HydraConfig.get().runtime.output_dir)
     model = load_model(resolve_checkpoint(Path(str(cfg.checkpoint))))
     splits_cfg = data_cfg.get("splits") or {}

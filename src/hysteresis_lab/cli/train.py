@@ -78,7 +78,8 @@ def main() -> None:
     # outputs/optuna/best exists only after a finished sweep (experiment=best_<study>); until
     # then its search-path entry is empty, which is normal, not worth a warning
     warnings.filterwarnings(
-        "ignore", message=r"provider=hydra\.searchpath in main, path=outputs/optuna/best is not",
+        "ignore",
+        message=r"provider=hydra\.searchpath in main, path=outputs/optuna/best is not",
         category=UserWarning,
     )
     _main()
