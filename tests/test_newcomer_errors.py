@@ -73,6 +73,30 @@ def test_evaluate_without_a_checkpoint_says_so(tmp_path):
     assert "MissingMandatoryValue" not in proc.stdout + proc.stderr
 
 
+# ----------------------------------------------------------------------------- simulate
+SINE = ["signal.kind=sine", "signal.frequency=200", "signal.n_periods=1"]
+
+
+@pytest.mark.slow
+def test_simulate_refuses_a_folder_or_an_unwritable_output(tmp_path):
+    proc = run_app("simulate", *SINE, f"output={tmp_path}", cwd=tmp_path)
+    one_line_error(proc, f"output={tmp_path} is a folder, not a file")
+    (tmp_path / "a_file.csv").write_text("t,u,y\n")
+    proc = run_app("simulate", *SINE, f"output={tmp_path}/a_file.csv/x.csv", cwd=tmp_path)
+    one_line_error(proc, "a_file.csv is a file, so no folder can be made there")
+    proc = run_app("simulate", *SINE, "output=/proc/no_such_folder/x.csv", cwd=tmp_path)
+    one_line_error(proc, "cannot create its folder /proc/no_such_folder")
+
+
+@pytest.mark.slow
+def test_simulate_creates_missing_folders_and_says_so(tmp_path):
+    out = tmp_path / "new" / "deeper" / "sine.csv"
+    proc = run_app("simulate", *SINE, f"output={out}", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert f"created the folder {out.parent}" in proc.stdout + proc.stderr
+    assert out.read_text().startswith("t,u,y")
+
+
 # ----------------------------------------------------------------------------- train
 @pytest.mark.slow
 def test_train_help_writes_nothing(tmp_path):
