@@ -126,3 +126,22 @@ def test_a_plain_train_run_writes_only_in_its_run_folder(tmp_path):
     assert (tmp_path / "run" / "metrics.json").is_file()
     assert list(cwd.iterdir()) == [], "the run wrote outside its folder"
     assert "is not available" not in proc.stderr
+
+
+@pytest.mark.slow
+def test_a_test_file_shorter_than_the_window_stops_before_training(tmp_path):
+    train, tests = small_dataset(tmp_path, n_train=1500)
+    short = tmp_path / "short.csv"
+    short.write_text("t,u,y\n" + "".join(f"{k / 2000},{k},{-k}\n" for k in range(8)))
+    proc = run_app(
+        "train",
+        *data_overrides(train, [tests[0], short]),
+        "trainer.max_epochs=1",
+        f"hydra.run.dir={tmp_path}/run",
+        *QUIET,
+        cwd=tmp_path,
+    )
+    one_line_error(proc, "has 8 samples, but scoring starts at sample 11")
+    assert str(short) in proc.stdout + proc.stderr
+    assert not list((tmp_path / "run").rglob("*.ckpt")), "it trained before saying so"
+    assert "Epoch" not in proc.stdout + proc.stderr
