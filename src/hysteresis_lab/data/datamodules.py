@@ -78,6 +78,14 @@ class WindowDataModule(L.LightningDataModule):
         self.seed = seed
         self.num_workers = num_workers
         self.scaler = Scaler.fit(splits.train, scaling, u_scale=u_scale, y_scale=y_scale)
+        log.info(
+            "%s: scaling=%s (scaled = (value - offset) / scale): u offset %s scale %s, "
+            "y offset %s scale %s%s",
+            splits.name,
+            scaling,
+            *(np.array2string(v, precision=4) for v in vars(self.scaler).values()),
+            " (fitted to the training recordings)" if scaling == "standard" else "",
+        )
         n_base = splits.metadata.get("n_base_inputs")
         if n_base is not None:  # effect operators appended to the measured inputs
             self.scaler = self.scaler.standardise_inputs_from(int(n_base), splits.train)
