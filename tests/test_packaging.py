@@ -4,6 +4,7 @@ editable install), every command still composes its config and runs."""
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 import zipfile
@@ -22,8 +23,15 @@ def run(*args: str | Path, cwd: Path, env: dict | None = None) -> subprocess.Com
 
 @pytest.mark.slow
 def test_an_installed_wheel_runs_its_commands_outside_the_checkout(tmp_path):
+    # built from a copy of what the sdist holds, so that the checkout gets no build/ folder
+    source = tmp_path / "source"
+    shutil.copytree(
+        REPO / "src", source / "src", ignore=shutil.ignore_patterns("*.egg-info", "__pycache__")
+    )
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy2(REPO / name, source / name)
     dist = tmp_path / "dist"
-    built = run(sys.executable, "-m", "pip", "wheel", "--no-deps", "-w", dist, REPO, cwd=tmp_path)
+    built = run(sys.executable, "-m", "pip", "wheel", "--no-deps", "-w", dist, source, cwd=tmp_path)
     assert built.returncode == 0, built.stderr[-3000:]
     (wheel,) = dist.glob("hysteresis_lab-*.whl")
     names = zipfile.ZipFile(wheel).namelist()

@@ -156,17 +156,15 @@ def _init_worker(queue: Any) -> None:
 
 
 def _run_job_in_worker(job: _Job) -> PaperEntry:
-    """Entry point of a worker process: the full log goes to the model's own train.log only
-    (errors also to stderr); Lightning's progress bar and model summary are off, and the
-    epoch progress goes to the parent through the queue, which shows one labelled line."""
+    """Entry point of a worker process: the full log goes to the model's own train.log only;
+    Lightning's progress bar and model summary are off; the epoch progress, the pipeline's
+    milestones and any warning go to the parent through the queue (one labelled line each)."""
     job.output_dir.mkdir(parents=True, exist_ok=True)
     job = replace(job, trainer_cfg={
         **job.trainer_cfg, "enable_progress_bar": False, "enable_model_summary": False,
     })
     formatter = logging.Formatter(LOG_FORMAT.replace("%(message)s", f"[{job.key}] %(message)s"))
-    console = logging.StreamHandler()
-    console.setLevel(logging.ERROR)
-    handlers = [console, logging.FileHandler(job.output_dir / "train.log")]
+    handlers: list[logging.Handler] = [logging.FileHandler(job.output_dir / "train.log")]
     root = logging.getLogger()
     root.setLevel(logging.INFO)
     for handler in handlers:
