@@ -24,7 +24,7 @@ from hysteresis_lab.effects.augment import feature_context
 from hysteresis_lab.effects.registry import available_effects, get_effect
 
 log = logging.getLogger("operator_excitation")
-CONF = Path(__file__).resolve().parents[1] / "conf"
+CONF = Path(__file__).resolve().parents[1] / "src" / "hysteresis_lab" / "conf"
 
 
 def data_overrides() -> dict[str, list[str]]:

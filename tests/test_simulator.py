@@ -16,7 +16,7 @@ from hysteresis_lab.sim.bouc_wen import bouc_wen_state
 from hysteresis_lab.sim.default_dataset import TEST_FREQUENCIES_HZ, make_default_dataset
 
 FS = 20_000.0
-CONF = Path(__file__).resolve().parents[1] / "conf"
+CONF = Path(__file__).resolve().parents[1] / "src" / "hysteresis_lab" / "conf"
 QUIET = {"noise": {"enabled": False}, "quantisation": {"enabled": False}}
 
 

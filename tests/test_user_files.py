@@ -15,7 +15,7 @@ from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.data.user_files import load_user_files
 from hysteresis_lab.errors import DataError
 
-CONF = Path(__file__).resolve().parents[1] / "conf"
+CONF = Path(__file__).resolve().parents[1] / "src" / "hysteresis_lab" / "conf"
 
 
 def recording(fs: float = 1000.0, n: int = 400, phase: float = 0.0) -> Recording:

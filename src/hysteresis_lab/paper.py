@@ -3,7 +3,10 @@
 On a CPU the networks are small, so one training process cannot keep every core busy (two
 threads train an LSTM only ~1.4x faster than one). ``workers="auto"`` therefore trains the
 models in parallel processes, one per core up to the number of models, each with its share of
-the threads; with a GPU they train one after the other on it.
+the threads; with a GPU they train one after the other on it. Worker processes train without
+Lightning's progress bars and summaries: they report their epochs (and the time left) to the
+parent, which logs one line per update labelled with the model; each worker's full log is in
+``<model>/train.log``.
 """
 
 from __future__ import annotations
@@ -11,12 +14,15 @@ from __future__ import annotations
 import logging
 import multiprocessing
 import os
+import threading
+import time
 from collections.abc import Mapping
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+import lightning as L
 import numpy as np
 import torch
 
@@ -31,6 +37,7 @@ from hysteresis_lab.training import check_trainer_settings, is_network, model_la
 log = logging.getLogger(__name__)
 
 LOG_FORMAT = "[%(asctime)s][%(name)s][%(levelname)s] - %(message)s"
+PROGRESS_EVERY_S = 10.0  # a worker reports its epoch progress at most this often
 
 
 @dataclass
@@ -79,33 +86,125 @@ def plan_workers(
     return workers, max(1, available_cores() // workers)
 
 
-def _run_job(job: _Job) -> PaperEntry:
+def _run_job(job: _Job, callbacks: list[Any] | None = None) -> PaperEntry:
     if job.threads is not None:
         torch.set_num_threads(job.threads)
     result = train_and_evaluate(
         job.model_cfg, job.data_cfg, job.trainer_cfg, job.output_dir, seed=job.seed,
         splits=job.splits, use_tensorboard=job.use_tensorboard, reuse=job.resume,
+        callbacks=callbacks,
     )
     free_run = {name: p["free_run"] for name, p in result.evaluation.predictions.items()}
     return PaperEntry(result.document, free_run)
 
 
+class EpochReporter(L.Callback):
+    """Sends a worker's training progress (epoch, time left) to the parent's ``queue`` as
+    ``(model key, message)``: at most one message per ``every_s`` seconds, and the last epoch."""
+
+    def __init__(self, key: str, queue: Any, every_s: float = PROGRESS_EVERY_S) -> None:
+        self.key, self.queue, self.every_s = key, queue, every_s
+        self.started = self.last = 0.0
+
+    def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self.started = time.monotonic()
+        self.last = -self.every_s
+
+    def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        done, total = trainer.current_epoch + 1, trainer.max_epochs
+        now = time.monotonic()
+        if now - self.last < self.every_s and done < total:
+            return
+        self.last = now
+        elapsed = now - self.started
+        left = elapsed / done * (total - done)
+        val = trainer.callback_metrics.get("val_loss")
+        message = f"epoch {done}/{total}, {_duration(elapsed)} elapsed, ~{_duration(left)} left"
+        if val is not None:
+            message += f", val_loss {float(val):.4g}"
+        self.queue.put((self.key, message))
+
+
+def _duration(seconds: float) -> str:
+    minutes, secs = divmod(round(seconds), 60)
+    return f"{minutes} min {secs:02d} s" if minutes else f"{secs} s"
+
+
+class _QueueLogHandler(logging.Handler):
+    """Forwards a worker's milestones to the parent's progress display: the pipeline's lines
+    (saved, reused, the model's mean scores) and every warning or error of this package."""
+
+    def __init__(self, key: str, queue: Any) -> None:
+        super().__init__(logging.INFO)
+        self.key, self.queue = key, queue
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return record.levelno >= logging.WARNING or record.name == "hysteresis_lab.pipeline"
+
+    def emit(self, record: logging.LogRecord) -> None:
+        level = "" if record.levelno < logging.WARNING else f"{record.levelname}: "
+        self.queue.put((self.key, level + record.getMessage()))
+
+
+_progress_queue: Any = None  # the parent's progress queue, in a worker process
+
+
+def _init_worker(queue: Any) -> None:
+    """Worker process start: keep the parent's progress queue."""
+    global _progress_queue
+    _progress_queue = queue
+
+
 def _run_job_in_worker(job: _Job) -> PaperEntry:
-    """Entry point of a worker process: log to stderr and the model's own train.log."""
+    """Entry point of a worker process: the full log goes to the model's own train.log only;
+    Lightning's progress bar and model summary are off; the epoch progress, the pipeline's
+    milestones and any warning go to the parent through the queue (one labelled line each)."""
     job.output_dir.mkdir(parents=True, exist_ok=True)
+    job = replace(job, trainer_cfg={
+        **job.trainer_cfg, "enable_progress_bar": False, "enable_model_summary": False,
+    })
     formatter = logging.Formatter(LOG_FORMAT.replace("%(message)s", f"[{job.key}] %(message)s"))
-    handlers = [logging.StreamHandler(), logging.FileHandler(job.output_dir / "train.log")]
+    handlers: list[logging.Handler] = [logging.FileHandler(job.output_dir / "train.log")]
     root = logging.getLogger()
     root.setLevel(logging.INFO)
     for handler in handlers:
         handler.setFormatter(formatter)
         root.addHandler(handler)
+    # Lightning prints its device lines through its own console handler when imported
+    # before any logging was set up (as in a fresh worker): route them to train.log instead
+    for name in ("lightning", "lightning.pytorch", "lightning.fabric"):
+        lightning_log = logging.getLogger(name)
+        for handler in list(lightning_log.handlers):
+            lightning_log.removeHandler(handler)
+        lightning_log.propagate = True
+    logging.captureWarnings(True)  # library warnings: train.log, not the shared terminal
+    started = time.monotonic()
+    queue = _progress_queue
+    package_log = logging.getLogger("hysteresis_lab")
+    forward = _QueueLogHandler(job.key, queue) if queue is not None else None
+    if forward is not None:
+        package_log.addHandler(forward)
     try:
-        return _run_job(job)
+        if queue is not None:
+            queue.put((job.key, f"started (log: {job.output_dir / 'train.log'})"))
+        reporter = [EpochReporter(job.key, queue)] if queue is not None else None
+        entry = _run_job(job, reporter)
+        if queue is not None:
+            queue.put((job.key, f"done in {_duration(time.monotonic() - started)}"))
+        return entry
     finally:  # a worker process runs several jobs: each logs only to its own file
-        for handler in handlers:
-            root.removeHandler(handler)
-            handler.close()
+        for handler in [*handlers, forward]:
+            if handler is not None:
+                root.removeHandler(handler)
+                package_log.removeHandler(handler)
+                handler.close()
+
+
+def _relay_progress(queue: Any) -> None:
+    """Log the workers' progress messages, one labelled line each, until ``None`` arrives."""
+    for item in iter(queue.get, None):
+        key, message = item
+        log.info("[%s] %s", key, message)
 
 
 def run_paper(
@@ -151,9 +250,18 @@ def run_paper(
         log.info("training %s in %d processes with %d torch thread(s) each",
                  ", ".join(job.key for job in jobs), processes, threads)
         context = multiprocessing.get_context("spawn")  # fork after torch init can deadlock
-        with ProcessPoolExecutor(processes, mp_context=context) as pool:
-            futures = {job.key: pool.submit(_run_job_in_worker, job) for job in jobs}
-            done = {key: future.result() for key, future in futures.items()}
+        queue = context.Queue()
+        relay = threading.Thread(target=_relay_progress, args=(queue,), daemon=True)
+        relay.start()
+        try:
+            with ProcessPoolExecutor(
+                processes, mp_context=context, initializer=_init_worker, initargs=(queue,)
+            ) as pool:
+                futures = {job.key: pool.submit(_run_job_in_worker, job) for job in jobs}
+                done = {key: future.result() for key, future in futures.items()}
+        finally:
+            queue.put(None)
+            relay.join(timeout=10)
         entries = {key: done[key] for key in models}  # the config's order
     documents = {key: entry.document for key, entry in entries.items()}
     md_path, csv_path = write_table2(documents, output_dir)

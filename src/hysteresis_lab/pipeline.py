@@ -21,13 +21,13 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from omegaconf import DictConfig, OmegaConf
 
 from hysteresis_lab import fit_record
-from hysteresis_lab.data.factory import build_datamodule, build_splits
+from hysteresis_lab.data.factory import build_datamodule, build_splits, window_spec
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.effects.augment import augment_splits, context_to_dict
 from hysteresis_lab.effects.registry import check_effects
 from hysteresis_lab.errors import DataError
-from hysteresis_lab.evaluation.evaluate import Evaluation, evaluate_model
+from hysteresis_lab.evaluation.evaluate import Evaluation, evaluate_model, scoring_start
 from hysteresis_lab.evaluation.plots import loops_figure, residuals_figure, save_figure
 from hysteresis_lab.evaluation.predict import check_n_step
 from hysteresis_lab.evaluation.report import metrics_document, write_json
@@ -118,7 +118,7 @@ def train_and_evaluate(
     splits = splits or build_splits(data_cfg)
     data, context = augment_splits(splits, effects)
     if evaluate:
-        _check_evaluation_settings(data, n_steps)
+        _check_evaluation_settings(data, n_steps, window_spec(data_cfg))
     record_key = None
     if reuse and evaluate:
         settings = {"model": model_cfg, "data": data_cfg, "trainer": trainer_cfg, "seed": seed,
@@ -289,7 +289,9 @@ def _trained_on(data: DatasetSplits) -> dict[str, Any]:
     return {"fs": data.fs, **{f"{k}_units": v for k, v in data.units.items()}}
 
 
-def _check_evaluation_settings(data: DatasetSplits, n_steps: int | None) -> None:
+def _check_evaluation_settings(
+    data: DatasetSplits, n_steps: int | None, window: WindowSpec
+) -> None:
     """Fail before training, not after it, when the evaluation cannot run."""
     if not data.test:
         raise DataError(
@@ -298,6 +300,16 @@ def _check_evaluation_settings(data: DatasetSplits, n_steps: int | None) -> None
             fix="give some with data.test=[a.csv,b.csv], or train only with evaluate=false",
         )
     check_n_step(n_steps)
+    start = scoring_start(window, data.n_init)
+    for rec in data.test:
+        if rec.n_samples <= start:
+            raise DataError(
+                f"has {rec.n_samples} samples, but scoring starts at sample {start + 1} (the "
+                f"model's window na={window.na}, nb={window.nb}, nk={window.nk}, "
+                f"n_init={data.n_init}): nothing would be left to score.",
+                source=f"test recording '{rec.metadata.get('path', rec.name)}'",
+                fix="use a longer test recording, or smaller data.window.na / nb (or n_init)",
+            )
 
 
 def _score_rejected_refit(

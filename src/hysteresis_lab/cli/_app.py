@@ -6,7 +6,6 @@ import functools
 import logging
 import sys
 from collections.abc import Callable
-from pathlib import Path
 from typing import TypeVar
 
 from omegaconf import DictConfig
@@ -19,15 +18,9 @@ log = logging.getLogger("hysteresis_lab")
 T = TypeVar("T")
 
 
-def config_dir() -> str:
-    """Absolute path of the repository's ``conf/`` folder (the project installs editable)."""
-    path = Path(__file__).resolve().parents[3] / "conf"
-    if not path.is_dir():
-        raise HysteresisLabError(
-            f"configuration folder {path} not found. Fix: install hysteresis_lab from a source "
-            "checkout with `pip install -e .` so that conf/ sits beside src/."
-        )
-    return str(path)
+#: the packaged Hydra configs (src/hysteresis_lab/conf), found in any install (wheel, sdist,
+#: editable) through the import system
+CONFIG_PATH = "pkg://hysteresis_lab.conf"
 
 
 def report_errors(task: Callable[..., T]) -> Callable[..., T]:

@@ -16,7 +16,7 @@ import torch
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
-from hysteresis_lab.cli._app import config_dir, report_errors
+from hysteresis_lab.cli._app import CONFIG_PATH, report_errors
 from hysteresis_lab.errors import ConfigError
 
 log = logging.getLogger(__name__)
@@ -32,9 +32,19 @@ def run(cfg: DictConfig) -> dict:
     from hysteresis_lab.evaluation.report import metrics_document, write_json
     from hysteresis_lab.models.io import load_model, model_window
 
+    if OmegaConf.is_missing(cfg, "checkpoint") or not cfg.checkpoint:
+        raise ConfigError(
+            "no model to evaluate: checkpoint is not set. Fix: checkpoint=<model.ckpt or "
+            "model.skops, or the run folder of hysteresis-lab-train that holds it>."
+        )
+    data_cfg = OmegaConf.to_container(cfg.data, resolve=True)
+    if "test" in data_cfg and not data_cfg["test"]:
+        raise ConfigError(
+            f"no test file to evaluate on: data.test is empty (data={data_cfg.get('name')}). "
+            "Fix: data.test=[new.csv] (a list of recordings to score)."
+        )
     output_dir = Path(HydraConfig.get().runtime.output_dir)
     model = load_model(resolve_checkpoint(Path(str(cfg.checkpoint))))
-    data_cfg = OmegaConf.to_container(cfg.data, resolve=True)
     splits_cfg = data_cfg.get("splits") or {}
     if "train" in splits_cfg and not splits_cfg["train"] and data_cfg.get("test"):
         splits_cfg["train"] = data_cfg["test"][0]  # nothing is fitted; a stand-in for validation
@@ -85,7 +95,7 @@ def resolve_checkpoint(path: Path) -> Path:
     return path
 
 
-@hydra.main(config_path=config_dir(), config_name="evaluate")
+@hydra.main(config_path=CONFIG_PATH, config_name="evaluate")
 def _main(cfg: DictConfig) -> None:
     run(cfg)
 

@@ -14,7 +14,7 @@ import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
-from hysteresis_lab.cli._app import config_dir, report_errors
+from hysteresis_lab.cli._app import CONFIG_PATH, report_errors
 
 log = logging.getLogger(__name__)
 
@@ -48,7 +48,7 @@ def run(cfg: DictConfig) -> dict:
     )
 
 
-@hydra.main(config_path=config_dir(), config_name="loop")
+@hydra.main(config_path=CONFIG_PATH, config_name="loop")
 def _main(cfg: DictConfig) -> None:
     run(cfg)
 

@@ -9,12 +9,13 @@ Example::
 from __future__ import annotations
 
 import logging
+import os
 from pathlib import Path
 
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from hysteresis_lab.cli._app import config_dir, report_errors
+from hysteresis_lab.cli._app import CONFIG_PATH, report_errors
 from hysteresis_lab.errors import ConfigError
 
 log = logging.getLogger(__name__)
@@ -28,6 +29,9 @@ def run(cfg: DictConfig) -> Path:
     from hysteresis_lab.sim.positioner import simulate_recording
 
     sig = cfg.signal
+    explicit = cfg.get("output")
+    if explicit:  # checked before the simulation, which takes a while
+        output_path(str(explicit))
     if sig.kind == "multisine":
         u = multisine(
             sig.n_samples,
@@ -46,8 +50,14 @@ def run(cfg: DictConfig) -> Path:
         raise ConfigError(f"unknown signal.kind '{sig.kind}'. Fix: signal.kind=multisine or sine.")
     effects = OmegaConf.to_container(cfg.effects, resolve=True)
     recording = simulate_recording(u, cfg.fs, effects, seed=cfg.seed, name=name)
-    output = cfg.get("output") or f"outputs/simulated/{name}.csv"
-    path = write_csv(recording, Path(str(output)))
+    path = output_path(str(explicit or f"outputs/simulated/{name}.csv"))
+    try:
+        write_csv(recording, path)
+    except OSError as exc:
+        raise ConfigError(
+            f"cannot write output={path}: {exc.strerror or exc}. "
+            "Fix: output=<a writable .csv path>."
+        ) from None
     log.info(
         "wrote %d samples (%s; effects: %s) to %s",
         recording.n_samples,
@@ -58,7 +68,38 @@ def run(cfg: DictConfig) -> Path:
     return path
 
 
-@hydra.main(config_path=config_dir(), config_name="simulate")
+def output_path(output: str) -> Path:
+    """The CSV path ``output`` names, its folder created (and logged) where missing; a
+    `ConfigError` when it is a folder or cannot be written."""
+    path = Path(output)
+    if path.is_dir() or output.endswith(("/", os.sep)):
+        raise ConfigError(
+            f"output={output} is a folder, not a file. Fix: output={path / 'recording.csv'}."
+        )
+    parent = path.parent
+    blocking = next((p for p in path.parents if p.exists() and not p.is_dir()), None)
+    if blocking is not None:
+        raise ConfigError(
+            f"output={output}: {blocking} is a file, so no folder can be made there. "
+            "Fix: output=<a .csv path in a writable folder>."
+        )
+    if not parent.is_dir():
+        try:
+            parent.mkdir(parents=True)
+        except OSError as exc:
+            raise ConfigError(
+                f"output={output}: cannot create its folder {parent} ({exc.strerror or exc}). "
+                "Fix: output=<a .csv path in a writable folder>."
+            ) from None
+        log.info("created the folder %s for output=%s", parent.resolve(), output)
+    if not os.access(parent, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
+        raise ConfigError(
+            f"output={output} is not writable. Fix: output=<a .csv path in a writable folder>."
+        )
+    return path
+
+
+@hydra.main(config_path=CONFIG_PATH, config_name="simulate")
 def _main(cfg: DictConfig) -> None:
     run(cfg)
 

@@ -13,13 +13,14 @@ The return value is the validation MSE (scaled units), the objective of sweeps.
 from __future__ import annotations
 
 import logging
+import warnings
 from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
-from hysteresis_lab.cli._app import config_dir, report_errors
+from hysteresis_lab.cli._app import CONFIG_PATH, report_errors
 from hysteresis_lab.errors import ConfigError
 
 log = logging.getLogger(__name__)
@@ -67,17 +68,20 @@ def run(cfg: DictConfig) -> float | None:
     return result.val_mse
 
 
-@hydra.main(config_path=config_dir(), config_name="train")
+@hydra.main(config_path=CONFIG_PATH, config_name="train")
 def _main(cfg: DictConfig) -> float | None:
     return run(cfg)
 
 
-BEST_CONFIGS = Path("outputs/optuna/best")  # on the search path: experiment=best_<study>
-
-
 def main() -> None:
     """Console-script entry point."""
-    (BEST_CONFIGS / "experiment").mkdir(parents=True, exist_ok=True)
+    # outputs/optuna/best exists only after a finished sweep (experiment=best_<study>); until
+    # then its search-path entry is empty, which is normal, not worth a warning
+    warnings.filterwarnings(
+        "ignore",
+        message=r"provider=hydra\.searchpath in main, path=outputs/optuna/best is not",
+        category=UserWarning,
+    )
     _main()
 
 

@@ -78,6 +78,14 @@ class WindowDataModule(L.LightningDataModule):
         self.seed = seed
         self.num_workers = num_workers
         self.scaler = Scaler.fit(splits.train, scaling, u_scale=u_scale, y_scale=y_scale)
+        log.info(
+            "%s: scaling=%s (scaled = (value - offset) / scale): u offset %s scale %s, "
+            "y offset %s scale %s%s",
+            splits.name,
+            scaling,
+            *(np.array2string(v, precision=4) for v in vars(self.scaler).values()),
+            " (fitted to the training recordings)" if scaling == "standard" else "",
+        )
         n_base = splits.metadata.get("n_base_inputs")
         if n_base is not None:  # effect operators appended to the measured inputs
             self.scaler = self.scaler.standardise_inputs_from(int(n_base), splits.train)
@@ -176,7 +184,8 @@ class PaperDataModule(WindowDataModule):
 
     Training/validation: a 500-component multisine (0-500 Hz, +-100 V, 80,000 samples at
     20 kHz) cut into windows and split 90/10 at random; test: the twelve sines.
-    ``effects`` switches and parameterises the simulator's blocks (``conf/sim/positioner.yaml``).
+    ``effects`` switches and parameterises the simulator's blocks
+    (``hysteresis_lab/conf/sim/positioner.yaml``).
     """
 
     def __init__(self, effects: dict[str, Any] | None = None, data_seed: int = 0, **kwargs: Any):

@@ -47,6 +47,17 @@ def build_splits(data_cfg: Mapping[str, Any] | DictConfig) -> DatasetSplits:
     return splits
 
 
+def window_spec(data_cfg: Mapping[str, Any] | DictConfig) -> WindowSpec:
+    """The regression window ``data_cfg.window`` describes (checked)."""
+    window = _as_dict(data_cfg).get("window", {}) or {}
+    unknown = set(window) - {"na", "nb", "nk"}
+    if unknown:
+        raise ConfigError(
+            f"unknown key(s) {sorted(unknown)} in data.window. Fix: use na, nb and nk."
+        )
+    return WindowSpec(**window)
+
+
 def build_datamodule(
     data_cfg: Mapping[str, Any] | DictConfig,
     layout: Layout,
@@ -55,16 +66,11 @@ def build_datamodule(
 ) -> WindowDataModule:
     """A `WindowDataModule` for ``data_cfg`` in the layout the model needs."""
     cfg = _as_dict(data_cfg)
-    window = cfg.get("window", {}) or {}
     scaling = cfg.get("scaling", {}) or {}
-    unknown = set(window) - {"na", "nb", "nk"}
-    if unknown:
-        raise ConfigError(
-            f"unknown key(s) {sorted(unknown)} in data.window. Fix: use na, nb and nk."
-        )
+    window = window_spec(cfg)
     return WindowDataModule(
         splits if splits is not None else build_splits(cfg),
-        window=WindowSpec(**window),
+        window=window,
         layout=layout,
         scaling=scaling.get("mode", "paper"),
         u_scale=scaling.get("u_scale", 100.0),

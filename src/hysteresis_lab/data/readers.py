@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import csv
 import logging
+import re
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -22,6 +23,8 @@ from hysteresis_lab.errors import DataError
 log = logging.getLogger(__name__)
 
 UNIFORM_TOLERANCE = 1e-3  # relative spread of the sampling interval still called uniform
+#: a number written with a decimal comma (1,5 or -0,25e-3)
+DECIMAL_COMMA = re.compile(r"^[+-]?\d+,\d+([eE][+-]?\d+)?$")
 
 
 def _names(value: str | Sequence[str]) -> list[str]:
@@ -191,6 +194,13 @@ def read_csv(
             source=str(path),
             fix="start the file with a header row such as 't,u,y'",
         )
+    duplicated = sorted({h for h in header if h and header.count(h) > 1})
+    if duplicated:
+        raise DataError(
+            f"the header names column(s) {duplicated} more than once ({first.strip()!r}).",
+            source=str(path),
+            fix="give every column its own name in the header row (e.g. y1,y2)",
+        )
     if not rows:
         raise DataError(
             "the file has a header but no data rows.",
@@ -199,12 +209,35 @@ def read_csv(
         )
     table: dict[str, list[float]] = {h: [] for h in header if h}
     for number, row in enumerate(rows, start=2):
+        if any(cell.strip() for cell in row[len(header) :]):
+            decimal_comma = delimiter == "," and len(row) >= 2 * len(header)
+            raise DataError(
+                f"line {number} has {len(row)} values but the header names {len(header)} "
+                f"columns ({first.strip()!r})"
+                + (
+                    ": it looks like decimal commas between comma separators."
+                    if decimal_comma
+                    else "."
+                ),
+                source=str(path),
+                fix="write numbers with a decimal point (1.5, not 1,5), or separate the columns "
+                "with ';' or tab"
+                if decimal_comma
+                else "give every row one value per header column",
+            )
         for key, cell in zip(header, row, strict=False):
             if not key:
                 continue
             try:
                 table[key].append(float(cell) if cell.strip() else np.nan)
             except ValueError:
+                if DECIMAL_COMMA.match(cell.strip()):
+                    raise DataError(
+                        f"value {cell!r} in column '{key}', line {number}, has a decimal comma.",
+                        source=str(path),
+                        fix="write numbers with a decimal point (1.5, not 1,5): export the file "
+                        "with a '.' decimal separator, keeping ';' or tab between columns",
+                    ) from None
                 raise DataError(
                     f"non-numeric value {cell!r} in column '{key}', line {number}.",
                     source=str(path),
@@ -355,7 +388,15 @@ READERS: dict[str, Callable[..., Recording]] = {
 def read_recording(path: str | Path, **options: Any) -> Recording:
     """Read any supported file, choosing the reader by suffix."""
     path = Path(path)
+    if path.is_dir():
+        raise DataError(
+            "is a folder, not a file.",
+            source=str(path),
+            fix="give the path of a recording inside it (e.g. data.train=<folder>/run.csv)",
+        )
     reader = READERS.get(path.suffix.lower())
+    if reader is None and not path.suffix:
+        _check_file(path)  # "no such file" rather than "unknown file type ''"
     if reader is None:
         raise DataError(
             f"unknown file type '{path.suffix}'.",

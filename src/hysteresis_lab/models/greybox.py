@@ -109,7 +109,7 @@ class GreyBox(PhysicalChainModule):
         if problems:
             raise ConfigError(
                 "model=greybox cannot take " + "; ".join(problems) + ". Fix: change those "
-                "settings (conf/model/greybox.yaml has the defaults)."
+                "settings (hysteresis_lab/conf/model/greybox.yaml has the defaults)."
             )
         nyquist = 0.5 * fs
         self.amplifier = FirstOrderLag(fs, amplifier_hz or 0.25 * fs)

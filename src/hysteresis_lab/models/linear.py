@@ -124,7 +124,7 @@ class LinearModel(PhysicalChainModule):
         if problems:
             raise ConfigError(
                 "model=linear cannot take " + "; ".join(problems) + ". Fix: change those "
-                "settings (conf/model/linear.yaml has the defaults)."
+                "settings (hysteresis_lab/conf/model/linear.yaml has the defaults)."
             )
         amplitude = self._input_amplitude()
         self.input_blocks = nn.ModuleDict()

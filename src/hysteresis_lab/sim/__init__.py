@@ -1,7 +1,7 @@
 """The simulated piezoelectric cantilever positioner, the built-in default data source.
 
 Signal chain (each block switchable; parameters in `hysteresis_lab.sim.config` and
-``conf/sim/positioner.yaml``; defaults in brackets, "off" = disabled by default)::
+``hysteresis_lab/conf/sim/positioner.yaml``; defaults in brackets, "off" = disabled by default)::
 
     u [V] -> amplifier        first-order low-pass [5 kHz]
           -> saturation       clipping at ±limit [off, 90 V]

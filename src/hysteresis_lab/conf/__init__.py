@@ -1,0 +1,1 @@
+"""The packaged Hydra configs (``pkg://hysteresis_lab.conf``)."""

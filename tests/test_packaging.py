@@ -1,0 +1,69 @@
+"""A wheel built from the source tree carries its configs: installed without the checkout (no
+editable install), every command still composes its config and runs."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def run(*args: str | Path, cwd: Path, env: dict | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [str(a) for a in args], cwd=cwd, capture_output=True, text=True, timeout=600, env=env
+    )
+
+
+@pytest.mark.slow
+def test_an_installed_wheel_runs_its_commands_outside_the_checkout(tmp_path):
+    # built from a copy of what the sdist holds, so that the checkout gets no build/ folder
+    source = tmp_path / "source"
+    shutil.copytree(
+        REPO / "src", source / "src", ignore=shutil.ignore_patterns("*.egg-info", "__pycache__")
+    )
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy2(REPO / name, source / name)
+    dist = tmp_path / "dist"
+    built = run(sys.executable, "-m", "pip", "wheel", "--no-deps", "-w", dist, source, cwd=tmp_path)
+    assert built.returncode == 0, built.stderr[-3000:]
+    (wheel,) = dist.glob("hysteresis_lab-*.whl")
+    names = zipfile.ZipFile(wheel).namelist()
+    assert {"hysteresis_lab/conf/train.yaml", "hysteresis_lab/conf/data/csv.yaml"} <= set(names)
+
+    venv = tmp_path / "venv"
+    made = run(sys.executable, "-m", "venv", "--system-site-packages", venv, cwd=tmp_path)
+    assert made.returncode == 0, made.stderr[-3000:]
+    python = venv / "bin" / "python"
+    installed = run(python, "-m", "pip", "install", "--no-deps", "--no-index", wheel, cwd=tmp_path)
+    assert installed.returncode == 0, installed.stderr[-3000:]
+
+    # outside the checkout, with nothing of it on the path: only the wheel's files are used
+    cwd = tmp_path / "elsewhere"
+    cwd.mkdir()
+    env = {k: v for k, v in os.environ.items() if k not in {"PYTHONPATH", "VIRTUAL_ENV"}}
+    where = run(
+        python, "-c", "import hysteresis_lab; print(hysteresis_lab.__file__)", cwd=cwd, env=env
+    )
+    assert str(venv) in where.stdout, (where.stdout, where.stderr)
+    for command in ("train", "evaluate", "loop", "simulate"):
+        proc = run(venv / "bin" / f"hysteresis-lab-{command}", "--help", cwd=cwd, env=env)
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        assert "== Configuration groups ==" in proc.stdout
+    out = cwd / "sine.csv"
+    proc = run(
+        venv / "bin" / "hysteresis-lab-simulate",
+        "signal.kind=sine",
+        "signal.frequency=100",
+        f"output={out}",
+        cwd=cwd,
+        env=env,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert out.read_text().startswith("t,u,y")

@@ -1,0 +1,35 @@
+"""The README's first steps: the expected time beside the first command (as the experiment's
+config states it), the CPU torch note before the first install, pasteable commands."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+README = (REPO / "README.md").read_text()
+PAPER = (REPO / "src" / "hysteresis_lab" / "conf" / "experiment" / "paper.yaml").read_text()
+
+
+def test_the_first_command_gives_the_time_the_paper_config_gives():
+    line = next(x for x in README.splitlines() if "hysteresis-lab-train experiment=paper" in x)
+    readme_time = re.search(r"about ([\d–-]+ min)", line)
+    config_time = re.search(r"experiment=paper\s+\(about ([\d–-]+ min)", PAPER)
+    assert readme_time and config_time and readme_time.group(1) == config_time.group(1)
+
+
+def test_the_cpu_torch_note_comes_before_the_first_install():
+    note = README.index("download.pytorch.org/whl/cpu")
+    assert note < README.index("pip install -e .")
+
+
+def test_every_command_line_in_the_code_blocks_is_pasteable():
+    blocks = re.findall(r"```bash\n(.*?)```", README, flags=re.S)
+    for line in "\n".join(blocks).splitlines():
+        command = line.split("#", 1)[0]
+        assert not re.search(r"\bdata=\w+ \| data=", command), line
+
+
+def test_the_study_is_cited_once_with_authors_title_venue_and_year():
+    assert README.count("Deep learning applied to data-driven dynamic characterization") == 1
+    assert "Soares Barbosa" in README and "IFAC World Congress" in README and "2020" in README
