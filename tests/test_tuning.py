@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import signal
 import socket
 import sqlite3
@@ -17,13 +18,18 @@ import pytest
 from optuna.trial import TrialState
 
 from helpers import data_overrides, popen_app, run_app, small_dataset
+from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.tuning.bookkeeping import DISCARDED, PID, counted, discard_stale
+from hysteresis_lab.tuning.storage import STORAGE_ENV, redact, resolve_storage_url
 
 
 @pytest.fixture(scope="module")
 def csv_data(tmp_path_factory) -> list[str]:
     directory = tmp_path_factory.mktemp("tuning_data")
     return data_overrides(*small_dataset(directory, n_train=1500))
+
+
+PG_PASSWORD = "tuning-test-secret"
 
 
 def sweep_args(results: Path, n_trials: int, *extra: str) -> list[str]:
@@ -155,18 +161,44 @@ def test_a_worker_dead_right_after_asking_is_seen_dead_at_once(tmp_path):
 @pytest.mark.parametrize(
     ("override", "message"),
     [
-        ("model.lr=tag(log, interval(1e-3, 1e-4))", "low"),
-        ("hydra.sweeper.sampler=bayes", "unknown sampler 'bayes'"),
-        ("+model.neuronz=range(1,3)", "neuronz"),
-        ("hydra.sweeper.storage=postgresql://nobody@127.0.0.1:9/none", "cannot open the Optuna"),
+        ("model.lr=tag(log, interval(1e-3, 1e-4))",
+         r"invalid search space in hydra\.sweeper\.params: .*\(low=0\.001, high=0\.0001\)"),
+        ("hydra.sweeper.sampler=bayes", r"unknown sampler 'bayes'"),
+        ("+model.neuronz=range(1,3)",
+         r"search-space parameter '\+model\.neuronz' is not in the config\. Fix:"),
+        ("hydra.sweeper.storage=postgresql://nobody@127.0.0.1:9/none",
+         r"cannot open the Optuna storage postgresql://nobody@127\.0\.0\.1:9/none"),
+        # a password in the configured URL would be saved in every run's config: refused
+        (f"hydra.sweeper.storage=postgresql://nobody:{PG_PASSWORD}@127.0.0.1:9/none",
+         r"hydra\.sweeper\.storage contains a password, which Hydra would save in every run's "
+         r"config\. Fix: export HYSTERESIS_LAB_OPTUNA_STORAGE="),
     ],
+    ids=["low_above_high", "sampler", "unknown_parameter", "unreachable", "password"],
 )
 def test_bad_sweep_settings_fail_before_training(tmp_path, csv_data, override, message):
     results = tmp_path / "optuna"
-    proc = run_app("train", *csv_data, *sweep_args(results, 2), override)
+    proc = run_app("train", *csv_data, *sweep_args(results, 2), override,
+                   env={STORAGE_ENV: ""})
     assert proc.returncode != 0
-    assert message in proc.stderr + proc.stdout
+    assert re.search(message, proc.stderr + proc.stdout), proc.stderr + proc.stdout
+    assert "Traceback" not in proc.stderr + proc.stdout  # one clear line, not a crash
+    assert not (results / "runs").exists()  # no trial was launched
     assert not (results / "ffnn_csv.db").exists() or not load(results).get_trials()
+
+
+def test_a_password_is_accepted_from_the_environment_only(tmp_path, monkeypatch):
+    """The URL with its password may come from HYSTERESIS_LAB_OPTUNA_STORAGE (no file records
+    it); in hydra.sweeper.storage it is refused, and logs show it masked."""
+    url = f"postgresql://nobody:{PG_PASSWORD}@127.0.0.1:9/none"
+    monkeypatch.delenv(STORAGE_ENV, raising=False)
+    with pytest.raises(ConfigError, match="hydra.sweeper.storage contains a password"):
+        resolve_storage_url(url, "s", tmp_path)
+    assert resolve_storage_url("postgresql://nobody@127.0.0.1:9/none", "s", tmp_path) == (
+        "postgresql://nobody@127.0.0.1:9/none")
+    monkeypatch.setenv(STORAGE_ENV, url)
+    assert resolve_storage_url(None, "s", tmp_path) == url
+    assert resolve_storage_url(url, "s", tmp_path) == url  # the environment's own URL
+    assert PG_PASSWORD not in redact(url) and "***" in redact(url)
 
 
 def test_nan_trial_fails_and_the_study_goes_on(tmp_path, csv_data):
@@ -186,8 +218,6 @@ def test_nan_trial_fails_and_the_study_goes_on(tmp_path, csv_data):
     assert len(states) == 2
     assert all(s in (TrialState.FAIL, TrialState.PRUNED) for s in states)
 
-
-PG_PASSWORD = "tuning-test-secret"
 
 
 @pytest.fixture(scope="module")
