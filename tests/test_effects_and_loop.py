@@ -211,6 +211,7 @@ def test_white_residual_has_no_significant_missing_effect():
     assert not correlation_tests(leaking, u)[1].passed  # correlated with the input
 
 
+@pytest.mark.slow
 def test_loop_writes_its_report(tmp_path):
     train, tests = small_dataset(tmp_path, effects={"creep": {"enabled": True}})
     proc = run_app("loop", *data_overrides(train, tests), "model=ffnn", "loop.max_rounds=1",
@@ -253,6 +254,7 @@ def test_loop_writes_its_report(tmp_path):
     assert scored == {d["effect"] for d in rounds[0]["diagnosis"] if d["tested"]}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "model",
     [
@@ -288,6 +290,7 @@ def test_loop_gives_network_settings_only_to_networks():
         "name": "lstm", **settings}
 
 
+@pytest.mark.slow
 def test_loop_drops_an_effect_whose_refit_does_not_help(tmp_path):
     """No refit takes 99 % off the validation loss: every significant candidate is tried,
     rejected and dropped in turn, and the round-0 model stands."""
@@ -341,6 +344,7 @@ def test_bad_loop_settings_are_config_errors():
         LoopSettings(min_score=-0.1)
 
 
+@pytest.mark.slow
 def test_loop_runs_with_the_svm(tmp_path):
     """No network to warm-start: each round fits the SVM once, with the round's effects."""
     train, tests = small_dataset(tmp_path, effects={"creep": {"enabled": True}})
@@ -361,6 +365,7 @@ def test_loop_runs_with_the_svm(tmp_path):
     assert (tmp_path / "loop" / "round_1" / "metrics.json").is_file() is kept
 
 
+@pytest.mark.slow
 def test_an_svm_refit_that_loses_on_validation_is_dropped(tmp_path):
     """The SVM refits from scratch: it is kept only when its validation MSE beats the last
     model's (here by 99 %, which none does), else the last model stands."""

@@ -17,6 +17,7 @@ SMALL_DEFAULT = ["data=default", "+data.splits.n_train=4000", "+data.splits.max_
                  "+data.splits.test_frequencies=[10,50]"]
 
 
+@pytest.mark.slow
 def test_refit_choice_scores_the_start_and_every_refit(tmp_path):
     """Every refit is rejected (no refit takes 99 % off): the script scores the start and each
     rate's own saved weights on the check sines and names the one they prefer."""

@@ -17,6 +17,7 @@ import optuna
 import pytest
 from optuna.trial import TrialState
 
+from conftest import optional_dependency
 from helpers import data_overrides, popen_app, run_app, small_dataset
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.tuning.bookkeeping import DISCARDED, PID, counted, discard_stale
@@ -67,6 +68,7 @@ def counted_trials(study: optuna.Study) -> list[optuna.trial.FrozenTrial]:
     return [t for t in study.get_trials() if counted(t)]
 
 
+@pytest.mark.slow
 def test_sweep_writes_results_and_resumes_without_repeating(tmp_path, csv_data):
     results = tmp_path / "optuna"
     first = run_app("train", *csv_data, *sweep_args(results, 3))
@@ -104,6 +106,7 @@ def test_sweep_writes_results_and_resumes_without_repeating(tmp_path, csv_data):
     assert best.returncode == 0, best.stderr[-3000:]
 
 
+@pytest.mark.slow
 def test_sigkill_mid_trial_loses_no_completed_trial(tmp_path, csv_data):
     results = tmp_path / "optuna"
     args = [*csv_data, *sweep_args(results, 3, "trainer.max_epochs=40")]
@@ -158,6 +161,7 @@ def test_a_worker_dead_right_after_asking_is_seen_dead_at_once(tmp_path):
     assert orphan.user_attrs[DISCARDED] == "worker died"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("override", "message"),
     [
@@ -201,6 +205,7 @@ def test_a_password_is_accepted_from_the_environment_only(tmp_path, monkeypatch)
     assert PG_PASSWORD not in redact(url) and "***" in redact(url)
 
 
+@pytest.mark.slow
 def test_nan_trial_fails_and_the_study_goes_on(tmp_path, csv_data):
     results = tmp_path / "optuna"
     proc = run_app(
@@ -223,7 +228,7 @@ def test_nan_trial_fails_and_the_study_goes_on(tmp_path, csv_data):
 @pytest.fixture(scope="module")
 def postgres_url(tmp_path_factory):
     """A real PostgreSQL server on TCP loopback that demands a password (pgserver's binaries)."""
-    pgserver = pytest.importorskip("pgserver")
+    pgserver = optional_dependency("pgserver")
     import psycopg
     from pgserver.postgres_server import pg_ctl
 
@@ -246,6 +251,7 @@ def postgres_url(tmp_path_factory):
     pg_ctl(["-w", "stop"], pgdata=server.pgdata, user=server.system_user, timeout=30)
 
 
+@pytest.mark.slow
 def test_two_workers_share_one_postgres_study(tmp_path, csv_data, postgres_url):
     env = {"HYSTERESIS_LAB_OPTUNA_STORAGE": postgres_url}
     n_trials = 6
