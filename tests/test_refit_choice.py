@@ -27,7 +27,13 @@ def test_refit_choice_scores_the_start_and_every_refit(tmp_path):
                    "trainer.enable_progress_bar=false", "logger=none", f"hydra.run.dir={run}")
     assert proc.returncode == 0, proc.stderr[-3000:]
     rounds = json.loads((run / "loop_report.json").read_text())["rounds"]
+    # the simulator's hysteresis is undeclared: round 0 finds it (and more), so there are
+    # refits to score, each rejected by the 99 % rule
+    assert rounds[0]["added"] == "hysteresis"
+    significant = [d["effect"] for d in rounds[0]["diagnosis"] if d["significant"]]
+    assert [r["rejected"] for r in rounds[1:]] == significant
     results = refit_choices(run, [20.0, 70.0])
+    assert len(results) == len(significant) >= 1
     assert [r["round"] for r in results] == list(range(1, len(rounds)))
     for result, entry in zip(results, rounds[1:], strict=True):
         start, *refits = result["candidates"]
