@@ -12,6 +12,8 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 
 from helpers import REPO, data_overrides, run_app, small_dataset
 
+pytestmark = pytest.mark.slow  # every test here runs a console app
+
 QUIET = ["trainer.enable_progress_bar=false", "trainer.enable_model_summary=false"]
 
 

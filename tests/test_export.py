@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import torch
 
+from conftest import optional_dependency
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.training import build_model
 from narx import CONFIGS, datamodule_for, narx_data
@@ -13,7 +14,7 @@ from narx import CONFIGS, datamodule_for, narx_data
 
 @pytest.mark.parametrize("name", ["ffnn", "lstm", "cnn"])
 def test_onnx_export_matches_pytorch(name, tmp_path):
-    ort = pytest.importorskip("onnxruntime")
+    ort = optional_dependency("onnxruntime")
     from hysteresis_lab.models.export import export_onnx
 
     dm = datamodule_for(name, narx_data(n=300))

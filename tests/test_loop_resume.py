@@ -8,6 +8,7 @@ import signal
 import time
 
 import numpy as np
+import pytest
 import torch
 
 from helpers import data_overrides, popen_app, run_app, small_dataset
@@ -42,6 +43,7 @@ def _kill_when(path, proc, timeout=300.0):
     proc.wait()
 
 
+@pytest.mark.slow
 def test_a_killed_loop_resumes_without_retraining_its_finished_fits(tmp_path):
     args = _loop_args(tmp_path)
     whole = run_app("loop", *args, f"hydra.run.dir={tmp_path}/whole")

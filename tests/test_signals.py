@@ -64,17 +64,19 @@ def test_sine_starts_at_zero_and_lasts_n_periods():
 
 
 @pytest.mark.parametrize(
-    "call",
+    ("call", "message"),
     [
-        lambda: multisine(1000, f_max=10_000.0),
-        lambda: multisine(0),
-        lambda: multisine(1000, amplitude=-1.0),
-        lambda: multisine(1000, n_components=2.5),
-        lambda: sine(10_000.0),
-        lambda: sine(-1.0),
-        lambda: sine(1.0, n_periods=0.0),
+        (lambda: multisine(1000, f_max=10_000.0),
+         r"multisine f_max=10000.0 Hz must lie below fs/2 = 10000.0 Hz"),
+        (lambda: multisine(0), r"signal n_samples=0 must be a positive number"),
+        (lambda: multisine(1000, amplitude=-1.0), r"signal amplitude=-1.0 must be a positive"),
+        (lambda: multisine(1000, n_components=2.5),
+         r"signal n_components=2.5 must be a whole number"),
+        (lambda: sine(10_000.0), r"sine frequency 10000.0 Hz must lie below fs/2 = 10000.0 Hz"),
+        (lambda: sine(-1.0), r"signal frequency=-1.0 must be a positive number"),
+        (lambda: sine(1.0, n_periods=0.0), r"signal n_periods=0.0 must be a positive number"),
     ],
 )
-def test_invalid_signal_arguments_raise_config_error(call):
-    with pytest.raises(ConfigError):
+def test_invalid_signal_arguments_raise_config_error(call, message):
+    with pytest.raises(ConfigError, match=message):
         call()

@@ -7,6 +7,9 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
+
+pytestmark = pytest.mark.slow  # every test here runs a console app
 
 
 def simulate(tmp_path: Path, *overrides: str) -> subprocess.CompletedProcess:

@@ -167,12 +167,23 @@ def test_second_mode_appears_when_enabled():
 
 
 def test_input_and_output_delays_shift_the_response():
+    """Started at rest, the positioner is time invariant: each delay shifts its response."""
     u = sine(10.0, fs=FS, n_periods=2.0)
     base = effects(creep={"enabled": False})
+    assert PositionerConfig.from_dict(base).input_delay.samples == 1  # on by default
     y0 = Positioner(base).simulate(u, FS)
     y3 = Positioner({**base, "output_delay": {"enabled": True, "samples": 3}}).simulate(u, FS)
     np.testing.assert_allclose(y3[3:], y0[:-3])
     assert np.all(y3[:3] == 0.0)
+    # the input delay: 1 sample by default, 5 here (4 more), off (1 fewer)
+    y5 = Positioner({**base, "input_delay": {"samples": 5}}).simulate(u, FS)
+    np.testing.assert_allclose(y5[4:], y0[:-4], atol=1e-12)
+    assert np.all(y5[:6] == 0.0) and np.any(y0[:6] != 0.0)
+    off = Positioner({**base, "input_delay": {"enabled": False}}).simulate(u, FS)
+    np.testing.assert_allclose(off[:-1], y0[1:], atol=1e-12)
+    both = Positioner({**base, "input_delay": {"samples": 5},
+                       "output_delay": {"enabled": True, "samples": 3}}).simulate(u, FS)
+    np.testing.assert_allclose(both[7:], y0[:-7], atol=1e-12)
 
 
 # ---------------------------------------------------------------- noise
@@ -192,18 +203,20 @@ def test_unknown_block_names_the_valid_ones():
 
 
 @pytest.mark.parametrize(
-    "values",
+    ("values", "message"),
     [
-        {"creep": {"enabeld": False}},
-        {"creep": False},
-        {"hysteresis": {"beta": 0.001, "gamma": 0.01}},
-        {"mode1": {"damping": 0.0}},
-        {"quantisation": {"step_um": 0.0}},
-        {"input_delay": {"samples": -1}},
+        ({"creep": {"enabeld": False}},
+         r"effect block 'creep' has no parameter\(s\) \['enabeld'\]\. Valid: \['enabled',"),
+        ({"creep": False}, r"effect block 'creep' must be a mapping of parameters, got False"),
+        ({"hysteresis": {"beta": 0.001, "gamma": 0.01}},
+         r"hysteresis needs beta > \|gamma\| \(got beta=0.001, gamma=0.01\)"),
+        ({"mode1": {"damping": 0.0}}, r"mode1 needs frequency_hz > 0 and damping > 0"),
+        ({"quantisation": {"step_um": 0.0}}, r"quantisation.step_um=0.0 must be positive"),
+        ({"input_delay": {"samples": -1}}, r"input_delay.samples must be >= 0"),
     ],
 )
-def test_invalid_configs_raise_config_error(values):
-    with pytest.raises(ConfigError):
+def test_invalid_configs_raise_config_error(values, message):
+    with pytest.raises(ConfigError, match=message):
         PositionerConfig.from_dict(values)
 
 
@@ -213,7 +226,7 @@ def test_mode_above_nyquist_is_rejected():
 
 
 def test_bad_input_is_a_data_error():
-    with pytest.raises(DataError):
+    with pytest.raises(DataError, match="needs a non-empty 1-D input of finite values"):
         Positioner().simulate(np.array([0.0, np.nan]), FS)
 
 
@@ -266,7 +279,7 @@ def test_default_dataset_accepts_effects_overrides():
     data = make_default_dataset(effects=effects_cfg, n_train=20_000)
     assert data.train[0].n_samples == 20_000
     assert "noise" not in data.train[0].metadata["effects"]
-    with pytest.raises(ConfigError):
+    with pytest.raises(ConfigError, match=r"unknown effect block 'creap'\. Valid: .*'creep'"):
         make_default_dataset(effects={"creap": {}})
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import signal
 import socket
 import sqlite3
@@ -16,14 +17,20 @@ import optuna
 import pytest
 from optuna.trial import TrialState
 
+from conftest import optional_dependency
 from helpers import data_overrides, popen_app, run_app, small_dataset
+from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.tuning.bookkeeping import DISCARDED, PID, counted, discard_stale
+from hysteresis_lab.tuning.storage import STORAGE_ENV, redact, resolve_storage_url
 
 
 @pytest.fixture(scope="module")
 def csv_data(tmp_path_factory) -> list[str]:
     directory = tmp_path_factory.mktemp("tuning_data")
     return data_overrides(*small_dataset(directory, n_train=1500))
+
+
+PG_PASSWORD = "tuning-test-secret"
 
 
 def sweep_args(results: Path, n_trials: int, *extra: str) -> list[str]:
@@ -61,6 +68,7 @@ def counted_trials(study: optuna.Study) -> list[optuna.trial.FrozenTrial]:
     return [t for t in study.get_trials() if counted(t)]
 
 
+@pytest.mark.slow
 def test_sweep_writes_results_and_resumes_without_repeating(tmp_path, csv_data):
     results = tmp_path / "optuna"
     first = run_app("train", *csv_data, *sweep_args(results, 3))
@@ -98,6 +106,7 @@ def test_sweep_writes_results_and_resumes_without_repeating(tmp_path, csv_data):
     assert best.returncode == 0, best.stderr[-3000:]
 
 
+@pytest.mark.slow
 def test_sigkill_mid_trial_loses_no_completed_trial(tmp_path, csv_data):
     results = tmp_path / "optuna"
     args = [*csv_data, *sweep_args(results, 3, "trainer.max_epochs=40")]
@@ -152,23 +161,51 @@ def test_a_worker_dead_right_after_asking_is_seen_dead_at_once(tmp_path):
     assert orphan.user_attrs[DISCARDED] == "worker died"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("override", "message"),
     [
-        ("model.lr=tag(log, interval(1e-3, 1e-4))", "low"),
-        ("hydra.sweeper.sampler=bayes", "unknown sampler 'bayes'"),
-        ("+model.neuronz=range(1,3)", "neuronz"),
-        ("hydra.sweeper.storage=postgresql://nobody@127.0.0.1:9/none", "cannot open the Optuna"),
+        ("model.lr=tag(log, interval(1e-3, 1e-4))",
+         r"invalid search space in hydra\.sweeper\.params: .*\(low=0\.001, high=0\.0001\)"),
+        ("hydra.sweeper.sampler=bayes", r"unknown sampler 'bayes'"),
+        ("+model.neuronz=range(1,3)",
+         r"search-space parameter '\+model\.neuronz' is not in the config\. Fix:"),
+        ("hydra.sweeper.storage=postgresql://nobody@127.0.0.1:9/none",
+         r"cannot open the Optuna storage postgresql://nobody@127\.0\.0\.1:9/none"),
+        # a password in the configured URL would be saved in every run's config: refused
+        (f"hydra.sweeper.storage=postgresql://nobody:{PG_PASSWORD}@127.0.0.1:9/none",
+         r"hydra\.sweeper\.storage contains a password, which Hydra would save in every run's "
+         r"config\. Fix: export HYSTERESIS_LAB_OPTUNA_STORAGE="),
     ],
+    ids=["low_above_high", "sampler", "unknown_parameter", "unreachable", "password"],
 )
 def test_bad_sweep_settings_fail_before_training(tmp_path, csv_data, override, message):
     results = tmp_path / "optuna"
-    proc = run_app("train", *csv_data, *sweep_args(results, 2), override)
+    proc = run_app("train", *csv_data, *sweep_args(results, 2), override,
+                   env={STORAGE_ENV: ""})
     assert proc.returncode != 0
-    assert message in proc.stderr + proc.stdout
+    assert re.search(message, proc.stderr + proc.stdout), proc.stderr + proc.stdout
+    assert "Traceback" not in proc.stderr + proc.stdout  # one clear line, not a crash
+    assert not (results / "runs").exists()  # no trial was launched
     assert not (results / "ffnn_csv.db").exists() or not load(results).get_trials()
 
 
+def test_a_password_is_accepted_from_the_environment_only(tmp_path, monkeypatch):
+    """The URL with its password may come from HYSTERESIS_LAB_OPTUNA_STORAGE (no file records
+    it); in hydra.sweeper.storage it is refused, and logs show it masked."""
+    url = f"postgresql://nobody:{PG_PASSWORD}@127.0.0.1:9/none"
+    monkeypatch.delenv(STORAGE_ENV, raising=False)
+    with pytest.raises(ConfigError, match="hydra.sweeper.storage contains a password"):
+        resolve_storage_url(url, "s", tmp_path)
+    assert resolve_storage_url("postgresql://nobody@127.0.0.1:9/none", "s", tmp_path) == (
+        "postgresql://nobody@127.0.0.1:9/none")
+    monkeypatch.setenv(STORAGE_ENV, url)
+    assert resolve_storage_url(None, "s", tmp_path) == url
+    assert resolve_storage_url(url, "s", tmp_path) == url  # the environment's own URL
+    assert PG_PASSWORD not in redact(url) and "***" in redact(url)
+
+
+@pytest.mark.slow
 def test_nan_trial_fails_and_the_study_goes_on(tmp_path, csv_data):
     results = tmp_path / "optuna"
     proc = run_app(
@@ -187,13 +224,11 @@ def test_nan_trial_fails_and_the_study_goes_on(tmp_path, csv_data):
     assert all(s in (TrialState.FAIL, TrialState.PRUNED) for s in states)
 
 
-PG_PASSWORD = "tuning-test-secret"
-
 
 @pytest.fixture(scope="module")
 def postgres_url(tmp_path_factory):
     """A real PostgreSQL server on TCP loopback that demands a password (pgserver's binaries)."""
-    pgserver = pytest.importorskip("pgserver")
+    pgserver = optional_dependency("pgserver")
     import psycopg
     from pgserver.postgres_server import pg_ctl
 
@@ -216,6 +251,7 @@ def postgres_url(tmp_path_factory):
     pg_ctl(["-w", "stop"], pgdata=server.pgdata, user=server.system_user, timeout=30)
 
 
+@pytest.mark.slow
 def test_two_workers_share_one_postgres_study(tmp_path, csv_data, postgres_url):
     env = {"HYSTERESIS_LAB_OPTUNA_STORAGE": postgres_url}
     n_trials = 6
@@ -241,3 +277,35 @@ def test_two_workers_share_one_postgres_study(tmp_path, csv_data, postgres_url):
     for path in tmp_path.rglob("*"):
         if path.is_file() and path.suffix in {".yaml", ".log", ".json", ".csv"}:
             assert PG_PASSWORD not in path.read_text(errors="ignore"), path
+
+
+#: each architecture's search space in conf/hparams_search/<name>.yaml
+SEARCH_SPACES = {
+    "lstm": {"model.num_layers", "model.lstm_layers", "model.units", "model.lr"},
+    "cnn": {"model.num_layers", "model.conv_layers", "model.units", "model.kernel_size",
+            "model.lr"},
+    "svm": {"model.kernel", "model.C", "model.degree", "model.gamma"},
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list(SEARCH_SPACES))
+def test_each_architectures_search_config_runs_trials(name, tmp_path, csv_data):
+    """hparams_search=<name>: two trials over that architecture's own search space, then the
+    best config, which names the architecture."""
+    results = tmp_path / "optuna"
+    args = ["-m", f"hparams_search={name}", f"hydra.sweeper.results_dir={results}",
+            "hydra.sweeper.n_trials=2", "hydra.sweeper.n_startup_trials=2",
+            "trainer.max_epochs=1", "trainer.enable_progress_bar=false",
+            f"hydra.sweep.dir={results}/runs"]
+    if name == "svm":
+        args += ["model.n_components=50", "model.max_samples=300"]
+    proc = run_app("train", *csv_data, *args, env={STORAGE_ENV: ""})
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    trials = counted_trials(load(results, f"{name}_csv"))
+    assert [t.state for t in trials] == [TrialState.COMPLETE] * 2
+    for trial in trials:
+        assert set(trial.params) == SEARCH_SPACES[name]
+        assert 1e-4 <= trial.params.get("model.lr", 1e-4) <= 1e-3
+    best = results / "best" / "experiment" / f"best_{name}_csv.yaml"
+    assert f"override /model: {name}" in best.read_text()

@@ -96,6 +96,7 @@ def test_different_channel_counts_name_both_files(tmp_path):
     train = write_csv(recording(), tmp_path / "one.csv")
     test = tmp_path / "two.npz"  # an (N, 2) input matrix is read as two input channels
     np.savez(test, t=np.arange(50) / 1000.0, u=np.zeros((50, 2)), y=np.zeros(50))
-    with pytest.raises(DataError, match="input") as info:
+    counts = r"two\.npz: 2 input\(s\) / 1 output\(s\) but .*one\.csv has 1 / 1"
+    with pytest.raises(DataError, match=counts) as info:
         load_user_files(str(train), [str(test)])
     assert str(train) in str(info.value) and str(test) in str(info.value)
