@@ -285,7 +285,11 @@ SEARCH_SPACES = {
     "cnn": {"model.num_layers", "model.conv_layers", "model.units", "model.kernel_size",
             "model.lr"},
     "svm": {"model.kernel", "model.C", "model.degree", "model.gamma"},
+    "subnet": {"model.nx", "model.neurons", "model.hidden_layers", "model.lr", "model.horizon"},
+    "greybox": {"model.hysteresis", "model.n_modes", "model.delay", "model.lr"},
 }
+#: the learning-rate range each search config gives (the study's for its four)
+LR_RANGES = {"subnet": (1e-4, 1e-2), "greybox": (1e-3, 1e-1)}
 
 
 @pytest.mark.slow
@@ -306,6 +310,7 @@ def test_each_architectures_search_config_runs_trials(name, tmp_path, csv_data):
     assert [t.state for t in trials] == [TrialState.COMPLETE] * 2
     for trial in trials:
         assert set(trial.params) == SEARCH_SPACES[name]
-        assert 1e-4 <= trial.params.get("model.lr", 1e-4) <= 1e-3
+        low, high = LR_RANGES.get(name, (1e-4, 1e-3))
+        assert low <= trial.params.get("model.lr", low) <= high
     best = results / "best" / "experiment" / f"best_{name}_csv.yaml"
     assert f"override /model: {name}" in best.read_text()
