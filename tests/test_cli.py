@@ -222,3 +222,30 @@ def test_plugin_registers_an_architecture_and_its_config(csv_data, tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert metrics["model"] == "gru" and metrics["mean"]["r2_one_step"] > 0.5
+
+
+@pytest.mark.parametrize(("model", "extra"), [
+    ("subnet", ["model.nx=4", "model.neurons=16", "model.encoder_neurons=16", "model.horizon=50"]),
+    ("greybox", ["model.n_modes=1", "model.mode_hz=400"]),
+    ("linear", ["model.order=4"]),
+])
+def test_models_that_simulate_train_log_and_rescore_through_the_cli(
+    model, extra, csv_data, tmp_path
+):
+    """The simulation-trained models through train and evaluate: validation free-run loss in
+    TensorBoard, a saved model that evaluate scores to the same numbers."""
+    run_dir = tmp_path / "run"
+    proc = run_app("train", *data_overrides(*csv_data), f"model={model}", *extra,
+                   "trainer.max_epochs=3", f"hydra.run.dir={run_dir}", *QUIET)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    saved = json.loads((run_dir / "metrics.json").read_text())
+    assert saved["model"] == model
+    events = EventAccumulator(str(run_dir / "tensorboard")).Reload()
+    # the validation free-run loss of the starting model (a candidate too), then per epoch
+    assert len(events.Scalars("val_loss")) == 4
+    proc = run_app("evaluate", f"checkpoint={run_dir}", *data_overrides(*csv_data),
+                   f"hydra.run.dir={tmp_path / 'evaluate'}")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    fresh = json.loads((tmp_path / "evaluate" / "metrics.json").read_text())["tests"]
+    for name, metrics in saved["tests"].items():
+        assert fresh[name]["rmse_free_run"] == pytest.approx(metrics["rmse_free_run"], rel=1e-6)
