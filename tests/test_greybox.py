@@ -40,7 +40,7 @@ def fitted(tmp_path_factory):
     dm = WindowDataModule(data, scaling="paper")
     L.seed_everything(0)
     model = build_model({"name": "greybox"}, dm, trained_on={"fs": data.fs})
-    result = fit(model, dm, TRAINER, tmp_path_factory.mktemp("greybox"))
+    result = fit(model, dm, {**TRAINER, "max_epochs": 15}, tmp_path_factory.mktemp("greybox"))
     return result.model, dm
 
 

@@ -116,8 +116,10 @@ class GreyBox(PhysicalChainModule):
         self.delay = Delay(delay)
         self.hysteresis: nn.Module | None
         if hysteresis == "bouc_wen":
-            self.hysteresis = BoucWen(**bouc_wen_scaled_params(0.23, 0.32, 0.02, 0.006,
-                                                               100.0, 20.0))
+            # a generic loop shape for an input of unit amplitude (not the simulator's
+            # values); the gain after the cell is read off the data
+            self.hysteresis = BoucWen(**bouc_wen_scaled_params(1.0, 0.2, 0.015, 0.003,
+                                                               100.0, 100.0))
         elif hysteresis == "prandtl_ishlinskii":
             self.hysteresis = PlayOperators(n_operators=operators, max_threshold=0.8)
         else:
