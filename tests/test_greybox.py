@@ -99,3 +99,11 @@ def test_the_residual_network_learns_what_the_physics_lacks(tmp_path):
         errors[neurons] = np.mean(rmse(free_run(fitted, data.test, dm.window), data.test,
                                        dm.window.first_target))
     assert errors[16] < 0.7 * errors[0], errors
+
+
+def test_onnx_export_is_refused_with_the_alternative(fitted):
+    from hysteresis_lab.models.export import export_onnx
+
+    model, _ = fitted
+    with pytest.raises(ConfigError, match="not exported to ONNX.*physical_parameters"):
+        export_onnx(model, "unused.onnx")

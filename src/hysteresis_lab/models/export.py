@@ -48,6 +48,12 @@ def export_onnx(model: object, path: Path | str, opset: int = 17) -> Path:
     step: the one-step file's encoder gives the initial state (``encode``), the step file
     runs it forward from the input alone.
     """
+    if getattr(model, "whole_recordings", False):
+        raise ConfigError(
+            f"{type(model).__name__} is not exported to ONNX: its blocks run as compiled "
+            "recursions over whole recordings, which ONNX does not express. Fix: share its "
+            "model.ckpt (hysteresis_lab.models.io.load_model) or its physical_parameters()."
+        )
     if not isinstance(model, NarxModule):
         raise ConfigError(
             f"{type(model).__name__} cannot be exported to ONNX here; only the networks can. "
