@@ -454,7 +454,7 @@ def test_full_and_cold_refits_run_end_to_end(setting, tmp_path):
     train, tests = small_dataset(tmp_path, effects={"creep": {"enabled": True}})
     proc = run_app("loop", *data_overrides(train, tests), "model=ffnn", "loop.max_rounds=1",
                    setting, "loop.refit_lr_factors=[1.0]", "trainer.max_epochs=2",
-                   "model.rollout_epochs=1", "trainer.enable_progress_bar=false", "logger=none",
+                   "model.simulation_epochs=1", "trainer.enable_progress_bar=false", "logger=none",
                    f"hydra.run.dir={tmp_path}/loop")
     assert proc.returncode == 0, proc.stderr[-3000:]
     rounds = json.loads((tmp_path / "loop" / "loop_report.json").read_text())["rounds"]

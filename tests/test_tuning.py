@@ -225,6 +225,43 @@ def test_nan_trial_fails_and_the_study_goes_on(tmp_path, csv_data):
 
 
 
+#: each architecture's search space in conf/hparams_search/<name>.yaml
+SEARCH_SPACES = {
+    "lstm": {"model.num_layers", "model.lstm_layers", "model.units", "model.lr"},
+    "cnn": {"model.num_layers", "model.conv_layers", "model.units", "model.kernel_size",
+            "model.lr"},
+    "svm": {"model.kernel", "model.C", "model.degree", "model.gamma"},
+    "subnet": {"model.nx", "model.neurons", "model.hidden_layers", "model.lr", "model.horizon"},
+    "greybox": {"model.hysteresis", "model.n_modes", "model.delay", "model.lr"},
+}
+#: the learning-rate range each search config gives (the study's for its four)
+LR_RANGES = {"subnet": (1e-4, 1e-2), "greybox": (1e-3, 1e-1)}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list(SEARCH_SPACES))
+def test_each_architectures_search_config_runs_trials(name, tmp_path, csv_data):
+    """hparams_search=<name>: two trials over that architecture's own search space, then the
+    best config, which names the architecture."""
+    results = tmp_path / "optuna"
+    args = ["-m", f"hparams_search={name}", f"hydra.sweeper.results_dir={results}",
+            "hydra.sweeper.n_trials=2", "hydra.sweeper.n_startup_trials=2",
+            "trainer.max_epochs=1", "trainer.enable_progress_bar=false",
+            f"hydra.sweep.dir={results}/runs"]
+    if name == "svm":
+        args += ["model.n_components=50", "model.max_samples=300"]
+    proc = run_app("train", *csv_data, *args, env={STORAGE_ENV: ""})
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    trials = counted_trials(load(results, f"{name}_csv"))
+    assert [t.state for t in trials] == [TrialState.COMPLETE] * 2
+    for trial in trials:
+        assert set(trial.params) == SEARCH_SPACES[name]
+        low, high = LR_RANGES.get(name, (1e-4, 1e-3))
+        assert low <= trial.params.get("model.lr", low) <= high
+    best = results / "best" / "experiment" / f"best_{name}_csv.yaml"
+    assert f"override /model: {name}" in best.read_text()
+
+
 @pytest.fixture(scope="module")
 def postgres_url(tmp_path_factory):
     """A real PostgreSQL server on TCP loopback that demands a password (pgserver's binaries)."""
@@ -277,40 +314,3 @@ def test_two_workers_share_one_postgres_study(tmp_path, csv_data, postgres_url):
     for path in tmp_path.rglob("*"):
         if path.is_file() and path.suffix in {".yaml", ".log", ".json", ".csv"}:
             assert PG_PASSWORD not in path.read_text(errors="ignore"), path
-
-
-#: each architecture's search space in conf/hparams_search/<name>.yaml
-SEARCH_SPACES = {
-    "lstm": {"model.num_layers", "model.lstm_layers", "model.units", "model.lr"},
-    "cnn": {"model.num_layers", "model.conv_layers", "model.units", "model.kernel_size",
-            "model.lr"},
-    "svm": {"model.kernel", "model.C", "model.degree", "model.gamma"},
-    "subnet": {"model.nx", "model.neurons", "model.hidden_layers", "model.lr", "model.horizon"},
-    "greybox": {"model.hysteresis", "model.n_modes", "model.delay", "model.lr"},
-}
-#: the learning-rate range each search config gives (the study's for its four)
-LR_RANGES = {"subnet": (1e-4, 1e-2), "greybox": (1e-3, 1e-1)}
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("name", list(SEARCH_SPACES))
-def test_each_architectures_search_config_runs_trials(name, tmp_path, csv_data):
-    """hparams_search=<name>: two trials over that architecture's own search space, then the
-    best config, which names the architecture."""
-    results = tmp_path / "optuna"
-    args = ["-m", f"hparams_search={name}", f"hydra.sweeper.results_dir={results}",
-            "hydra.sweeper.n_trials=2", "hydra.sweeper.n_startup_trials=2",
-            "trainer.max_epochs=1", "trainer.enable_progress_bar=false",
-            f"hydra.sweep.dir={results}/runs"]
-    if name == "svm":
-        args += ["model.n_components=50", "model.max_samples=300"]
-    proc = run_app("train", *csv_data, *args, env={STORAGE_ENV: ""})
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    trials = counted_trials(load(results, f"{name}_csv"))
-    assert [t.state for t in trials] == [TrialState.COMPLETE] * 2
-    for trial in trials:
-        assert set(trial.params) == SEARCH_SPACES[name]
-        low, high = LR_RANGES.get(name, (1e-4, 1e-3))
-        assert low <= trial.params.get("model.lr", low) <= high
-    best = results / "best" / "experiment" / f"best_{name}_csv.yaml"
-    assert f"override /model: {name}" in best.read_text()
