@@ -1,9 +1,9 @@
 """Numba kernels of the discrete Bouc–Wen recursion (forward and its adjoint), float64.
 
-The per-step update is the one of `hysteresis_lab.sim.bouc_wen._advance` (exact for an input
-moving linearly between samples), written with ``a = alpha * d``, ``r1 = beta - gamma`` (the
-rate while moving against the state's sign) and ``r2 = beta + gamma`` (moving with it), so that
-the same floating-point operations give the simulator's numbers. ``_advance_grad`` also returns
+The per-step update is `hysteresis_lab.sim.bouc_wen.advance`, the simulator's own (exact for
+an input moving linearly between samples), written with ``a = alpha * d``,
+``r1 = beta - gamma`` (the rate while moving against the state's sign) and
+``r2 = beta + gamma`` (moving with it). ``_advance_grad`` also returns
 the partial derivatives of the new state, from which the backward pass runs the recursion in
 reverse (reverse-mode differentiation of the exact update, no smoothing).
 """
@@ -15,21 +15,9 @@ import math
 import numba
 import numpy as np
 
+from hysteresis_lab.sim.bouc_wen import advance
+
 JIT = {"cache": True, "error_model": "numpy"}
-
-
-@numba.njit(**JIT)
-def advance(h: float, x: float, s: float, a: float, r1: float, r2: float) -> float:
-    """State after moving ``x >= 0`` (input units) in direction ``s`` (+1/-1) from ``h``."""
-    if h * s < 0.0:  # against the state's sign: h heads towards zero and beyond
-        h_inf = s * a / r1
-        h_new = h_inf + (h - h_inf) * math.exp(-r1 * x)
-        if h_new * s <= 0.0:
-            return h_new
-        x -= math.log((h - h_inf) / (-h_inf)) / r1  # distance used to reach h = 0
-        h = 0.0
-    h_inf = s * a / r2
-    return h_inf + (h - h_inf) * math.exp(-r2 * x)
 
 
 @numba.njit(**JIT)

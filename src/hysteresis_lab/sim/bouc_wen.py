@@ -18,20 +18,23 @@ import numba
 import numpy as np
 
 
-@numba.njit(cache=True)
-def _advance(h: float, x: float, s: float, a: float, beta: float, gamma: float) -> float:
-    """State after moving ``x >= 0`` volts in direction ``s`` (+1/-1), starting from ``h``."""
-    if h * s < 0.0:  # moving against the state's sign: h heads towards zero and beyond
-        rate = beta - gamma
-        h_inf = s * a / rate
-        h_new = h_inf + (h - h_inf) * math.exp(-rate * x)
+@numba.njit(cache=True, error_model="numpy")
+def advance(h: float, x: float, s: float, a: float, r1: float, r2: float) -> float:
+    """State after moving ``x >= 0`` (input units) in direction ``s`` (+1/-1) from ``h``.
+
+    ``a = alpha * d``; ``r1 = beta - gamma`` is the rate while moving against the state's
+    sign, ``r2 = beta + gamma`` while moving with it. The grey-box's differentiable cell
+    (`hysteresis_lab.blocks.bouc_wen`) runs this same update.
+    """
+    if h * s < 0.0:  # against the state's sign: h heads towards zero and beyond
+        h_inf = s * a / r1
+        h_new = h_inf + (h - h_inf) * math.exp(-r1 * x)
         if h_new * s <= 0.0:
             return h_new
-        x -= math.log((h - h_inf) / (-h_inf)) / rate  # distance used to reach h = 0
+        x -= math.log((h - h_inf) / (-h_inf)) / r1  # distance used to reach h = 0
         h = 0.0
-    rate = beta + gamma
-    h_inf = s * a / rate
-    return h_inf + (h - h_inf) * math.exp(-rate * x)
+    h_inf = s * a / r2
+    return h_inf + (h - h_inf) * math.exp(-r2 * x)
 
 
 @numba.njit(cache=True)
@@ -50,7 +53,7 @@ def bouc_wen_state(
         dv = v[k] - v_prev
         if dv != 0.0:
             s = 1.0 if dv > 0.0 else -1.0
-            h = _advance(h, abs(dv), s, alpha[k] * d, beta, gamma)
+            h = advance(h, abs(dv), s, alpha[k] * d, beta - gamma, beta + gamma)
         h_out[k] = h
         v_prev = v[k]
     return h_out
