@@ -66,7 +66,8 @@ RECOMMENDED: dict[str, dict[str, list[str]]] = {
         "greybox": [],
     },
     "bouc_wen": {
-        "subnet": ["trainer.max_epochs=100"],
+        "subnet": ["model.horizon=100", "model.lr=3e-3", "data.batch_size=32",
+                   "trainer.max_epochs=250"],
         "greybox": [],
     },
     "emps": {
