@@ -55,14 +55,17 @@ NETWORK_DEFAULTS = ["model.objective=simulation", "model.horizon=200",
 #: recommended settings, data set -> model -> Hydra overrides (one place; see docs/results)
 RECOMMENDED: dict[str, dict[str, list[str]]] = {
     "default": {
-        "subnet": ["trainer.max_epochs=100"],
+        "subnet": ["model.horizon=200", "model.lr=3e-3", "data.batch_size=32",
+                   "trainer.max_epochs=60"],
         "greybox": ["model.effects=[creep]"],
     },
     "fsm": {
-        "subnet": ["trainer.max_epochs=100"],
+        "subnet": ["model.nx=12", "model.horizon=100", "model.lr=3e-3", "data.batch_size=128",
+                   "trainer.max_epochs=100"],
     },
     "p885": {
-        "subnet": ["trainer.max_epochs=100"],
+        "subnet": ["model.horizon=200", "model.lr=3e-3", "data.batch_size=16",
+                   "trainer.max_epochs=300"],
         "greybox": [],
     },
     "bouc_wen": {
@@ -71,11 +74,13 @@ RECOMMENDED: dict[str, dict[str, list[str]]] = {
         "greybox": [],
     },
     "emps": {
-        "subnet": ["trainer.max_epochs=100"],
+        "subnet": ["model.horizon=100", "model.lr=3e-3", "data.batch_size=32",
+                   "trainer.max_epochs=150"],
         "greybox": [],
     },
     "cascaded_tanks": {
-        "subnet": ["trainer.max_epochs=100"],
+        "subnet": ["model.horizon=200", "model.lr=3e-3", "data.batch_size=4",
+                   "trainer.max_epochs=500"],
         "greybox": [],
     },
 }
