@@ -79,8 +79,10 @@ RECOMMENDED: dict[str, dict[str, list[str]]] = {
         "greybox": [],
     },
     "cascaded_tanks": {
-        "subnet": ["model.horizon=200", "model.lr=3e-3", "data.batch_size=4",
-                   "trainer.max_epochs=500"],
+        "subnet": ["model.nx=4", "model.neurons=32", "model.hidden_layers=1",
+                   "model.encoder_neurons=32", "model.encoder_layers=1",
+                   "model.weight_decay=1e-4", "model.horizon=400", "model.lr=3e-3",
+                   "data.batch_size=4", "trainer.max_epochs=1000"],
         "greybox": [],
     },
 }
