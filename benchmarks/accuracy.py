@@ -61,7 +61,7 @@ RECOMMENDED: dict[str, dict[str, list[str]]] = {
     },
     "fsm": {
         "subnet": ["model.nx=12", "model.horizon=100", "model.lr=3e-3", "data.batch_size=128",
-                   "trainer.max_epochs=100"],
+                   "trainer.max_epochs=80"],
     },
     "p885": {
         "subnet": ["model.horizon=200", "model.lr=3e-3", "data.batch_size=16",
@@ -318,9 +318,9 @@ def run_pair(
                                      date=saved.get("date", stamp["date"]))
         log.info("%s on %s: %s was made with other settings: training again",
                  model, data, metrics_path)
-    if metrics_path.is_file():
-        metrics_path.unlink()
-    run_dir.mkdir(parents=True, exist_ok=True)
+    if run_dir.is_dir():  # a fresh run: no checkpoint or metrics of an older one stay
+        shutil.rmtree(run_dir)
+    run_dir.mkdir(parents=True)
     command = [*train_command(), f"model={model}", f"data={data}", *overrides, *COMMON,
                f"hydra.run.dir={run_dir}"]
     log.info("%s on %s: %s (log: %s)", model, data, " ".join(command[1:]),
