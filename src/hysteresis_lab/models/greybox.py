@@ -104,7 +104,9 @@ class GreyBox(NarxModule):
                 "settings (conf/model/greybox.yaml has the defaults)."
             )
         nyquist = 0.5 * fs
-        self.amplifier = FirstOrderLag(fs, amplifier_hz or 0.25 * fs)
+        # the lag's floor (1 Hz) scaled down for slow data (cascaded tanks: fs = 0.25 Hz)
+        self.amplifier = FirstOrderLag(fs, amplifier_hz or 0.25 * fs,
+                                       min_cutoff_hz=min(1.0, 1e-3 * fs))
         self.delay = Delay(delay)
         self.hysteresis: nn.Module | None
         if hysteresis == "bouc_wen":
