@@ -55,8 +55,8 @@ NETWORK_DEFAULTS = ["model.objective=simulation", "model.horizon=200",
 #: recommended settings, data set -> model -> Hydra overrides (one place; see docs/results)
 RECOMMENDED: dict[str, dict[str, list[str]]] = {
     "default": {
-        "subnet": ["model.effects=[creep]", "model.horizon=100", "model.lr=3e-3",
-                   "data.batch_size=32", "trainer.max_epochs=120"],
+        "subnet": ["data.window.na=20", "data.window.nb=20", "model.horizon=200",
+                   "model.lr=3e-3", "data.batch_size=32", "trainer.max_epochs=120"],
         "greybox": ["model.effects=[creep]"],
     },
     "fsm": {
