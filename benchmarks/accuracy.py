@@ -60,8 +60,9 @@ RECOMMENDED: dict[str, dict[str, list[str]]] = {
         "greybox": ["model.effects=[creep]"],
     },
     "fsm": {
-        "subnet": ["model.nx=12", "model.horizon=100", "model.lr=3e-3", "data.batch_size=128",
-                   "trainer.max_epochs=80"],
+        "subnet": ["model.nx=16", "data.window.na=50", "data.window.nb=50",
+                   "model.horizon=300", "model.lr=3e-3", "data.batch_size=64",
+                   "trainer.max_epochs=60"],
     },
     "p885": {
         "subnet": ["model.horizon=200", "model.lr=3e-3", "data.batch_size=16",
