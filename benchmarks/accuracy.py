@@ -55,8 +55,9 @@ NETWORK_DEFAULTS = ["model.objective=simulation", "model.horizon=200",
 #: recommended settings, data set -> model -> Hydra overrides (one place; see docs/results)
 RECOMMENDED: dict[str, dict[str, list[str]]] = {
     "default": {
-        "subnet": ["data.window.na=20", "data.window.nb=20", "model.horizon=200",
-                   "model.lr=3e-3", "data.batch_size=32", "trainer.max_epochs=120"],
+        "subnet": ["model.effects=[hysteresis]", "data.window.na=20", "data.window.nb=20",
+                   "model.horizon=200", "model.lr=3e-3", "data.batch_size=32",
+                   "trainer.max_epochs=120"],
         "greybox": ["model.effects=[creep]"],
     },
     "fsm": {
@@ -75,15 +76,15 @@ RECOMMENDED: dict[str, dict[str, list[str]]] = {
         "greybox": [],
     },
     "emps": {
-        "subnet": ["model.horizon=100", "model.lr=3e-3", "data.batch_size=32",
-                   "trainer.max_epochs=150"],
+        "subnet": ["model.horizon=1000", "model.lr=3e-3", "data.batch_size=16",
+                   "trainer.max_epochs=100"],
         "greybox": [],
     },
     "cascaded_tanks": {
-        "subnet": ["model.nx=4", "model.neurons=32", "model.hidden_layers=1",
-                   "model.encoder_neurons=32", "model.encoder_layers=1",
-                   "model.weight_decay=1e-4", "model.horizon=400", "model.lr=3e-3",
-                   "data.batch_size=4", "trainer.max_epochs=1000"],
+        "subnet": ["model.nx=3", "model.neurons=16", "model.hidden_layers=1",
+                   "model.encoder_neurons=16", "model.encoder_layers=1",
+                   "model.weight_decay=1e-3", "model.horizon=300", "model.lr=3e-3",
+                   "data.batch_size=2", "trainer.max_epochs=600"],
         "greybox": [],
     },
 }
