@@ -42,10 +42,11 @@ DATASETS = ("default", "fsm", "p885", "bouc_wen", "emps", "cascaded_tanks")
 LOADER = {"fsm": "fsm_piezo_mirror", "p885": "piezo_p885", "bouc_wen": "bouc_wen",
           "emps": "emps", "cascaded_tanks": "cascaded_tanks"}
 TITLES = {
-    "default": "Simulated positioner (data=default), twelve ±100 V test sines",
+    "default": "Simulated positioner (data=default), twelve ±100 V test sines (no published "
+               "reference)",
     "fsm": "FSM piezo mirror (data=fsm), 3x3 MIMO, official test set",
     "p885": "PI P-885 piezo stack (data=p885), last 30 % of the record",
-    "bouc_wen": "Bouc–Wen benchmark (data=bouc_wen)",
+    "bouc_wen": "Bouc–Wen benchmark (data=bouc_wen), in mm (1e-5 m = 0.01 mm)",
     "emps": "EMPS (data=emps), pulses test record",
     "cascaded_tanks": "Cascaded tanks (data=cascaded_tanks)",
 }
