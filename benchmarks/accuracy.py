@@ -77,7 +77,7 @@ RECOMMENDED: dict[str, dict[str, list[str]]] = {
         "greybox": [],
     },
     "emps": {
-        "subnet": ["model.horizon=1000", "model.lr=3e-3", "data.batch_size=16",
+        "subnet": ["model.horizon=300", "model.lr=1e-3", "data.batch_size=16",
                    "trainer.max_epochs=100"],
         "greybox": [],
     },
