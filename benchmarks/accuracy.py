@@ -78,7 +78,7 @@ RECOMMENDED: dict[str, dict[str, list[str]]] = {
     },
     "emps": {
         "subnet": ["model.horizon=300", "model.lr=1e-3", "data.batch_size=16",
-                   "trainer.max_epochs=400"],
+                   "trainer.max_epochs=100"],
         "greybox": [],
     },
     "cascaded_tanks": {
