@@ -238,7 +238,7 @@ def render_markdown(
         lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
         for cell in mine:
             if cell.get("skipped"):
-                blanks = ["–"] * (len(header) - 3)
+                blanks = ["–"] * (len(header) - 2)
                 lines.append(f"| {cell['model']} | {cell['skipped']} | " + " | ".join(blanks)
                              + " |")
                 continue
