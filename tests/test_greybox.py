@@ -107,3 +107,15 @@ def test_onnx_export_is_refused_with_the_alternative(fitted):
     model, _ = fitted
     with pytest.raises(ConfigError, match="not exported to ONNX.*physical_parameters"):
         export_onnx(model, "unused.onnx")
+
+
+def test_it_builds_for_slow_data():
+    """Cascaded tanks sample at 0.25 Hz: the blocks' frequency floors follow fs (they were a
+    fixed 1 Hz, above the tanks' Nyquist frequency, and the model could not be built)."""
+    from hysteresis_lab.data.benchmarks import load_benchmark
+
+    data = load_benchmark("cascaded_tanks")
+    dm = WindowDataModule(data, scaling="standard")
+    model = build_model({"name": "greybox"}, dm, trained_on={"fs": data.fs})
+    model.initialise_from_data(data.train[0].u[:, 0], data.train[0].y[:, 0], data.fs)
+    assert float(model.amplifier.cutoff_hz) < 0.5 * data.fs

@@ -112,7 +112,10 @@ class GreyBox(PhysicalChainModule):
                 "settings (hysteresis_lab/conf/model/greybox.yaml has the defaults)."
             )
         nyquist = 0.5 * fs
-        self.amplifier = FirstOrderLag(fs, amplifier_hz or 0.25 * fs)
+        # the blocks' 1 Hz floors scaled down for slow data (cascaded tanks: fs = 0.25 Hz)
+        self.f_floor = min(1.0, 1e-3 * fs)
+        self.amplifier = FirstOrderLag(fs, amplifier_hz or 0.25 * fs,
+                                       min_cutoff_hz=self.f_floor)
         self.delay = Delay(delay)
         self.hysteresis: nn.Module | None
         if hysteresis == "bouc_wen":
@@ -128,7 +131,8 @@ class GreyBox(PhysicalChainModule):
         self.creep = CreepBank(fs, creep_time_constants_s) if "creep" in effects else None
         modes = n_modes + int("resonance" in effects)
         self.mode = (
-            SecondOrderMode(fs, mode_hz or 0.1 * nyquist, mode_damping or 0.05, n_modes=modes)
+            SecondOrderMode(fs, mode_hz or 0.1 * nyquist, mode_damping or 0.05, n_modes=modes,
+                            fmin=self.f_floor)
             if modes else None
         )
         self.offset = nn.Parameter(torch.zeros((), dtype=torch.float64))
@@ -198,7 +202,8 @@ class GreyBox(PhysicalChainModule):
                     log.warning("no resonance found in the training data (%s): the mode starts "
                                 "at %.0f Hz", exc, float(self.mode.frequency_hz[0]))
                 else:
-                    fresh = SecondOrderMode(fs, frequency, damping, n_modes=self.mode.n_modes)
+                    fresh = SecondOrderMode(fs, frequency, damping, n_modes=self.mode.n_modes,
+                                            fmin=self.f_floor)
                     self.mode.load_state_dict(fresh.state_dict())
             base = self.chain(torch.as_tensor(u_s[None], dtype=torch.float64))[0].numpy()
             scale = estimate_static_gain(base - base.mean(), y_s - y_s.mean())
