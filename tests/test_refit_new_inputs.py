@@ -103,10 +103,16 @@ def test_unknown_refit_is_a_config_error():
 def test_a_refit_fine_tunes_at_the_refit_learning_rate(refit_lr, expected, splits, trained):
     """A refit starts from a fitted network: Adam at the full training rate throws it off its
     minimum in the first steps, so it trains at ``refit_lr`` (default lr / 10)."""
+    from hysteresis_lab.training import stage_lr
+
     model, *_ = grown_model("ffnn", splits, trained, lr=1e-3, lr_schedule="none",
                             refit_lr=refit_lr)
+    assert stage_lr(model, "one_step") == pytest.approx(expected)
+    assert stage_lr(model, "fine_tune") == pytest.approx(0.1 * expected)  # simulation_lr unset
+    model.stage_lr = stage_lr(model, "one_step")  # what training sets before each stage
     assert model.configure_optimizers().param_groups[0]["lr"] == pytest.approx(expected)
     fresh = build_model({**CONFIGS["ffnn"], "lr": 1e-3, "lr_schedule": "none"}, trained["ffnn"][1])
+    assert stage_lr(fresh, "one_step") == pytest.approx(1e-3)
     assert fresh.configure_optimizers().param_groups[0]["lr"] == pytest.approx(1e-3)
 
 
