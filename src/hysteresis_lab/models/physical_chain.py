@@ -5,7 +5,7 @@ Such a model reads the input alone (an output-error model): its one-step predict
 free run, it trains on the free-run error of whole recordings (each simulated from rest, the
 one state that is known; `hysteresis_lab.data.segments.RecordingDataModule`), and its output
 is ``chain(v) + offset`` with ``v`` the measured input over its scale (zero volts is zero).
-Subclasses build their blocks and implement `chain`.
+Subclasses build their blocks (and an ``offset`` parameter) and implement `chain`.
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ class PhysicalChainModule(NarxModule):
     def _physical_input(self, u_scaled: torch.Tensor) -> torch.Tensor:
         """Scaled input (B, T, nu) -> the measured input over its scale (B, T): zero volts
         is zero here, so "at rest" means what it does physically."""
-        return (u_scaled[..., 0].double() + self.u_offset[0] / self.u_scale[0]).double()
+        return u_scaled[..., 0].double() + self.u_offset[0] / self.u_scale[0]
 
     def simulate_full(self, u_scaled: torch.Tensor) -> torch.Tensor:
         """Scaled inputs (B, T, nu) -> scaled outputs (B, T, 1), every row from rest."""
@@ -59,9 +59,9 @@ class PhysicalChainModule(NarxModule):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         raise ConfigError(
-            "a grey-box model simulates whole recordings from rest; it has no prediction from "
-            "a single regression window. Fix: use hysteresis_lab.evaluation.predict.free_run "
-            "(one_step and n_step give the free run for it)."
+            f"{type(self).__name__} simulates whole recordings from rest; it has no prediction "
+            "from a single regression window. Fix: use hysteresis_lab.evaluation.predict."
+            "free_run (one_step and n_step give the free run for it)."
         )
 
     def simulate_recordings(
@@ -77,7 +77,6 @@ class PhysicalChainModule(NarxModule):
         ft = window.first_target
         out[:, ft:] = y[:, ft:].double().cpu().numpy()
         return out
-
 
     def warm_start_from(self, previous: NarxModule) -> None:
         """Start from a fitted model of the same class with fewer blocks (the loop adds
