@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import logging
 import time
+import timeit
 from collections.abc import Callable
 
 import numpy as np
@@ -25,6 +26,12 @@ from hysteresis_lab.blocks import (
 )
 from hysteresis_lab.signals import multisine
 
+
+def _fastest(task: Callable[[], object]) -> float:
+    """Smallest wall-clock time (s) of 5 calls (`timeit.repeat`)."""
+    return min(timeit.repeat(task, number=1, repeat=5))
+
+
 log = logging.getLogger("bench_blocks")
 
 FS = 20_000.0
@@ -36,16 +43,6 @@ def default_chain() -> BlockChain:
                       CreepBank(FS, weights=0.015), SecondOrderMode(FS, 900.0, 0.03))
 
 
-def best_of(task: Callable[[], object], repeats: int = 5) -> float:
-    """Smallest wall-clock time (s) of ``repeats`` calls."""
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        task()
-        times.append(time.perf_counter() - start)
-    return min(times)
-
-
 def run(n_free: int = 200_000, batch: int = 64, segment: int = 2000) -> dict[str, float]:
     """``steps_per_s`` of `simulate_chain` on one recording of ``n_free`` samples and the
     seconds of one forward + backward pass (float32) on ``batch`` segments of ``segment``."""
@@ -55,7 +52,7 @@ def run(n_free: int = 200_000, batch: int = 64, segment: int = 2000) -> dict[str
     simulate_chain(np.zeros((1, 10)), params)  # JIT compile (or load from cache)
     log.info("warm-up (JIT compile / cache load): %.3f s", time.perf_counter() - start)
     u = multisine(n_free, fs=FS, amplitude=1.0, seed=0)[None]
-    free_s = best_of(lambda: simulate_chain(u, params))
+    free_s = _fastest(lambda: simulate_chain(u, params))
 
     model = chain.float()
     rng = np.random.default_rng(0)
@@ -68,7 +65,7 @@ def run(n_free: int = 200_000, batch: int = 64, segment: int = 2000) -> dict[str
         torch.mean((model(u_batch) - y_batch) ** 2).backward()
 
     step()
-    train_s = best_of(step)
+    train_s = _fastest(step)
     return {"steps_per_s": n_free / free_s, "free_run_s": free_s, "train_step_s": train_s}
 
 

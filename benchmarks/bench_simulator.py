@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import logging
 import time
+import timeit
 from collections.abc import Callable
 
 import numpy as np
@@ -15,19 +16,15 @@ from hysteresis_lab.signals import multisine
 from hysteresis_lab.sim import Positioner
 from hysteresis_lab.sim.default_dataset import make_default_dataset
 
+
+def _fastest(task: Callable[[], object]) -> float:
+    """Smallest wall-clock time (s) of 3 calls (`timeit.repeat`)."""
+    return min(timeit.repeat(task, number=1, repeat=3))
+
+
 log = logging.getLogger("bench_simulator")
 
 FS = 20_000.0
-
-
-def best_of(task: Callable[[], object], repeats: int = 3) -> float:
-    """Smallest wall-clock time (s) of ``repeats`` calls."""
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        task()
-        times.append(time.perf_counter() - start)
-    return min(times)
 
 
 def run() -> list[tuple[str, int, float]]:
@@ -42,10 +39,10 @@ def run() -> list[tuple[str, int, float]]:
     positioner = Positioner()
     everything = Positioner({name: {"enabled": True} for name in positioner.config.to_dict()})
     return [
-        ("make_default_dataset()", n_dataset, best_of(make_default_dataset)),
-        ("simulate 1e6 samples (defaults)", len(u), best_of(lambda: positioner.simulate(u, FS))),
+        ("make_default_dataset()", n_dataset, _fastest(make_default_dataset)),
+        ("simulate 1e6 samples (defaults)", len(u), _fastest(lambda: positioner.simulate(u, FS))),
         ("simulate 1e6 samples (all blocks on)", len(u),
-         best_of(lambda: everything.simulate(u, FS))),
+         _fastest(lambda: everything.simulate(u, FS))),
     ]
 
 
