@@ -214,6 +214,7 @@ def _fit(
             *stages, steps, int(trainer_cfg["max_epochs"]), callbacks, "checkpoints",
             starting_checkpoint=None, keep_start=True, finite_start=True,
         )
+        model.stage_lr = None
         seconds = time.perf_counter() - start
         log.info("trained in %.1f s (validation free-run MSE %.4e, scaled)", seconds, val_mse)
         return TrainResult(model.eval(), val_mse, seconds, best)
