@@ -1,16 +1,15 @@
-"""benchmarks/refit_choice.py: a loop run's refits scored on sines between the test frequencies."""
+"""A loop run's refits scored on sines between the test frequencies
+(hysteresis_lab.analysis.loop_checks, printed by experiments/refit_choice.py)."""
 
 from __future__ import annotations
 
 import json
-import sys
 
 import pytest
 
-from helpers import REPO, run_app
-
-sys.path.insert(0, str(REPO / "benchmarks"))
-from refit_choice import check_splits, refit_choices  # noqa: E402
+from helpers import run_app
+from hysteresis_lab.analysis.loop_checks import check_splits, refit_choices
+from hysteresis_lab.errors import ConfigError
 
 #: a small simulator run: a short multisine, two short test sines
 SMALL_DEFAULT = ["data=default", "+data.splits.n_train=4000", "+data.splits.max_test_samples=3000",
@@ -19,7 +18,7 @@ SMALL_DEFAULT = ["data=default", "+data.splits.n_train=4000", "+data.splits.max_
 
 @pytest.mark.slow
 def test_refit_choice_scores_the_start_and_every_refit(tmp_path):
-    """Every refit is rejected (no refit takes 99 % off): the script scores the start and each
+    """Every refit is rejected (no refit takes 99 % off): the check scores the start and each
     rate's own saved weights on the check sines and names the one they prefer."""
     run = tmp_path / "loop"
     proc = run_app("loop", *SMALL_DEFAULT, "model=ffnn", "loop.max_rounds=1",
@@ -53,7 +52,7 @@ def test_refit_choice_refuses_training_sines_and_measured_data():
     simulator = {"effects": {}, "splits": {
         "_target_": "hysteresis_lab.sim.default_dataset.make_default_dataset",
         "train_sines": [30.0]}}
-    with pytest.raises(SystemExit, match="training sines"):
+    with pytest.raises(ConfigError, match="training sines"):
         check_splits(simulator, [30.0, 70.0])
-    with pytest.raises(SystemExit, match="simulator"):
+    with pytest.raises(ConfigError, match="simulator"):
         check_splits({"splits": {}}, [30.0])

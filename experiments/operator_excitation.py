@@ -1,12 +1,12 @@
 """How hard the test recordings drive each effect's operators against the identification data.
 
-    python benchmarks/operator_excitation.py            # the default data and every case
-    python benchmarks/operator_excitation.py --effects hysteresis saturation
+    python experiments/operator_excitation.py            # the default data and every case
+    python experiments/operator_excitation.py --effects hysteresis saturation
 
 The ratio the loop reports with each effect it adds (`hysteresis_lab.analysis.excitation`),
 here for every catalogue effect on the packaged data: the default data (the study's multisine
 against its twelve sines) and the data of each undeclared-effect case of
-``benchmarks/undeclared_effects.py``. Data only: nothing is trained; a few seconds.
+``experiments/undeclared_effects.py``. Data only: nothing is trained; a few seconds.
 """
 
 from __future__ import annotations
