@@ -13,6 +13,7 @@ The same packaged configs and overrides as the console apps, so a notebook and
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -40,8 +41,13 @@ def compose(*overrides: str, config: str = "train") -> DictConfig:
     from hydra import compose as hydra_compose
     from hydra import initialize_config_module
 
-    with initialize_config_module(config_module=CONFIG_MODULE, version_base=None):
-        return hydra_compose(config_name=config, overrides=list(overrides))
+    with warnings.catch_warnings():
+        # outputs/optuna/best exists only after a finished sweep; until then its search-path
+        # entry is empty, which is normal (the console apps mute the same warning)
+        warnings.filterwarnings("ignore", message=r"provider=hydra\.searchpath in main, "
+                                r"path=outputs/optuna/best is not", category=UserWarning)
+        with initialize_config_module(config_module=CONFIG_MODULE):
+            return hydra_compose(config_name=config, overrides=list(overrides))
 
 
 def load_data(cfg: DictConfig) -> DatasetSplits:
