@@ -1,14 +1,16 @@
 """The Python API: compose, train, simulate and score a model from a script or notebook.
 
 The same packaged configs and overrides as the console apps, so a notebook and
-``hysteresis-lab-train`` give the same model for the same settings::
+``hysteresis-lab-train`` give the same model for the same settings:
 
-    import hysteresis_lab as hl
+```python
+import hysteresis_lab as hl
 
-    cfg = hl.compose("model=ffnn", "trainer.max_epochs=20")
-    run = hl.train(cfg, "outputs/notebook")     # the run folder hysteresis-lab-train writes
-    data = hl.load_data(cfg)
-    y = hl.simulate(run.model, data.test)       # free run: from the input alone
+cfg = hl.compose("model=ffnn", "trainer.max_epochs=20")
+run = hl.train(cfg, "outputs/notebook")     # the run folder hysteresis-lab-train writes
+data = hl.load_data(cfg)
+y = hl.simulate(run.model, data.test)       # free run: from the input alone
+```
 """
 
 from __future__ import annotations
