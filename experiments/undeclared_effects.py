@@ -129,7 +129,7 @@ def main() -> None:
     parser.add_argument(
         "--epochs", type=int, default=20,
         help="one-step epochs of each fit (20 for speed; the study's 100 leave the round-0 "
-        "network holding more of creep and the second mode: see README)",
+        "network holding more of creep and the second mode: see experiments/README.md)",
     )
     parser.add_argument("--horizon", type=int, default=200)
     parser.add_argument("--simulation-epochs", type=int, default=5)
