@@ -11,7 +11,8 @@ place they live) through the real CLI, ``hysteresis-lab-train ... hydra.run.dir=
 Bouc–Wen multisine test, ...) in the benchmark's own units. Every measured cell is merged into
 ``docs/results/accuracy.json`` (a partial run replaces only its own cells) and
 ``docs/results/accuracy.md`` is regenerated from it, with the references the loaders hold
-(``metadata["reference"]``).
+(``metadata["reference"]``). The scoring and the page live in
+`hysteresis_lab.evaluation.accuracy_table`; this script trains the runs.
 """
 
 from __future__ import annotations
@@ -20,36 +21,31 @@ import argparse
 import datetime as dt
 import json
 import logging
-import math
 import os
 import shutil
 import subprocess
 import sys
 import time
 from collections.abc import Mapping, Sequence
-from functools import cache
 from pathlib import Path
 from typing import Any
+
+from hysteresis_lab.evaluation.accuracy_table import (
+    DATASETS,
+    MODELS,
+    cell_from_metrics,
+    format_duration,
+    format_value,
+    load_results,
+    render_markdown,
+    write_results,
+)
 
 log = logging.getLogger("accuracy")
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "docs" / "results"
 
-MODELS = ("subnet", "greybox", "ffnn", "lstm", "cnn", "svm")
-DATASETS = ("default", "fsm", "p885", "bouc_wen", "emps", "cascaded_tanks")
-#: data config name -> bundled loader name (`hysteresis_lab.data.benchmarks.LOADERS`)
-LOADER = {"fsm": "fsm_piezo_mirror", "p885": "piezo_p885", "bouc_wen": "bouc_wen",
-          "emps": "emps", "cascaded_tanks": "cascaded_tanks"}
-TITLES = {
-    "default": "Simulated positioner (data=default), twelve ±100 V test sines (no published "
-               "reference)",
-    "fsm": "FSM piezo mirror (data=fsm), 3x3 MIMO, official test set",
-    "p885": "PI P-885 piezo stack (data=p885), last 30 % of the record",
-    "bouc_wen": "Bouc–Wen benchmark (data=bouc_wen), in mm (1e-5 m = 0.01 mm)",
-    "emps": "EMPS (data=emps), pulses test record",
-    "cascaded_tanks": "Cascaded tanks (data=cascaded_tanks)",
-}
 #: the study's NARX networks: their defaults plus free-run fine-tuning after the one-step stage
 NETWORK_DEFAULTS = ["model.objective=simulation", "model.horizon=200",
                     "model.simulation_epochs=5"]
@@ -100,181 +96,6 @@ def recommended(model: str, data: str) -> list[str]:
     if model in RECOMMENDED.get(data, {}):
         return list(RECOMMENDED[data][model])
     return list(NETWORK_DEFAULTS) if model in ("ffnn", "lstm", "cnn") else []
-
-
-# ---------------------------------------------------------------------------- references
-@cache
-def reference_info(data: str) -> dict[str, Any]:
-    """``{"reference": {name: value or {amplitude: value}}, "units", "metric", "test"}`` of a
-    bundled benchmark, read from its loader's metadata (empty for the simulator)."""
-    if data not in LOADER:
-        return {"reference": {}, "units": None, "metric": None, "test": None}
-    from hysteresis_lab.data.benchmarks import load_benchmark
-
-    meta = load_benchmark(LOADER[data]).metadata
-    return {"reference": meta.get("reference", {}), "units": meta.get("reference_units"),
-            "metric": meta.get("reference_metric"), "test": meta.get("reference_test")}
-
-
-def _reference_value(value: Any, label: str) -> float | None:
-    """A reference for one scored row: per-amplitude dicts (FSM) by the row's amplitude."""
-    if isinstance(value, Mapping):
-        amp = label.split()[0]
-        for key, v in value.items():
-            if str(key) == amp:
-                return float(v)
-        return None
-    return float(value)
-
-
-# ---------------------------------------------------------------------------- scoring
-def _mean(values: Sequence[float]) -> float:
-    return float(sum(values) / len(values)) if values else math.nan
-
-
-def score(data: str, metrics: Mapping[str, Any]) -> list[dict[str, Any]]:
-    """The benchmark's scored rows ``{"test", "free_run", "one_step"}`` from a metrics.json,
-    in its own units (metrics.json's units; the loaders already convert to the reference's)."""
-    tests: Mapping[str, Mapping[str, float]] = metrics["tests"]
-    if data == "fsm":
-        rows = []
-        for amp in (100, 200, 300):
-            picked = [m for name, m in tests.items() if name.startswith(f"{amp}mV_")]
-            if picked:
-                rows.append({"test": f"{amp} mV",
-                             "free_run": _mean([m["rmse_free_run"] for m in picked]),
-                             "one_step": _mean([m["rmse_one_step"] for m in picked])})
-        return rows
-    if data == "default":
-        worst = max(tests, key=lambda name: tests[name]["rmse_free_run"])
-        return [
-            {"test": f"mean of {len(tests)} sines",
-             "free_run": _mean([m["rmse_free_run"] for m in tests.values()]),
-             "one_step": _mean([m["rmse_one_step"] for m in tests.values()])},
-            {"test": f"worst sine ({worst})", "free_run": tests[worst]["rmse_free_run"],
-             "one_step": tests[worst]["rmse_one_step"]},
-        ]
-    return [{"test": name, "free_run": m["rmse_free_run"], "one_step": m["rmse_one_step"]}
-            for name, m in tests.items()]
-
-
-def cell_from_metrics(
-    model: str, data: str, metrics_path: Path, overrides: Sequence[str], **extra: Any
-) -> dict[str, Any]:
-    """One measured cell of the table from a run's metrics.json."""
-    metrics = json.loads(metrics_path.read_text())
-    return {
-        "model": model,
-        "data": data,
-        "units": metrics.get("units", {}).get("y", ""),
-        "rows": score(data, metrics),
-        "train_seconds": float(metrics.get("train_seconds", math.nan)),
-        "overrides": list(overrides),
-        "run_dir": str(metrics_path.parent),
-        **extra,
-    }
-
-
-# ---------------------------------------------------------------------------- results store
-def load_results(path: Path) -> dict[str, Any]:
-    """The stored cells (``{"cells": {"<data>/<model>": cell}, "last_run": ...}``)."""
-    if path.is_file():
-        return json.loads(path.read_text())
-    return {"cells": {}, "last_run": None}
-
-
-def merge_cells(
-    results: dict[str, Any], cells: Sequence[Mapping[str, Any]], run: Mapping[str, Any]
-) -> dict[str, Any]:
-    """``results`` with ``cells`` replacing those of the same (data, model); others kept."""
-    merged = {"cells": dict(results.get("cells", {})), "last_run": dict(run)}
-    for cell in cells:
-        merged["cells"][f"{cell['data']}/{cell['model']}"] = dict(cell)
-    return merged
-
-
-def _fmt(value: float | None) -> str:
-    if value is None or (isinstance(value, float) and math.isnan(value)):
-        return "–"
-    return f"{value:.4g}"
-
-
-def _duration(seconds: float | None) -> str:
-    if seconds is None or math.isnan(seconds):
-        return "–"
-    return f"{seconds / 60:.1f} min" if seconds >= 90 else f"{seconds:.0f} s"
-
-
-def render_markdown(
-    results: Mapping[str, Any], references: Any = reference_info
-) -> str:
-    """The accuracy page from the stored cells; ``references(data)`` as `reference_info`."""
-    run = results.get("last_run") or {}
-    lines = [
-        "# Accuracy on the bundled data sets",
-        "",
-        f"Generated by `{run.get('command', '?')}` at commit `{run.get('commit', '?')}` on "
-        f"{run.get('date', '?')} ({run.get('host_note', '')}). Rows measured by earlier runs "
-        "keep their own commit and date (column *measured*). Free-run (simulation) and "
-        "one-step RMSE in the benchmark's units on its official test split and scoring window "
-        "(`n_init`); training time as metrics.json's `train_seconds`. Settings per row below "
-        "each table (`benchmarks/accuracy.py`, `RECOMMENDED`).",
-        "",
-    ]
-    cells = results.get("cells", {})
-    for data in DATASETS:
-        mine = [cells[k] for k in sorted(cells) if cells[k]["data"] == data]
-        mine.sort(key=lambda c: MODELS.index(c["model"]) if c["model"] in MODELS else 99)
-        if not mine:
-            continue
-        info = references(data)
-        units = info["units"] or mine[0].get("units", "")
-        names = list(info["reference"])
-        lines += [f"## {TITLES.get(data, data)}", ""]
-        if info["metric"]:
-            lines += [f"Reference metric: {info['metric']}.", ""]
-        header = ["model", "test", f"free run [{units}]", f"one step [{units}]"]
-        header += [f"{name} [{units}]" for name in names] + ["train time", "measured"]
-        lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-        for cell in mine:
-            if cell.get("skipped"):
-                blanks = ["–"] * (len(header) - 2)
-                lines.append(f"| {cell['model']} | {cell['skipped']} | " + " | ".join(blanks)
-                             + " |")
-                continue
-            for i, row in enumerate(cell["rows"]):
-                applies = info["test"] is None or info["test"] == row["test"]
-                refs = [_fmt(_reference_value(info["reference"][n], row["test"]))
-                        if applies else "–" for n in names]
-                first = i == 0
-                lines.append("| " + " | ".join([
-                    cell["model"] if first else "", row["test"], _fmt(row["free_run"]),
-                    _fmt(row["one_step"]), *refs,
-                    _duration(cell.get("train_seconds")) if first else "",
-                    f"`{cell.get('commit', '?')}` {cell.get('date', '')}" if first else "",
-                ]) + " |")
-        lines.append("")
-        for cell in mine:
-            if not cell.get("skipped"):
-                settings = " ".join([f"model={cell['model']}", f"data={data}", *cell["overrides"]])
-                lines.append(f"- {cell['model']}: `{settings}`")
-        lines.append("")
-    return "\n".join(lines)
-
-
-def write_results(
-    cells: Sequence[Mapping[str, Any]],
-    run: Mapping[str, Any],
-    directory: Path = RESULTS,
-    references: Any = reference_info,
-) -> tuple[Path, Path]:
-    """Merge ``cells`` into ``directory``/accuracy.json and regenerate accuracy.md from it."""
-    directory.mkdir(parents=True, exist_ok=True)
-    json_path, md_path = directory / "accuracy.json", directory / "accuracy.md"
-    results = merge_cells(load_results(json_path), cells, run)
-    json_path.write_text(json.dumps(results, indent=2, allow_nan=True) + "\n")
-    md_path.write_text(render_markdown(results, references))
-    return json_path, md_path
 
 
 # ---------------------------------------------------------------------------- training runs
@@ -343,8 +164,8 @@ def run_pair(
                                          **stamp}, indent=2) + "\n")
     cell = cell_from_metrics(model, data, metrics_path, overrides, wall_seconds=wall, **stamp)
     log.info("%s on %s: free run %s, trained in %s", model, data,
-             ", ".join(f"{r['test']} {_fmt(r['free_run'])} {cell['units']}"
-                       for r in cell["rows"]), _duration(cell["train_seconds"]))
+             ", ".join(f"{r['test']} {format_value(r['free_run'])} {cell['units']}"
+                       for r in cell["rows"]), format_duration(cell["train_seconds"]))
     return cell
 
 

@@ -1,14 +1,11 @@
-"""benchmarks/accuracy.py: the table from fabricated metrics.json files (no training)."""
+"""The accuracy table of docs/results (hysteresis_lab.evaluation.accuracy_table, written by
+benchmarks/accuracy.py) from fabricated metrics.json files (no training)."""
 
 from __future__ import annotations
 
 import json
-import sys
 
-from helpers import REPO
-
-sys.path.insert(0, str(REPO / "benchmarks"))
-from accuracy import cell_from_metrics, write_results  # noqa: E402
+from hysteresis_lab.evaluation.accuracy_table import cell_from_metrics, write_results
 
 
 def _metrics(path, tests, units):

@@ -1,31 +1,40 @@
-"""benchmarks/refit_choice.py: a loop run's refits scored on sines between the test frequencies."""
+"""Checks of a loop run against the simulator (hysteresis_lab.analysis.loop_checks, printed by
+experiments/refit_choice.py and experiments/effect_ceiling.py): the refits scored on sines
+between the test frequencies, and an effect's share of the free-run error."""
 
 from __future__ import annotations
 
 import json
-import sys
+from pathlib import Path
 
 import pytest
 
-from helpers import REPO, run_app
-
-sys.path.insert(0, str(REPO / "benchmarks"))
-from refit_choice import check_splits, refit_choices  # noqa: E402
+from helpers import run_app
+from hysteresis_lab.analysis.loop_checks import ceiling, check_splits, refit_choices
+from hysteresis_lab.errors import ConfigError
 
 #: a small simulator run: a short multisine, two short test sines
 SMALL_DEFAULT = ["data=default", "+data.splits.n_train=4000", "+data.splits.max_test_samples=3000",
                  "+data.splits.test_frequencies=[10,50]"]
 
 
-@pytest.mark.slow
-def test_refit_choice_scores_the_start_and_every_refit(tmp_path):
-    """Every refit is rejected (no refit takes 99 % off): the script scores the start and each
-    rate's own saved weights on the check sines and names the one they prefer."""
-    run = tmp_path / "loop"
+@pytest.fixture(scope="module")
+def loop_run(tmp_path_factory) -> Path:
+    """A one-round FFNN loop on the small simulator whose every refit is rejected (no refit
+    takes 99 % off)."""
+    run = tmp_path_factory.mktemp("loop_checks") / "loop"
     proc = run_app("loop", *SMALL_DEFAULT, "model=ffnn", "loop.max_rounds=1",
                    "loop.min_refit_gain=0.99", "trainer.max_epochs=2", "model.simulation_epochs=1",
                    "trainer.enable_progress_bar=false", "logger=none", f"hydra.run.dir={run}")
     assert proc.returncode == 0, proc.stderr[-3000:]
+    return run
+
+
+@pytest.mark.slow
+def test_refit_choice_scores_the_start_and_every_refit(loop_run):
+    """The check scores the start and each rate's own saved weights on the check sines and
+    names the one they prefer."""
+    run = loop_run
     rounds = json.loads((run / "loop_report.json").read_text())["rounds"]
     # the simulator's hysteresis is undeclared: round 0 finds it (and more), so there are
     # refits to score, each rejected by the 99 % rule
@@ -49,11 +58,29 @@ def test_refit_choice_scores_the_start_and_every_refit(tmp_path):
         assert result["check_prefers"] == best["refit_lr"]
 
 
+@pytest.mark.slow
+def test_ceiling_scores_round_0_and_the_effects_own_output(loop_run):
+    """Round 0's free-run RMSE as the loop scored it; the simulator's hysteresis (undeclared)
+    acts on every test; its share of the error is a share."""
+    scored = json.loads((loop_run / "round_0" / "metrics.json").read_text())["tests"]
+    rows = ceiling(loop_run, "hysteresis", 0, clip_input=50.0)
+    assert [row["test"] for row in rows] == list(scored) == ["sine_10Hz", "sine_50Hz"]
+    for row in rows:
+        assert row["rmse_free_run"] == pytest.approx(scored[row["test"]]["rmse_free_run"],
+                                                     rel=1e-5)
+        assert row["effect_size_um"] > 0.05 and -1 <= row["corr"] <= 1
+        assert 0 <= row["max_cut_pct"] <= 100
+        # the same model on inputs clipped at 50 V (of 100 V) is scored, and differs
+        assert row["rmse_clipped_input"] != row["rmse_free_run"]
+    with pytest.raises(ConfigError, match="unknown simulator block"):
+        ceiling(loop_run, "no_such_block", 0)
+
+
 def test_refit_choice_refuses_training_sines_and_measured_data():
     simulator = {"effects": {}, "splits": {
         "_target_": "hysteresis_lab.sim.default_dataset.make_default_dataset",
         "train_sines": [30.0]}}
-    with pytest.raises(SystemExit, match="training sines"):
+    with pytest.raises(ConfigError, match="training sines"):
         check_splits(simulator, [30.0, 70.0])
-    with pytest.raises(SystemExit, match="simulator"):
+    with pytest.raises(ConfigError, match="simulator"):
         check_splits({"splits": {}}, [30.0])

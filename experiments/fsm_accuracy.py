@@ -1,7 +1,7 @@
 """FSM piezo-mirror accuracy with the benchmark's scoring, beside the published references.
 
     hysteresis-lab-train model=ffnn data=fsm hydra.run.dir=outputs/fsm_ffnn
-    python benchmarks/fsm_accuracy.py outputs/fsm_ffnn/metrics.json
+    python experiments/fsm_accuracy.py outputs/fsm_ffnn/metrics.json
 
 The official score is the free-run (simulation) RMSE in µm per output and test realisation
 after the first 100 samples, averaged over realisations and outputs, per amplitude level;

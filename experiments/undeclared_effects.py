@@ -1,7 +1,7 @@
 """Undeclared-effect check of the closed loop on the simulator (issue: the closed loop).
 
-    python benchmarks/undeclared_effects.py                       # all cases
-    python benchmarks/undeclared_effects.py --cases creep --epochs 100
+    python experiments/undeclared_effects.py                       # all cases
+    python experiments/undeclared_effects.py --cases creep --epochs 100
 
 For each case the simulator switches one effect on that the model does not declare, while
 the model declares the other effects present (the first bending mode, always on, counts as
@@ -19,7 +19,7 @@ sines between the test frequencies (``--train-sines``; the multisine alone never
 full-amplitude loops of the test sines, so a model trained on it mostly shows its own
 extrapolation error), and the networks are fine-tuned on their free-run error (``--horizon``).
 Each case also reports, per test where the effect acts, the RMSE cut that taking the effect's
-own output off the round-0 error would give (``benchmarks/effect_ceiling.py``).
+own output off the round-0 error would give (``experiments/effect_ceiling.py``).
 """
 
 from __future__ import annotations
@@ -31,9 +31,8 @@ import subprocess
 import time
 from pathlib import Path
 
-from effect_ceiling import ceiling  # the script beside this one
-
 from hysteresis_lab.analysis.diagnosis import TESTS
+from hysteresis_lab.analysis.loop_checks import ceiling
 from hysteresis_lab.effects.registry import get_effect
 
 log = logging.getLogger("undeclared_effects")
@@ -130,7 +129,7 @@ def main() -> None:
     parser.add_argument(
         "--epochs", type=int, default=20,
         help="one-step epochs of each fit (20 for speed; the study's 100 leave the round-0 "
-        "network holding more of creep and the second mode: see README)",
+        "network holding more of creep and the second mode: see experiments/README.md)",
     )
     parser.add_argument("--horizon", type=int, default=200)
     parser.add_argument("--simulation-epochs", type=int, default=5)

@@ -1,30 +1,28 @@
 """How hard the test recordings drive each effect's operators against the identification data.
 
-    python benchmarks/operator_excitation.py            # the default data and every case
-    python benchmarks/operator_excitation.py --effects hysteresis saturation
+    python experiments/operator_excitation.py            # the default data and every case
+    python experiments/operator_excitation.py --effects hysteresis saturation
 
 The ratio the loop reports with each effect it adds (`hysteresis_lab.analysis.excitation`),
 here for every catalogue effect on the packaged data: the default data (the study's multisine
 against its twelve sines) and the data of each undeclared-effect case of
-``benchmarks/undeclared_effects.py``. Data only: nothing is trained; a few seconds.
+``experiments/undeclared_effects.py``. Data only: nothing is trained; a few seconds.
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
-from pathlib import Path
 
-from hydra import compose, initialize_config_dir
 from undeclared_effects import CASE_DATA, CASES, TEST_HOLD, TRAIN_SINES  # the script beside
 
 from hysteresis_lab.analysis.excitation import operator_excitation
+from hysteresis_lab.api import compose
 from hysteresis_lab.data.factory import build_splits
 from hysteresis_lab.effects.augment import feature_context
 from hysteresis_lab.effects.registry import available_effects, get_effect
 
 log = logging.getLogger("operator_excitation")
-CONF = Path(__file__).resolve().parents[1] / "src" / "hysteresis_lab" / "conf"
 
 
 def data_overrides() -> dict[str, list[str]]:
@@ -47,18 +45,17 @@ def main() -> None:
     parser.add_argument("--effects", nargs="+", default=predictable, choices=predictable)
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
-    with initialize_config_dir(config_dir=str(CONF)):
-        for name, overrides in data_overrides().items():
-            splits = build_splits(compose("loop", overrides=overrides).data)
-            context = feature_context(splits.train)
-            for effect in args.effects:
-                excitation = operator_excitation(
-                    effect, [*splits.train, *splits.val], splits.test, context
-                )
-                ratios = ", ".join(
-                    "never" if r is None else f"{r:.2g}" for r in excitation.ratios.values()
-                )
-                log.info("%-10s %-10s %s", name, effect, ratios)
+    for name, overrides in data_overrides().items():
+        splits = build_splits(compose(*overrides, config="loop").data)
+        context = feature_context(splits.train)
+        for effect in args.effects:
+            excitation = operator_excitation(
+                effect, [*splits.train, *splits.val], splits.test, context
+            )
+            ratios = ", ".join(
+                "never" if r is None else f"{r:.2g}" for r in excitation.ratios.values()
+            )
+            log.info("%-10s %-10s %s", name, effect, ratios)
 
 
 if __name__ == "__main__":
