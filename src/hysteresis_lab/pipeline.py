@@ -32,6 +32,7 @@ from hysteresis_lab.evaluation.plots import loops_figure, residuals_figure, save
 from hysteresis_lab.evaluation.predict import check_n_step
 from hysteresis_lab.evaluation.report import metrics_document, write_json
 from hysteresis_lab.models.io import load_model, model_window, save_model
+from hysteresis_lab.trainer import TrainerSettings
 from hysteresis_lab.training import (
     TrainResult,
     build_model,
@@ -72,9 +73,9 @@ def plain_dict(cfg: Mapping[str, Any] | DictConfig) -> dict[str, Any]:
     return dict(cfg)
 
 
-def evaluation_device(trainer_cfg: Mapping[str, Any]) -> str:
+def evaluation_device(trainer_cfg: Mapping[str, Any] | TrainerSettings) -> str:
     """The device free-run simulation uses: the GPU when training may use one and it exists."""
-    accelerator = str(trainer_cfg.get("accelerator", "auto"))
+    accelerator = str(TrainerSettings.from_config(trainer_cfg).accelerator)
     if accelerator in {"auto", "gpu", "cuda"} and torch.cuda.is_available():
         return "cuda"
     return "cpu"
