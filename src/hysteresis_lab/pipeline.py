@@ -31,6 +31,7 @@ from hysteresis_lab.evaluation.evaluate import Evaluation, evaluate_model, scori
 from hysteresis_lab.evaluation.plots import loops_figure, residuals_figure, save_figure
 from hysteresis_lab.evaluation.predict import check_n_step
 from hysteresis_lab.evaluation.report import metrics_document, write_json
+from hysteresis_lab.models.interface import SystemModel
 from hysteresis_lab.models.io import load_model, model_window, save_model
 from hysteresis_lab.trainer import TrainerSettings
 from hysteresis_lab.training import (
@@ -57,7 +58,7 @@ class RunResult:
     document: dict[str, Any]
     val_mse: float
     evaluation: Evaluation
-    model: Any
+    model: SystemModel
     window: WindowSpec
     improved: bool = True  # False: a warm-started refit kept its start (see training.fit)
     #: a warm-started refit's validation loss: {"start": x, "refit": x}

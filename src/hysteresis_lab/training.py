@@ -21,6 +21,7 @@ from lightning.pytorch.utilities.exceptions import MisconfigurationException
 from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.data.segments import simulation_data
 from hysteresis_lab.errors import ConfigError, DivergedError
+from hysteresis_lab.models.interface import SystemModel
 from hysteresis_lab.models.registry import get_model_class
 from hysteresis_lab.trainer import TrainerSettings, build_trainer
 
@@ -31,7 +32,7 @@ log = logging.getLogger(__name__)
 class TrainResult:
     """A fitted model, its validation MSE (scaled units: the sweep objective) and cost."""
 
-    model: Any
+    model: SystemModel
     val_mse: float
     train_seconds: float
     checkpoint: Path | None = None
@@ -48,7 +49,9 @@ def model_layout(model_cfg: Mapping[str, Any]) -> str:
     return get_model_class(_model_name(model_cfg)).layout
 
 
-def build_model(model_cfg: Mapping[str, Any], datamodule: WindowDataModule, **extra: Any) -> Any:
+def build_model(
+    model_cfg: Mapping[str, Any], datamodule: WindowDataModule, **extra: Any
+) -> SystemModel:
     """Instantiate the registered model ``model_cfg['name']`` for the DataModule's data.
 
     ``extra`` passes values the pipeline derives (e.g. the effects' ``feature_context``);
