@@ -166,11 +166,7 @@ def run_model(
     settings = config.settings
     _prepare_run(config)
     effects = list(config.model.get("effects") or [])
-    check_effects(effects)
-    splits = splits or build_splits(config.data)
-    data, context = augment_splits(splits, effects)
-    if settings.evaluate:
-        _check_evaluation_settings(data, settings.n_steps, window_spec(config.data))
+    splits, data, context = _run_data(config, effects, splits)
     record_key = _fit_record_key(config, splits, warm_start)
     if record_key is not None:
         reused = _reuse_finished_fit(config, record_key, data)
@@ -199,6 +195,19 @@ def _prepare_run(config: RunConfig) -> None:
         check_trainer_settings(config.trainer)
     config.output_dir.mkdir(parents=True, exist_ok=True)
     L.seed_everything(config.settings.seed, workers=True, verbose=False)
+
+
+def _run_data(
+    config: RunConfig, effects: list[str], splits: DatasetSplits | None
+) -> tuple[DatasetSplits, DatasetSplits, Any]:
+    """The data set (``splits``, else built from the data config), the same with the effects'
+    operator channels added and their feature context; checked for scoring when it will be."""
+    check_effects(effects)
+    splits = splits or build_splits(config.data)
+    data, context = augment_splits(splits, effects)
+    if config.settings.evaluate:
+        _check_evaluation_settings(data, config.settings.n_steps, window_spec(config.data))
+    return splits, data, context
 
 
 def _fit_record_key(

@@ -6,7 +6,7 @@ Every architecture, built-in or plugin, is one of two kinds:
   free-run stages, warm starts of the loop). Subclassing `NarxModule` gives all of it.
 * `EstimatorModel`: a model fitted in one call on the scaled regression windows (the SVM).
 
-Both are `SystemModel`\\ s: built by `hysteresis_lab.training.build_model` as
+Both implement `SystemModel`: built by `hysteresis_lab.training.build_model` as
 ``cls(nu=, ny=, na=, nb=, nk=, scaler=, **settings)``, they state their regressor ``layout``
 and keep their ``window``, channel counts and settings (``hparams``) for evaluation and saving.
 
