@@ -23,11 +23,11 @@ import time
 import warnings
 from pathlib import Path
 
-import lightning as L
 import torch
 
 from hysteresis_lab.data.datamodules import PaperDataModule
 from hysteresis_lab.evaluation.predict import free_run, one_step
+from hysteresis_lab.trainer import TrainerSettings, build_trainer
 from hysteresis_lab.training import build_model, fit
 
 log = logging.getLogger("bench_models")
@@ -64,9 +64,10 @@ def bench(name: str, device: str, epochs: int) -> dict[str, float]:
         model.fit(x, target)
         row["fit_s"] = time.perf_counter() - start
     else:
-        trainer = L.Trainer(max_epochs=epochs, accelerator=device, devices=1, logger=False,
-                            enable_checkpointing=False, enable_progress_bar=False,
-                            enable_model_summary=False, num_sanity_val_steps=0)
+        settings = TrainerSettings(max_epochs=epochs, accelerator=device, devices=1,
+                                   enable_progress_bar=False, enable_model_summary=False,
+                                   extra={"num_sanity_val_steps": 0})
+        trainer = build_trainer(settings, logger=False, enable_checkpointing=False)
         start = time.perf_counter()
         trainer.fit(model, datamodule=dm)
         row["epoch_s"] = (time.perf_counter() - start) / epochs

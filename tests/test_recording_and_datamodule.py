@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
+from omegaconf import OmegaConf
 
 from conftest import make_recording
 from hysteresis_lab.data.datamodules import WindowDataModule
+from hysteresis_lab.data.factory import build_datamodule
 from hysteresis_lab.data.recording import Recording
-from hysteresis_lab.data.scaling import Scaler
+from hysteresis_lab.data.scaling import PAPER_U_SCALE, PAPER_Y_SCALE, Scaler, ScalingSettings
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.errors import ConfigError, DataError
@@ -61,6 +65,18 @@ def test_paper_and_standard_scaling():
         np.testing.assert_allclose(getattr(restored, name), getattr(standard, name))
     with pytest.raises(ConfigError, match="unknown scaling mode"):
         Scaler.fit([rec], "minmax")
+
+
+def test_the_scaling_defaults_are_set_once():
+    """The packaged config states the code's constants; a config without them gets them."""
+    window_yaml = Path(__file__).resolve().parents[1] / "src/hysteresis_lab/conf/data/_window.yaml"
+    packaged = ScalingSettings.from_config(OmegaConf.load(window_yaml).scaling)
+    assert packaged == ScalingSettings() == ScalingSettings("paper", PAPER_U_SCALE, PAPER_Y_SCALE)
+    assert ScalingSettings.from_config({"mode": "none"}) == ScalingSettings(mode="none")
+    rec = Recording(u=np.linspace(-1, 1, 40), y=np.linspace(0, 2, 40), fs=1.0)
+    splits = DatasetSplits(name="d", train=[rec], val=[], test=[])
+    scaler = build_datamodule({"splits": None}, "flat", splits=splits).scaler
+    assert (scaler.u_scale[0], scaler.y_scale[0]) == (PAPER_U_SCALE, PAPER_Y_SCALE)
 
 
 def test_random_90_10_split_of_windows():

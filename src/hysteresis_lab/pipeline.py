@@ -1,5 +1,8 @@
 """Train-and-evaluate runs of one model (the study's four: `hysteresis_lab.paper`).
 
+`train_and_evaluate` (or `run_model` with a `RunConfig`) prepares the data, reuses a finished
+fit or trains one, scores it and writes the run folder; each step is its own function below.
+
 Everything a run produces lands in its output folder: checkpoints, ``metrics.json``,
 hysteresis-loop and residual figures, and TensorBoard event files (loss curves, figures,
 final metrics as hparams).
@@ -21,6 +24,7 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from omegaconf import DictConfig, OmegaConf
 
 from hysteresis_lab import fit_record
+from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.data.factory import build_datamodule, build_splits, window_spec
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.data.windows import WindowSpec
@@ -31,7 +35,9 @@ from hysteresis_lab.evaluation.evaluate import Evaluation, evaluate_model, scori
 from hysteresis_lab.evaluation.plots import loops_figure, residuals_figure, save_figure
 from hysteresis_lab.evaluation.predict import check_n_step
 from hysteresis_lab.evaluation.report import metrics_document, write_json
+from hysteresis_lab.models.interface import SystemModel
 from hysteresis_lab.models.io import load_model, model_window, save_model
+from hysteresis_lab.trainer import TrainerSettings
 from hysteresis_lab.training import (
     TrainResult,
     build_model,
@@ -56,7 +62,7 @@ class RunResult:
     document: dict[str, Any]
     val_mse: float
     evaluation: Evaluation
-    model: Any
+    model: SystemModel
     window: WindowSpec
     improved: bool = True  # False: a warm-started refit kept its start (see training.fit)
     #: a warm-started refit's validation loss: {"start": x, "refit": x}
@@ -72,12 +78,49 @@ def plain_dict(cfg: Mapping[str, Any] | DictConfig) -> dict[str, Any]:
     return dict(cfg)
 
 
-def evaluation_device(trainer_cfg: Mapping[str, Any]) -> str:
+def evaluation_device(trainer_cfg: Mapping[str, Any] | TrainerSettings) -> str:
     """The device free-run simulation uses: the GPU when training may use one and it exists."""
-    accelerator = str(trainer_cfg.get("accelerator", "auto"))
+    accelerator = str(TrainerSettings.from_config(trainer_cfg).accelerator)
     if accelerator in {"auto", "gpu", "cuda"} and torch.cuda.is_available():
         return "cuda"
     return "cpu"
+
+
+@dataclass(frozen=True)
+class RunSettings:
+    """How one run trains and what it writes, beyond the model, data and trainer configs.
+
+    ``refit``: with a warm start, ``"new_inputs"`` trains only the new input channels' weights
+    (`NarxModule.train_new_inputs_only`), ``"full"`` every weight; the start is kept unless
+    the refit beats it on validation by more than the share ``min_refit_gain``. ``reuse``: a
+    fit that finished in the output folder with the same settings, data and start
+    (`hysteresis_lab.fit_record`) is loaded and scored instead of trained.
+    """
+
+    seed: int = 0
+    use_tensorboard: bool = True
+    n_steps: int | None = None
+    plots: bool = True
+    evaluate: bool = True
+    refit: str = "full"
+    min_refit_gain: float = 0.0
+    reuse: bool = False
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """One run: the resolved ``model``, ``data`` and ``trainer`` configs, where it writes,
+    and its `RunSettings`."""
+
+    model: dict[str, Any]
+    data: dict[str, Any]
+    trainer: dict[str, Any]
+    output_dir: Path
+    settings: RunSettings = RunSettings()
+
+    @property
+    def model_name(self) -> str:
+        return str(self.model["name"])
 
 
 def train_and_evaluate(
@@ -102,131 +145,181 @@ def train_and_evaluate(
     ``warm_start``: a fitted network of the same architecture whose inputs are the first of
     this model's (see `NarxModule.warm_start_from`); both training stages run from it, and
     it is kept when they do not beat it on validation (by more than the share
-    ``min_refit_gain``). ``refit``: with a warm start,
-    ``"new_inputs"`` trains only the new input channels' weights
-    (`NarxModule.train_new_inputs_only`), ``"full"`` every weight.
-    ``reuse``: a fit that finished in ``output_dir`` with the same settings, data and start
-    (`hysteresis_lab.fit_record`) is loaded and scored instead of trained; the loop's resume.
+    ``min_refit_gain``). The other keywords are `RunSettings`; `run_model` takes them grouped.
     """
-    model_cfg, data_cfg, trainer_cfg = map(plain_dict, (model_cfg, data_cfg, trainer_cfg))
-    if is_network(model_cfg):
-        check_trainer_settings(trainer_cfg)
-    output_dir.mkdir(parents=True, exist_ok=True)
-    L.seed_everything(seed, workers=True, verbose=False)
-    effects = list(model_cfg.get("effects") or [])
-    check_effects(effects)
-    splits = splits or build_splits(data_cfg)
-    data, context = augment_splits(splits, effects)
-    if evaluate:
-        _check_evaluation_settings(data, n_steps, window_spec(data_cfg))
-    record_key = None
-    if reuse and evaluate:
-        settings = {"model": model_cfg, "data": data_cfg, "trainer": trainer_cfg, "seed": seed,
-                    "n_steps": n_steps, "refit": refit if warm_start is not None else None,
-                    "min_refit_gain": min_refit_gain}
-        record_key = fit_record.fingerprint(settings, splits, warm_start)
-        record = fit_record.finished_fit(output_dir, record_key)
-        if record is not None:
-            reused = _reused_fit(record, data, output_dir, trainer_cfg, n_steps)
-            if reused is not None:
-                return reused
+    config = RunConfig(
+        *map(plain_dict, (model_cfg, data_cfg, trainer_cfg)),
+        output_dir,
+        RunSettings(seed, use_tensorboard, n_steps, plots, evaluate, refit, min_refit_gain, reuse),
+    )
+    return run_model(config, splits=splits, callbacks=callbacks, warm_start=warm_start)
+
+
+def run_model(
+    config: RunConfig,
+    splits: DatasetSplits | None = None,
+    callbacks: list[Any] | None = None,
+    warm_start: Any | None = None,
+) -> RunResult:
+    """`train_and_evaluate` on a `RunConfig`: prepare the data, reuse a finished fit or
+    train, then score and write the run folder."""
+    settings = config.settings
+    _prepare_run(config)
+    effects = list(config.model.get("effects") or [])
+    splits, data, context = _run_data(config, effects, splits)
+    record_key = _fit_record_key(config, splits, warm_start)
+    if record_key is not None:
+        reused = _reuse_finished_fit(config, record_key, data)
+        if reused is not None:
+            return reused
     # this fit overwrites the folder's files: an older record must not vouch for them
-    fit_record.forget(output_dir)
-    datamodule = build_datamodule(data_cfg, model_layout(model_cfg), seed=seed, splits=data)
+    fit_record.forget(config.output_dir)
+    datamodule, model = _build(config, data, context, effects, warm_start)
+    logger = _tensorboard_logger(config)
+    trained = fit(
+        model, datamodule, config.trainer, config.output_dir, logger=logger,
+        callbacks=callbacks, keep_start_unless_beaten=warm_start is not None,
+        min_gain=settings.min_refit_gain,
+    )
+    model_path = save_model(trained.model, config.output_dir / "model")
+    log.info("saved %s", model_path)
+    if not settings.evaluate:
+        return _unscored_result(config, data, trained, datamodule.window)
+    return _score_and_report(config, data, trained, datamodule.window, model_path, logger,
+                             record_key)
+
+
+def _prepare_run(config: RunConfig) -> None:
+    """Check the trainer settings (networks), make the output folder, seed every generator."""
+    if is_network(config.model):
+        check_trainer_settings(config.trainer)
+    config.output_dir.mkdir(parents=True, exist_ok=True)
+    L.seed_everything(config.settings.seed, workers=True, verbose=False)
+
+
+def _run_data(
+    config: RunConfig, effects: list[str], splits: DatasetSplits | None
+) -> tuple[DatasetSplits, DatasetSplits, Any]:
+    """The data set (``splits``, else built from the data config), the same with the effects'
+    operator channels added and their feature context; checked for scoring when it will be."""
+    check_effects(effects)
+    splits = splits or build_splits(config.data)
+    data, context = augment_splits(splits, effects)
+    if config.settings.evaluate:
+        _check_evaluation_settings(data, config.settings.n_steps, window_spec(config.data))
+    return splits, data, context
+
+
+def _fit_record_key(
+    config: RunConfig, splits: DatasetSplits, warm_start: Any | None
+) -> str | None:
+    """The fingerprint a finished fit of this run records, when the run may reuse one."""
+    settings = config.settings
+    if not (settings.reuse and settings.evaluate):
+        return None
+    fingerprinted = {
+        "model": config.model, "data": config.data, "trainer": config.trainer,
+        "seed": settings.seed, "n_steps": settings.n_steps,
+        "refit": settings.refit if warm_start is not None else None,
+        "min_refit_gain": settings.min_refit_gain,
+    }
+    return fit_record.fingerprint(fingerprinted, splits, warm_start)
+
+
+def _reuse_finished_fit(config: RunConfig, key: str, data: DatasetSplits) -> RunResult | None:
+    """The finished fit recorded under ``key`` in the run folder, scored again; None when
+    there is none (or it cannot be loaded)."""
+    record = fit_record.finished_fit(config.output_dir, key)
+    if record is None:
+        return None
+    return _reused_fit(record, data, config.output_dir, config.trainer, config.settings.n_steps)
+
+
+def _build(
+    config: RunConfig,
+    data: DatasetSplits,
+    context: Any,
+    effects: list[str],
+    warm_start: Any | None,
+) -> tuple[WindowDataModule, SystemModel]:
+    """The DataModule and the untrained model (started from ``warm_start`` when given)."""
+    datamodule = build_datamodule(
+        config.data, model_layout(config.model), seed=config.settings.seed, splits=data
+    )
     extra = (
         {"feature_context": context_to_dict(context),
          "n_base_inputs": data.metadata["n_base_inputs"]}
         if effects
         else {}
     )
-    model = build_model(model_cfg, datamodule, trained_on=_trained_on(data), **extra)
+    model = build_model(config.model, datamodule, trained_on=_trained_on(data), **extra)
     if warm_start is not None:
         model.warm_start_from(warm_start)
-        if refit == "new_inputs":
+        if config.settings.refit == "new_inputs":
             model.train_new_inputs_only()
-    logger = (
-        TensorBoardLogger(
-            save_dir=str(output_dir), name="tensorboard", version="", default_hp_metric=False
-        )
-        if use_tensorboard
-        else None
+    return datamodule, model
+
+
+def _tensorboard_logger(config: RunConfig) -> TensorBoardLogger | None:
+    if not config.settings.use_tensorboard:
+        return None
+    return TensorBoardLogger(
+        save_dir=str(config.output_dir), name="tensorboard", version="", default_hp_metric=False
     )
-    trained = fit(
-        model,
-        datamodule,
-        trainer_cfg,
-        output_dir,
-        logger=logger,
-        callbacks=callbacks,
-        keep_start_unless_beaten=warm_start is not None,
-        min_gain=min_refit_gain,
+
+
+def _unscored_result(
+    config: RunConfig, data: DatasetSplits, trained: TrainResult, window: WindowSpec
+) -> RunResult:
+    """A run with ``evaluate=False`` (a sweep trial): its validation loss and cost only."""
+    document = {
+        "model": config.model_name,
+        "data": data.name,
+        "val_mse_scaled": trained.val_mse,
+        "train_seconds": trained.train_seconds,
+    }
+    write_json(document, config.output_dir / "metrics.json")
+    return RunResult(
+        document, trained.val_mse, Evaluation(), trained.model, window, trained.improved,
+        trained.refit_validation,
     )
-    model_path = save_model(trained.model, output_dir / "model")
-    log.info("saved %s", model_path)
-    if not evaluate:
-        document = {
-            "model": str(model_cfg["name"]),
-            "data": data.name,
-            "val_mse_scaled": trained.val_mse,
-            "train_seconds": trained.train_seconds,
-        }
-        write_json(document, output_dir / "metrics.json")
-        return RunResult(
-            document,
-            trained.val_mse,
-            Evaluation(),
-            trained.model,
-            datamodule.window,
-            trained.improved,
-            trained.refit_validation,
-        )
+
+
+def _score_and_report(
+    config: RunConfig,
+    data: DatasetSplits,
+    trained: TrainResult,
+    window: WindowSpec,
+    model_path: Path,
+    logger: TensorBoardLogger | None,
+    record_key: str | None,
+) -> RunResult:
+    """Score the trained model on the test recordings; write metrics.json, figures, the fit
+    record and the TensorBoard summary."""
+    settings, output_dir = config.settings, config.output_dir
     evaluation = evaluate_model(
-        trained.model,
-        data.test,
-        datamodule.window,
-        n_init=data.n_init,
-        n_steps=n_steps,
-        device=evaluation_device(trainer_cfg),
+        trained.model, data.test, window, n_init=data.n_init, n_steps=settings.n_steps,
+        device=evaluation_device(config.trainer),
     )
     units = {"u": data.test[0].u_units, "y": data.test[0].y_units}
-    rejected_refit = None
-    if trained.rejected_state is not None:
-        # the refit's own weights for the scoring and the save; the kept start's afterwards
-        with _weights(trained.model, trained.rejected_state) as rejected:
-            rejected_refit = _score_rejected_refit(
-                rejected, trained, data, datamodule.window, trainer_cfg, n_steps, units,
-                str(model_cfg["name"]),
-            )
-            log.info("saved %s", save_model(rejected, output_dir / REJECTED_REFIT_MODEL))
-        write_json(rejected_refit, output_dir / REJECTED_REFIT_METRICS)
+    rejected_refit = _keep_rejected_refit(config, data, trained, window, units)
     document = metrics_document(
-        str(model_cfg["name"]),
+        config.model_name,
         units,
         evaluation.metrics,
         trained.train_seconds,
         extra={"val_mse_scaled": trained.val_mse, "data": data.name, "model_path": str(model_path)},
     )
     write_json(document, output_dir / "metrics.json")
-    if plots:
-        _write_figures(data, evaluation, output_dir, str(model_cfg["name"]), logger)
+    if settings.plots:
+        _write_figures(data, evaluation, output_dir, config.model_name, logger)
     if record_key is not None:
-        files = [model_path.name, "metrics.json"]
-        files += [REJECTED_REFIT_METRICS] if rejected_refit is not None else []
-        fit_record.write_record(output_dir, record_key, {
-            "files": files, "model_file": model_path.name,
-            "val_mse": trained.val_mse, "improved": trained.improved,
-            "refit_validation": trained.refit_validation, "rejected": rejected_refit is not None,
-        })
+        _write_fit_record(output_dir, record_key, model_path, trained, rejected_refit is not None)
     if logger is not None:
-        hparams = {f"model/{k}": v for k, v in model_cfg.items() if _scalar(v)}
-        hparams.update({"data": data.name, "seed": seed})
-        final = {f"test_mean/{k}": v for k, v in document["mean"].items()}
-        final["val_mse_scaled"] = trained.val_mse
-        logger.log_hyperparams(hparams, final)
-        logger.finalize("success")
+        _log_summary(logger, config, data.name, document, trained.val_mse)
     log.info(
         "%s on %s: mean RMSE one-step %.4g %s, free-run %.4g %s (metrics.json in %s)",
-        model_cfg["name"],
+        config.model_name,
         data.name,
         document["mean"]["rmse_one_step"],
         units["y"],
@@ -235,15 +328,61 @@ def train_and_evaluate(
         output_dir,
     )
     return RunResult(
-        document,
-        trained.val_mse,
-        evaluation,
-        trained.model,
-        datamodule.window,
-        trained.improved,
-        trained.refit_validation,
-        rejected_refit,
+        document, trained.val_mse, evaluation, trained.model, window, trained.improved,
+        trained.refit_validation, rejected_refit,
     )
+
+
+def _keep_rejected_refit(
+    config: RunConfig,
+    data: DatasetSplits,
+    trained: TrainResult,
+    window: WindowSpec,
+    units: dict[str, str],
+) -> dict[str, Any] | None:
+    """A refit that lost to its start: score its own weights, save them and their metrics
+    beside the kept model (`REJECTED_REFIT_MODEL`, `REJECTED_REFIT_METRICS`)."""
+    if trained.rejected_state is None:
+        return None
+    output_dir = config.output_dir
+    # the refit's own weights for the scoring and the save; the kept start's afterwards
+    with _weights(trained.model, trained.rejected_state) as rejected:
+        rejected_refit = _score_rejected_refit(
+            rejected, trained, data, window, config.trainer, config.settings.n_steps, units,
+            config.model_name,
+        )
+        log.info("saved %s", save_model(rejected, output_dir / REJECTED_REFIT_MODEL))
+    write_json(rejected_refit, output_dir / REJECTED_REFIT_METRICS)
+    return rejected_refit
+
+
+def _write_fit_record(
+    output_dir: Path, key: str, model_path: Path, trained: TrainResult, rejected: bool
+) -> None:
+    """Record the finished fit (its files and what `RunResult` needs) for a later reuse."""
+    files = [model_path.name, "metrics.json"]
+    files += [REJECTED_REFIT_METRICS] if rejected else []
+    fit_record.write_record(output_dir, key, {
+        "files": files, "model_file": model_path.name,
+        "val_mse": trained.val_mse, "improved": trained.improved,
+        "refit_validation": trained.refit_validation, "rejected": rejected,
+    })
+
+
+def _log_summary(
+    logger: TensorBoardLogger,
+    config: RunConfig,
+    data_name: str,
+    document: Mapping[str, Any],
+    val_mse: float,
+) -> None:
+    """The run's settings and final scores as TensorBoard hparams."""
+    hparams = {f"model/{k}": v for k, v in config.model.items() if _scalar(v)}
+    hparams.update({"data": data_name, "seed": config.settings.seed})
+    final = {f"test_mean/{k}": v for k, v in document["mean"].items()}
+    final["val_mse_scaled"] = val_mse
+    logger.log_hyperparams(hparams, final)
+    logger.finalize("success")
 
 
 def _reused_fit(

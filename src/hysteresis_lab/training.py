@@ -14,31 +14,25 @@ from typing import Any
 import lightning as L
 import numpy as np
 import torch
-from lightning.pytorch.callbacks import (
-    EarlyStopping,
-    LearningRateMonitor,
-    ModelCheckpoint,
-    TQDMProgressBar,
-)
+from lightning.pytorch.callbacks import EarlyStopping, LearningRateMonitor, ModelCheckpoint
 from lightning.pytorch.loggers import TensorBoardLogger
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
 from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.data.segments import simulation_data
 from hysteresis_lab.errors import ConfigError, DivergedError
+from hysteresis_lab.models.interface import SystemModel
 from hysteresis_lab.models.registry import get_model_class
+from hysteresis_lab.trainer import TrainerSettings, build_trainer
 
 log = logging.getLogger(__name__)
-
-#: batches between progress-bar refreshes (one per batch costs a small network ~10 % of its time)
-PROGRESS_BAR_REFRESH_BATCHES = 20
 
 
 @dataclass
 class TrainResult:
     """A fitted model, its validation MSE (scaled units: the sweep objective) and cost."""
 
-    model: Any
+    model: SystemModel
     val_mse: float
     train_seconds: float
     checkpoint: Path | None = None
@@ -55,7 +49,9 @@ def model_layout(model_cfg: Mapping[str, Any]) -> str:
     return get_model_class(_model_name(model_cfg)).layout
 
 
-def build_model(model_cfg: Mapping[str, Any], datamodule: WindowDataModule, **extra: Any) -> Any:
+def build_model(
+    model_cfg: Mapping[str, Any], datamodule: WindowDataModule, **extra: Any
+) -> SystemModel:
     """Instantiate the registered model ``model_cfg['name']`` for the DataModule's data.
 
     ``extra`` passes values the pipeline derives (e.g. the effects' ``feature_context``);
@@ -89,7 +85,7 @@ def build_model(model_cfg: Mapping[str, Any], datamodule: WindowDataModule, **ex
 def fit(
     model: Any,
     datamodule: WindowDataModule,
-    trainer_cfg: Mapping[str, Any],
+    trainer_cfg: Mapping[str, Any] | TrainerSettings,
     output_dir: Path,
     logger: TensorBoardLogger | None = None,
     callbacks: list[Any] | None = None,
@@ -105,16 +101,17 @@ def fit(
     are kept unless training beats them on the validation free-run loss (one-step MSE with
     the one-step objective) by more than the share ``min_gain``.
     """
+    settings = TrainerSettings.from_config(trainer_cfg)
     if isinstance(model, L.LightningModule):
-        _check_max_epochs(trainer_cfg)
+        _check_max_epochs(settings)
     start = (
         {k: v.detach().clone() for k, v in model.state_dict().items()}
         if keep_start_unless_beaten and isinstance(model, L.LightningModule)
         else None
     )
-    result = _fit(model, datamodule, trainer_cfg, output_dir, logger, callbacks, one_step)
+    result = _fit(model, datamodule, settings, output_dir, logger, callbacks, one_step)
     if start is not None:
-        _keep_start_unless_beaten(result, start, datamodule, trainer_cfg, min_gain)
+        _keep_start_unless_beaten(result, start, datamodule, settings, min_gain)
     return result
 
 
@@ -122,16 +119,16 @@ def _keep_start_unless_beaten(
     result: TrainResult,
     start: dict[str, torch.Tensor],
     datamodule: WindowDataModule,
-    trainer_cfg: Mapping[str, Any],
+    settings: TrainerSettings,
     min_gain: float,
 ) -> None:
     """Put the starting weights back when the trained ones do not beat them on validation by
     more than the share ``min_gain``; records the verdict and both losses in ``result``."""
     model = result.model
     trained = {k: v.detach().clone() for k, v in model.state_dict().items()}
-    trained_loss = _selection_loss(model, datamodule, trainer_cfg)
+    trained_loss = _selection_loss(model, datamodule, settings)
     model.load_state_dict(start)
-    start_loss = _selection_loss(model, datamodule, trainer_cfg)
+    start_loss = _selection_loss(model, datamodule, settings)
     result.refit_validation = {"start": start_loss, "refit": trained_loss}
     result.improved = trained_loss < (1.0 - min_gain) * start_loss
     if result.improved:
@@ -148,17 +145,16 @@ def _keep_start_unless_beaten(
 
 
 def _selection_loss(
-    model: L.LightningModule, datamodule: WindowDataModule, trainer_cfg: Mapping[str, Any]
+    model: L.LightningModule, datamodule: WindowDataModule, settings: TrainerSettings
 ) -> float:
     """Validation free-run MSE over ``horizon`` segments (objective "simulation"), or the
     one-step MSE."""
     steps = model.simulation_horizon
     if steps == 0:
         return _validation_mse(_scaled_predictor(model), datamodule)
-    settings = {**dict(trainer_cfg), "logger": False, "enable_checkpointing": False}
     model.simulation_mode = True
     try:
-        trainer = _trainer(settings)
+        trainer = build_trainer(settings, logger=False, enable_checkpointing=False)
         segments = simulation_data(datamodule, model, steps)
         return float(trainer.validate(model, datamodule=segments, verbose=False)[0]["val_loss"])
     finally:
@@ -185,7 +181,7 @@ def stage_lr(model: L.LightningModule, stage: str) -> float:
 def _fit(
     model: Any,
     datamodule: WindowDataModule,
-    trainer_cfg: Mapping[str, Any],
+    settings: TrainerSettings,
     output_dir: Path,
     logger: TensorBoardLogger | None,
     callbacks: list[Any] | None,
@@ -202,7 +198,7 @@ def _fit(
 
     steps = model.simulation_horizon
     fine_tune_epochs = model.hparams.get("simulation_epochs")
-    stages = (model, datamodule, trainer_cfg, output_dir, logger)
+    stages = (model, datamodule, settings, output_dir, logger)
     _initialise_from_data(model, datamodule)
     if steps > 0 and fine_tune_epochs is not None and model.simulation_trained:
         log.info("%s trains on the free-run error alone: simulation_epochs=%s (a one-step stage "
@@ -211,7 +207,7 @@ def _fit(
     if steps > 0 and fine_tune_epochs is None:  # the free-run error is the only objective
         model.stage_lr = stage_lr(model, "simulation")
         best, _, val_mse = _fit_free_run(
-            *stages, steps, int(trainer_cfg["max_epochs"]), callbacks, "checkpoints",
+            *stages, steps, int(settings.max_epochs), callbacks, "checkpoints",
             starting_checkpoint=None, keep_start=True, finite_start=True,
         )
         model.stage_lr = None
@@ -255,7 +251,7 @@ def _initialise_from_data(model: L.LightningModule, datamodule: WindowDataModule
 def _fit_one_step(
     model: L.LightningModule,
     datamodule: WindowDataModule,
-    trainer_cfg: Mapping[str, Any],
+    settings: TrainerSettings,
     output_dir: Path,
     logger: TensorBoardLogger | None,
     callbacks: list[Any] | None,
@@ -265,8 +261,8 @@ def _fit_one_step(
     all_callbacks: list[Any] = [checkpoint, *(callbacks or [])]
     if logger is not None:
         all_callbacks.append(LearningRateMonitor(logging_interval="epoch"))
-    trainer = _trainer(
-        trainer_cfg,
+    trainer = build_trainer(
+        settings,
         all_callbacks,
         logger=logger if logger is not None else False,
         default_root_dir=str(output_dir),
@@ -282,16 +278,17 @@ def is_network(model_cfg: Mapping[str, Any]) -> bool:
     return issubclass(get_model_class(_model_name(model_cfg)), L.LightningModule)
 
 
-def check_trainer_settings(trainer_cfg: Mapping[str, Any]) -> None:
+def check_trainer_settings(trainer_cfg: Mapping[str, Any] | TrainerSettings) -> None:
     """Fail before any data or training work when the ``trainer`` settings cannot train a
     network: a training length that trains nothing or never stops, settings Lightning refuses
     (an unknown argument, a precision or accelerator this machine lacks) or more than one
     device (a model here trains, and is scored, in one process on one device)."""
-    _check_max_epochs(trainer_cfg)
+    settings = TrainerSettings.from_config(trainer_cfg)
+    _check_max_epochs(settings)
     quiet = ("enable_progress_bar", "logger", "enable_checkpointing", "enable_model_summary")
     try:
         with _lightning_info_muted():  # the real fit logs the device lines once
-            trainer = _trainer({**trainer_cfg, **dict.fromkeys(quiet, False)})
+            trainer = build_trainer(settings, **dict.fromkeys(quiet, False))
     except (MisconfigurationException, ModuleNotFoundError, TypeError, ValueError) as exc:
         raise ConfigError(
             f"Lightning refused the trainer settings: {str(exc).rstrip('.! ')}. Fix: correct "
@@ -300,7 +297,7 @@ def check_trainer_settings(trainer_cfg: Mapping[str, Any]) -> None:
         ) from exc
     if trainer.num_devices > 1 or trainer.num_nodes > 1:
         raise ConfigError(
-            f"trainer.devices={trainer_cfg.get('devices')!r} gives {trainer.num_devices} "
+            f"trainer.devices={settings.devices!r} gives {trainer.num_devices} "
             f"devices on {trainer.num_nodes} node(s); a model here trains on one device (the "
             "paper run trains several models side by side instead). Fix: trainer.devices=1, or "
             "trainer.devices=[<index>] to pick one GPU."
@@ -320,25 +317,14 @@ def _lightning_info_muted() -> Iterator[None]:
         lightning_log.setLevel(level)
 
 
-def _check_max_epochs(trainer_cfg: Mapping[str, Any]) -> None:
+def _check_max_epochs(settings: TrainerSettings) -> None:
     """A network must train at least one epoch and must stop."""
-    epochs = trainer_cfg.get("max_epochs")
+    epochs = settings.max_epochs
     if epochs is None or int(epochs) < 1:
         raise ConfigError(
             f"trainer.max_epochs={epochs} must be a whole number >= 1 (0 trains nothing, -1 "
             "never stops). Fix: e.g. trainer.max_epochs=100 (the study's)."
         )
-
-
-def _trainer(
-    settings: Mapping[str, Any], callbacks: list[Any] | None = None, **kwargs: Any
-) -> L.Trainer:
-    """A Lightning Trainer from the ``trainer`` config; its progress bar, when enabled,
-    refreshes every `PROGRESS_BAR_REFRESH_BATCHES` batches."""
-    callbacks = list(callbacks or [])
-    if settings.get("enable_progress_bar", True):
-        callbacks.append(TQDMProgressBar(refresh_rate=PROGRESS_BAR_REFRESH_BATCHES))
-    return L.Trainer(**dict(settings), callbacks=callbacks, **kwargs)
 
 
 def _best_checkpoint(directory: Path) -> ModelCheckpoint:
@@ -387,7 +373,7 @@ def _restore_best(
 def _fit_free_run(
     model: L.LightningModule,
     datamodule: WindowDataModule,
-    trainer_cfg: Mapping[str, Any],
+    settings: TrainerSettings,
     output_dir: Path,
     logger: TensorBoardLogger | None,
     steps: int,
@@ -415,9 +401,9 @@ def _fit_free_run(
     patience = model.hparams.get("patience")
     if patience:
         all_callbacks.append(EarlyStopping(monitor="val_loss", mode="min", patience=patience))
-    settings = {**dict(trainer_cfg), "max_epochs": epochs}
-    if settings.get("gradient_clip_val") is None:
-        settings["gradient_clip_val"] = 1.0  # feedback through many steps: keep updates bounded
+    # feedback through many steps: keep updates bounded
+    clip = 1.0 if settings.gradient_clip_val is None else settings.gradient_clip_val
+    stage_settings = settings.with_changes(max_epochs=epochs, gradient_clip_val=clip)
     starting_weights = {k: v.detach().clone() for k, v in model.state_dict().items()}
     model.simulation_mode = True
     try:
@@ -429,8 +415,8 @@ def _fit_free_run(
         )
         if stage_logger:
             all_callbacks.append(LearningRateMonitor(logging_interval="epoch"))
-        trainer = _trainer(
-            settings, all_callbacks, logger=stage_logger, default_root_dir=str(output_dir)
+        trainer = build_trainer(
+            stage_settings, all_callbacks, logger=stage_logger, default_root_dir=str(output_dir)
         )
         starting_loss = float(
             trainer.validate(model, datamodule=segments, verbose=False)[0]["val_loss"]

@@ -17,7 +17,12 @@ from torch.utils.data import (
 )
 
 from hysteresis_lab.data.recording import Recording
-from hysteresis_lab.data.scaling import Scaler
+from hysteresis_lab.data.scaling import (
+    DEFAULT_SCALING_MODE,
+    PAPER_U_SCALE,
+    PAPER_Y_SCALE,
+    Scaler,
+)
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.data.windows import (
     Layout,
@@ -53,9 +58,9 @@ class WindowDataModule(L.LightningDataModule):
         splits: DatasetSplits,
         window: WindowSpec | None = None,
         layout: Layout = "flat",
-        scaling: str = "paper",
-        u_scale: float = 100.0,
-        y_scale: float = 20.0,
+        scaling: str = DEFAULT_SCALING_MODE,
+        u_scale: float = PAPER_U_SCALE,
+        y_scale: float = PAPER_Y_SCALE,
         val_fraction: float = 0.1,
         batch_size: int = 128,
         seed: int = 0,

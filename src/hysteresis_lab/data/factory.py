@@ -10,6 +10,7 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 from hysteresis_lab.data.datamodules import WindowDataModule
+from hysteresis_lab.data.scaling import ScalingSettings
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.data.windows import Layout, WindowSpec
 from hysteresis_lab.errors import ConfigError, HysteresisLabError
@@ -66,15 +67,15 @@ def build_datamodule(
 ) -> WindowDataModule:
     """A `WindowDataModule` for ``data_cfg`` in the layout the model needs."""
     cfg = _as_dict(data_cfg)
-    scaling = cfg.get("scaling", {}) or {}
+    scaling = ScalingSettings.from_config(cfg.get("scaling"))
     window = window_spec(cfg)
     return WindowDataModule(
         splits if splits is not None else build_splits(cfg),
         window=window,
         layout=layout,
-        scaling=scaling.get("mode", "paper"),
-        u_scale=scaling.get("u_scale", 100.0),
-        y_scale=scaling.get("y_scale", 20.0),
+        scaling=scaling.mode,
+        u_scale=scaling.u_scale,
+        y_scale=scaling.y_scale,
         val_fraction=cfg.get("val_fraction", 0.1),
         batch_size=cfg.get("batch_size", 128),
         seed=seed,

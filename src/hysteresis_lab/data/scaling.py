@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -12,6 +12,29 @@ from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.errors import ConfigError
 
 SCALING_MODES = ("paper", "standard", "none")
+
+#: The study's fixed scaling constants (``data.scaling.mode=paper``): its simulator's input
+#: amplitude in volts and output range in micrometres. Every default in the code reads these;
+#: the packaged config (``conf/data/_window.yaml``) states them for users, and a test keeps
+#: the two equal.
+PAPER_U_SCALE = 100.0
+PAPER_Y_SCALE = 20.0
+DEFAULT_SCALING_MODE = "paper"
+
+
+@dataclass(frozen=True)
+class ScalingSettings:
+    """The ``data.scaling`` settings: the mode and the constants of the ``paper`` mode."""
+
+    mode: str = DEFAULT_SCALING_MODE
+    u_scale: float = PAPER_U_SCALE
+    y_scale: float = PAPER_Y_SCALE
+
+    @classmethod
+    def from_config(cls, scaling: Mapping[str, Any] | None) -> ScalingSettings:
+        """From a ``data.scaling`` config node; a missing key takes its default."""
+        scaling = scaling or {}
+        return cls(**{k: scaling[k] for k in cls.__dataclass_fields__ if k in scaling})
 
 
 @dataclass(frozen=True)
@@ -27,9 +50,9 @@ class Scaler:
     def fit(
         cls,
         recordings: Sequence[Recording],
-        mode: str = "paper",
-        u_scale: float = 100.0,
-        y_scale: float = 20.0,
+        mode: str = DEFAULT_SCALING_MODE,
+        u_scale: float = PAPER_U_SCALE,
+        y_scale: float = PAPER_Y_SCALE,
     ) -> Scaler:
         """Build a scaler.
 

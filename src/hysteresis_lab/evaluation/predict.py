@@ -23,6 +23,7 @@ from hysteresis_lab.data.scaling import Scaler
 from hysteresis_lab.data.windows import WindowSpec, assemble, make_windows
 from hysteresis_lab.errors import ConfigError, DataError
 from hysteresis_lab.models.fast import sequence_masks
+from hysteresis_lab.models.interface import SystemModel
 
 
 def _check(model: Any, recordings: Sequence[Recording], window: WindowSpec) -> None:
@@ -88,7 +89,10 @@ def _scaler(model: Any) -> Scaler:
 
 
 def one_step(
-    model: Any, recordings: Sequence[Recording], window: WindowSpec, batch_size: int = 65_536
+    model: SystemModel,
+    recordings: Sequence[Recording],
+    window: WindowSpec,
+    batch_size: int = 65_536,
 ) -> list[np.ndarray]:
     """Predict each sample from measured past inputs and outputs (a model that does not read
     measured outputs, ``predicts_from_outputs = False``, predicts by its free run)."""
@@ -121,7 +125,7 @@ def _forward_batch(model: Any, x: np.ndarray) -> np.ndarray:
 
 
 def free_run(
-    model: Any,
+    model: SystemModel,
     recordings: Sequence[Recording],
     window: WindowSpec,
     device: str | torch.device | None = None,
@@ -147,7 +151,7 @@ def check_n_step(n: int | None) -> None:
 
 
 def n_step(
-    model: Any,
+    model: SystemModel,
     recordings: Sequence[Recording],
     window: WindowSpec,
     n: int,

@@ -38,6 +38,7 @@ from hysteresis_lab.effects.augment import context_from_dict
 from hysteresis_lab.effects.registry import check_effects, get_effect
 from hysteresis_lab.errors import ConfigError, DivergedError
 from hysteresis_lab.models.fast import input_lags
+from hysteresis_lab.models.interface import NetworkModel
 
 log = logging.getLogger(__name__)
 
@@ -46,7 +47,7 @@ OBJECTIVES = ("one_step", "simulation")
 EFFECT_PATHS = ("network", "linear")
 
 
-class NarxModule(L.LightningModule):
+class NarxModule(L.LightningModule, NetworkModel):
     """``y[k] = f(u[k-nk-nb+1 .. k-nk], y[k-na .. k-1])`` with normalisation inside."""
 
     layout: ClassVar[Layout] = "flat"

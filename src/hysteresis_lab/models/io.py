@@ -11,6 +11,7 @@ import torch
 
 from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.errors import DataError
+from hysteresis_lab.models.interface import SystemModel
 from hysteresis_lab.models.registry import get_model_class
 
 log = logging.getLogger(__name__)
@@ -30,7 +31,7 @@ def _plain(value: Any) -> Any:
     return value
 
 
-def save_model(model: Any, path: Path) -> Path:
+def save_model(model: SystemModel, path: Path) -> Path:
     """Write ``model`` next to ``path``: ``.ckpt`` for networks, ``.skops`` for the SVM."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -55,7 +56,7 @@ def save_model(model: Any, path: Path) -> Path:
     return target
 
 
-def load_model(path: Path | str) -> Any:
+def load_model(path: Path | str) -> SystemModel:
     """Load a model written by `save_model` (networks with ``weights_only=True``)."""
     path = Path(path)
     if not path.is_file():
@@ -128,6 +129,6 @@ def _load_skops(path: Path) -> Any:
     return skops.io.load(path, trusted=untrusted)
 
 
-def model_window(model: Any) -> WindowSpec:
+def model_window(model: SystemModel) -> WindowSpec:
     """The regressor lags a loaded model expects."""
     return model.window

@@ -1,6 +1,7 @@
 """The model registry: every architecture, built-in or plugin, is an entry point.
 
-Group ``hysteresis_lab.models``; the entry-point name is what ``model=<name>`` selects.
+Group ``hysteresis_lab.models``; the entry-point name is what ``model=<name>`` selects. A
+class is checked against the model interface (`hysteresis_lab.models.interface`) when it loads.
 """
 
 from __future__ import annotations
@@ -8,6 +9,7 @@ from __future__ import annotations
 from importlib.metadata import EntryPoint, entry_points
 
 from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.models.interface import check_model_class
 
 GROUP = "hysteresis_lab.models"
 
@@ -22,7 +24,8 @@ def available_models() -> list[str]:
 
 
 def get_model_class(name: str) -> type:
-    """The class registered as ``name``; a clear error for unknown or broken entries."""
+    """The class registered as ``name``; a clear error for unknown or broken entries and for
+    a class that lacks part of the model interface."""
     points = _entry_points()
     if name not in points:
         raise ConfigError(
@@ -31,13 +34,14 @@ def get_model_class(name: str) -> type:
             f"'{GROUP}' entry-point group."
         )
     point = points[name]
+    package = point.dist.name if point.dist else point.value
     try:
         cls = point.load()
     except Exception as exc:  # a plugin's import error must not look like ours
-        package = point.dist.name if point.dist else point.value
         raise ConfigError(
             f"model '{name}' is registered by '{package}' ({point.value}) but fails to import: "
             f"{type(exc).__name__}: {exc}. Fix: repair or reinstall that package."
         ) from exc
+    check_model_class(cls, name, f"'{package}' (entry point {name} = {point.value})")
     cls.registry_name = name
     return cls

@@ -30,6 +30,7 @@ from hysteresis_lab.data.scaling import Scaler
 from hysteresis_lab.data.windows import WindowSpec, assemble
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.fast import FlatKernel, FreeRunKernel
+from hysteresis_lab.models.interface import EstimatorModel
 from hysteresis_lab.models.svm_kernel import SVMKernel
 
 log = logging.getLogger(__name__)
@@ -38,7 +39,7 @@ KERNELS = ("linear", "poly", "rbf", "sigmoid")
 STRATEGIES = ("nystroem", "subsample")
 
 
-class SVMModel:
+class SVMModel(EstimatorModel):
     """Epsilon-SVR per output channel, with the scaler and lag structure of the data."""
 
     layout: ClassVar[str] = "flat"

@@ -1,0 +1,80 @@
+"""The trainer factory: every Lightning `Trainer` of the package is built by `build_trainer`
+from a typed `TrainerSettings` (the ``trainer`` config, ``conf/trainer/default.yaml``)."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import lightning as L
+from lightning.pytorch.callbacks import TQDMProgressBar
+
+#: batches between progress-bar refreshes (one per batch costs a small network ~10 % of its time)
+PROGRESS_BAR_REFRESH_BATCHES = 20
+
+
+@dataclass(frozen=True)
+class TrainerSettings:
+    """Lightning ``Trainer`` arguments of the ``trainer`` config.
+
+    Each field's default is Lightning's own, so a setting the config leaves out behaves as
+    Lightning decides; ``extra`` carries any other ``Trainer`` argument a config adds
+    (``+trainer.num_sanity_val_steps=0``), passed on unchecked (Lightning refuses unknown
+    ones, see `hysteresis_lab.training.check_trainer_settings`).
+    """
+
+    max_epochs: int | None = None
+    accelerator: str = "auto"
+    devices: int | str | list[int] = "auto"
+    precision: int | str | None = None
+    log_every_n_steps: int | None = None
+    #: not False: a progress bar refreshed every `PROGRESS_BAR_REFRESH_BATCHES` batches
+    enable_progress_bar: bool | None = None
+    enable_model_summary: bool | None = None
+    deterministic: bool | str | None = None
+    gradient_clip_val: float | None = None
+    extra: Mapping[str, Any] = field(default_factory=dict)
+
+    @classmethod
+    def from_config(cls, cfg: Mapping[str, Any] | TrainerSettings) -> TrainerSettings:
+        """Settings from a ``trainer`` config node (a plain mapping); settings pass through."""
+        if isinstance(cfg, TrainerSettings):
+            return cfg
+        names = _field_names()
+        known = {k: v for k, v in cfg.items() if k in names}
+        extra = {str(k): v for k, v in cfg.items() if k not in names}
+        return cls(**known, extra=extra)
+
+    def with_changes(self, **changes: Any) -> TrainerSettings:
+        """A copy with ``changes``; names that are not fields go to ``extra``."""
+        names = _field_names()
+        extra = {**self.extra, **{k: v for k, v in changes.items() if k not in names}}
+        known = {k: v for k, v in changes.items() if k in names}
+        return dataclasses.replace(self, **known, extra=extra)
+
+    def trainer_arguments(self) -> dict[str, Any]:
+        """The keyword arguments of ``lightning.Trainer``."""
+        values = {name: getattr(self, name) for name in _field_names()}
+        return {**values, **self.extra}
+
+
+def _field_names() -> set[str]:
+    return {f.name for f in dataclasses.fields(TrainerSettings)} - {"extra"}
+
+
+def build_trainer(
+    settings: TrainerSettings | Mapping[str, Any],
+    callbacks: Sequence[L.Callback] = (),
+    **overrides: Any,
+) -> L.Trainer:
+    """A Lightning ``Trainer`` from ``settings``; ``overrides`` (one stage's logger,
+    checkpointing, root folder) win over them. Its progress bar, when enabled, refreshes
+    every `PROGRESS_BAR_REFRESH_BATCHES` batches."""
+    settings = TrainerSettings.from_config(settings)
+    arguments = {**settings.trainer_arguments(), **overrides}
+    all_callbacks = list(callbacks)
+    if arguments.get("enable_progress_bar") is not False:
+        all_callbacks.append(TQDMProgressBar(refresh_rate=PROGRESS_BAR_REFRESH_BATCHES))
+    return L.Trainer(**arguments, callbacks=all_callbacks)

@@ -1,0 +1,42 @@
+"""`pipeline.run_model` on a `RunConfig`: one run's steps, in process."""
+
+from __future__ import annotations
+
+import json
+
+from hysteresis_lab import fit_record
+from hysteresis_lab.pipeline import RunConfig, RunSettings, run_model, train_and_evaluate
+from narx import CONFIGS, TRAINER, narx_data
+
+DATA = {"window": {"na": 2, "nb": 2, "nk": 1}, "scaling": {"mode": "standard"}}
+
+
+def test_a_run_scores_writes_its_folder_and_is_reused_with_the_same_settings(tmp_path, caplog):
+    splits = narx_data(600)
+    settings = RunSettings(seed=3, use_tensorboard=False, plots=False, reuse=True)
+    config = RunConfig(dict(CONFIGS["ffnn"]), DATA, {**TRAINER, "max_epochs": 2},
+                       tmp_path / "run", settings)
+    result = run_model(config, splits=splits)
+    written = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert written == result.document and set(written["tests"]) == {"sine1.0", "sine3.0"}
+    assert (tmp_path / "run" / "model.ckpt").is_file()
+    assert (tmp_path / "run" / fit_record.FIT_RECORD).is_file()
+    # the keyword form is the same run: its finished fit is found and scored again
+    saved = (tmp_path / "run" / "model.ckpt").stat().st_mtime_ns
+    caplog.set_level("INFO", logger="hysteresis_lab.pipeline")
+    again = train_and_evaluate(
+        dict(CONFIGS["ffnn"]), DATA, {**TRAINER, "max_epochs": 2}, tmp_path / "run", seed=3,
+        splits=splits, use_tensorboard=False, plots=False, reuse=True,
+    )
+    assert again.document == result.document and again.val_mse == result.val_mse
+    assert "reusing the finished fit" in caplog.text
+    assert (tmp_path / "run" / "model.ckpt").stat().st_mtime_ns == saved
+
+
+def test_a_run_without_evaluation_reports_its_validation_loss_only(tmp_path):
+    config = RunConfig(dict(CONFIGS["svm"]), DATA, TRAINER, tmp_path,
+                       RunSettings(use_tensorboard=False, evaluate=False))
+    result = run_model(config, splits=narx_data(600))
+    assert set(result.document) == {"model", "data", "val_mse_scaled", "train_seconds"}
+    assert result.document["val_mse_scaled"] == result.val_mse < 1.0
+    assert not result.evaluation.predictions
