@@ -81,15 +81,15 @@ def test_an_added_effect_block_starts_where_it_changes_nothing(tmp_path):
     for a, b in zip(free_run(plain, data.test, dm.window),
                     free_run(grown, augmented.test, dm.window), strict=True):
         np.testing.assert_allclose(a, b, atol=1e-9)
-    assert set(grown._new_entries) >= {"creep.weights", "input_blocks.hysteresis.weight"}
+    assert set(grown._new_entries) >= {"creep.0.weights", "input_blocks.0.hysteresis.weight"}
     before = free_run(grown, augmented.test, dm.window)
     for name in ("saturation", "dead_zone", "backlash", "hysteresis"):  # each block is in the
         with torch.no_grad():                                          # chain: weighted, it acts
-            grown.input_blocks[name].weight.fill_(0.5)
+            grown.input_blocks[0][name].weight.fill_(0.5)
         after = free_run(grown, augmented.test, dm.window)
         assert max(np.max(np.abs(a - b)) for a, b in zip(after, before, strict=True)) > 1e-3, name
         with torch.no_grad():
-            grown.input_blocks[name].weight.zero_()
+            grown.input_blocks[0][name].weight.zero_()
 
 
 def test_effects_without_a_block_are_refused():
