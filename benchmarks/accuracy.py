@@ -36,7 +36,7 @@ log = logging.getLogger("accuracy")
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "docs" / "results"
 
-MODELS = ("subnet", "greybox", "ffnn", "lstm", "cnn", "svm")
+MODELS = ("subnet", "greybox", "linear", "ffnn", "lstm", "cnn", "svm")
 DATASETS = ("default", "fsm", "p885", "bouc_wen", "emps", "cascaded_tanks")
 #: data config name -> bundled loader name (`hysteresis_lab.data.benchmarks.LOADERS`)
 LOADER = {"fsm": "fsm_piezo_mirror", "p885": "piezo_p885", "bouc_wen": "bouc_wen",
@@ -65,6 +65,8 @@ RECOMMENDED: dict[str, dict[str, list[str]]] = {
         "subnet": ["model.nx=16", "data.window.na=50", "data.window.nb=50",
                    "model.horizon=300", "model.lr=3e-3", "data.batch_size=64",
                    "trainer.max_epochs=60"],
+        # one transfer function of 28 poles (the published BLA's order) per output and input
+        "linear": ["model.order=28", "trainer.max_epochs=20"],
     },
     "p885": {
         "subnet": ["model.horizon=200", "model.lr=3e-3", "data.batch_size=16",

@@ -85,10 +85,9 @@ def test_a_physical_chain_steps_in_onnx_as_it_simulates(case, tmp_path):
     """The grey-box and the linear model export their simulation step; stepped from zeros
     over a recording, it reproduces the model's own free run."""
     optional_dependency("onnxruntime")
+    from hysteresis_lab.effects.augment import augment_splits, context_to_dict
     from hysteresis_lab.evaluation.predict import free_run
     from hysteresis_lab.models.export import export_onnx
-
-    from hysteresis_lab.effects.augment import augment_splits, context_to_dict
 
     config, nu, ny = CHAIN_CASES[case]
     splits = narx_data(n=600, nu=nu, ny=ny)
