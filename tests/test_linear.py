@@ -117,14 +117,15 @@ def mimo_recordings(n_rec: int, n: int, seed: int) -> list:
 
 def test_mimo_data_are_identified_per_output_and_input(tmp_path):
     """Two inputs, two outputs: each output a sum over inputs of its own dynamics; the ARX
-    start on every recording and the free-run fit simulate a new recording exactly."""
+    start on every recording (one denominator per output: 3 poles) and the free-run fit
+    simulate a new recording exactly."""
     from hysteresis_lab.data.splits import DatasetSplits
 
     splits = DatasetSplits("mimo", train=mimo_recordings(3, 800, 0),
                            test=mimo_recordings(1, 800, 1))
     dm = WindowDataModule(splits, scaling="standard")
     L.seed_everything(0)
-    model = build_model({"name": "linear", "order": 2}, dm, trained_on={"fs": 1000.0})
+    model = build_model({"name": "linear", "order": 3}, dm, trained_on={"fs": 1000.0})
     fitted = fit(model, dm, {**TRAINER, "max_epochs": 1}, tmp_path).model
     assert len(fitted.dynamics) == 2 and len(fitted.dynamics[0]) == 2
     predicted = free_run(fitted, splits.test, dm.window)[0]
