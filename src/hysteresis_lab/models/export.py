@@ -113,7 +113,15 @@ def export_chain_step(model: PhysicalChainModule, path: Path | str, opset: int =
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     model = model.cpu().eval()
-    names = model.state_names()
+    try:
+        names = model.state_names()
+    except NotImplementedError:
+        raise ConfigError(
+            f"{type(model).__name__} has no one-sample step (chain_step, state_names), so its "
+            "simulation step cannot be exported to ONNX. Fix: implement them (see "
+            "hysteresis_lab.models.physical_chain), or share its model.ckpt "
+            "(hysteresis_lab.models.io.load_model)."
+        ) from None
     state = torch.zeros(2, len(names), dtype=torch.float64)
     u = torch.zeros(2, model.n_base_inputs, dtype=torch.float64)
     with torch.no_grad(), warnings.catch_warnings():
