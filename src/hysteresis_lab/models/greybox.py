@@ -90,7 +90,7 @@ class GreyBox(PhysicalChainModule):
             problems.append(f"model.hysteresis='{hysteresis}' (one of {list(HYSTERESIS)})")
         if self.n_base_inputs != 1 or ny != 1:
             problems.append(f"{self.n_base_inputs} input(s) and {ny} output(s) (it models one "
-                            "actuator axis: 1 and 1; model=subnet takes MIMO data)")
+                            "actuator axis: 1 and 1; model=linear and model=subnet take MIMO data)")
         if unknown:
             problems.append(f"effects {unknown} (its blocks: {list(BLOCK_EFFECTS)}; model=subnet "
                             "or model=ffnn take any catalogue effect as an input)")
