@@ -61,6 +61,8 @@ RECOMMENDED: dict[str, dict[str, list[str]]] = {
         "subnet": ["model.nx=16", "data.window.na=50", "data.window.nb=50",
                    "model.horizon=300", "model.lr=3e-3", "data.batch_size=64",
                    "trainer.max_epochs=60"],
+        # 28 poles (the published BLA's order) per output and input, a Bouc–Wen cell per input
+        "linear": ["model.order=28", "model.effects=[hysteresis]", "trainer.max_epochs=18"],
     },
     "p885": {
         "subnet": ["model.horizon=200", "model.lr=3e-3", "data.batch_size=16",

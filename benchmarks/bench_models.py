@@ -10,7 +10,7 @@ over all twelve test sines simulated together (sequential steps/s, i.e. samples 
 signal per second, and recording-samples/s summed over the batch), and the free run of one
 recording alone (the 200,000-sample 0.1 Hz sine; the positioner runs at 20 kHz, so 20,000
 steps/s is real time). Untrained weights: speed does not depend on the values. The models
-trained on the simulation error (subnet, greybox) are timed through `training.fit`, which
+trained on the simulation error (subnet, greybox, linear) are timed through `training.fit`, which
 trains them on free-run segments / whole recordings.
 """
 
@@ -39,8 +39,9 @@ CONFIGS = {
     "svm": {"name": "svm", "kernel": "rbf", "C": 10.0, "gamma": 0.1, "n_components": 1000},
     "subnet": {"name": "subnet"},
     "greybox": {"name": "greybox", "effects": []},
+    "linear": {"name": "linear"},
 }
-SIMULATION_TRAINED = ("subnet", "greybox")
+SIMULATION_TRAINED = ("subnet", "greybox", "linear")
 
 
 def bench(name: str, device: str, epochs: int) -> dict[str, float]:

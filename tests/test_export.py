@@ -38,3 +38,77 @@ def test_svm_is_not_exportable():
     svm = build_model(CONFIGS["svm"], datamodule_for("svm", narx_data(n=300)))
     with pytest.raises(ConfigError, match="skops"):
         export_onnx(svm, "unused.onnx")
+
+
+def _perturbed(model: torch.nn.Module, seed: int = 0) -> torch.nn.Module:
+    """Every parameter moved off its start (effect weights start at zero, where a block's
+    step would go untested)."""
+    gen = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for p in model.parameters():
+            p.add_(0.2 * torch.randn(p.shape, generator=gen, dtype=p.dtype))
+    return model
+
+
+def _step_through(path, recording) -> np.ndarray:
+    """The exported step run over a recording's inputs from the state at rest (zeros)."""
+    import json
+
+    ort = optional_dependency("onnxruntime")
+    session = ort.InferenceSession(str(path))
+    names = json.loads(session.get_modelmeta().custom_metadata_map["state_names"])
+    state = np.zeros((1, len(names)))
+    outputs = []
+    for u in recording.u:
+        y, state = session.run(None, {"state": state, "u": u[None].astype(np.float64)})
+        outputs.append(y[0])
+    return np.array(outputs)
+
+
+CHAIN_CASES = {
+    "greybox": ({"name": "greybox"}, 1, 1),
+    "greybox_creep_resonance": ({"name": "greybox", "effects": ["creep", "resonance"]}, 1, 1),
+    "greybox_prandtl_ishlinskii": ({"name": "greybox", "hysteresis": "prandtl_ishlinskii",
+                                    "delay": 3}, 1, 1),
+    "greybox_residual": ({"name": "greybox", "residual_neurons": 4}, 1, 1),
+    "linear": ({"name": "linear"}, 1, 1),
+    "linear_effects": ({"name": "linear", "effects": ["saturation", "dead_zone", "backlash",
+                                                      "hysteresis", "creep", "resonance"]}, 1, 1),
+    "linear_mimo": ({"name": "linear", "order": 3, "delay": 0}, 3, 2),
+    "linear_mimo_effects": ({"name": "linear", "order": 2, "effects": ["hysteresis", "creep"]},
+                            2, 2),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CHAIN_CASES))
+def test_a_physical_chain_steps_in_onnx_as_it_simulates(case, tmp_path):
+    """The grey-box and the linear model export their simulation step; stepped from zeros
+    over a recording, it reproduces the model's own free run."""
+    optional_dependency("onnxruntime")
+    from hysteresis_lab.effects.augment import augment_splits, context_to_dict
+    from hysteresis_lab.evaluation.predict import free_run
+    from hysteresis_lab.models.export import export_onnx
+
+    config, nu, ny = CHAIN_CASES[case]
+    splits = narx_data(n=600, nu=nu, ny=ny)
+    extra = {}
+    if config.get("effects"):  # as the pipeline builds it: the effect channels beside u
+        augmented, context = augment_splits(splits, config["effects"])
+        extra = {"feature_context": context_to_dict(context), "n_base_inputs": nu}
+        dm = datamodule_for(config["name"], augmented)
+    else:
+        dm = datamodule_for(config["name"], splits)
+    model = build_model(config, dm, trained_on={"fs": 100.0}, **extra)
+    rec = splits.train[0]
+    model.initialise_from_data(rec.u[:, 0] if nu == 1 else rec.u, rec.y[:, 0] if ny == 1
+                               else rec.y, rec.fs)
+    model = _perturbed(model).eval()
+    path = export_onnx(model, tmp_path / f"{case}.onnx")
+    assert path.name == f"{case}_step.onnx"
+    test = splits.test[0]  # the step reads the measured inputs alone
+    expected = free_run(model, [dm.splits.test[0]], dm.window)[0]
+    produced = _step_through(path, test)
+    assert produced.shape == expected.shape == (test.n_samples, ny)
+    ft = dm.window.first_target
+    np.testing.assert_allclose(produced[ft:], expected[ft:], rtol=0,
+                               atol=1e-9 * np.max(np.abs(expected)))

@@ -9,6 +9,7 @@ import lightning as L
 import numpy as np
 import pytest
 
+from conftest import optional_dependency
 from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.evaluation.predict import free_run, one_step
@@ -101,12 +102,23 @@ def test_the_residual_network_learns_what_the_physics_lacks(tmp_path):
     assert errors[16] < 0.7 * errors[0], errors
 
 
-def test_onnx_export_is_refused_with_the_alternative(fitted):
+def test_the_fitted_greybox_steps_in_onnx_as_it_simulates(fitted, tmp_path):
+    """The exported simulation step, from the state at rest, reproduces the fitted model's
+    free run of a test recording."""
+    ort = optional_dependency("onnxruntime")
     from hysteresis_lab.models.export import export_onnx
 
-    model, _ = fitted
-    with pytest.raises(ConfigError, match="not exported to ONNX.*physical_parameters"):
-        export_onnx(model, "unused.onnx")
+    model, dm = fitted
+    session = ort.InferenceSession(str(export_onnx(model, tmp_path / "greybox.onnx")))
+    rec = dm.splits.test[0]
+    state = np.zeros((1, len(model.state_names())))
+    produced = np.empty_like(rec.y)
+    for k, u in enumerate(rec.u):
+        produced[k], state = session.run(None, {"state": state, "u": u[None]})
+    expected = free_run(model, [rec], dm.window)[0]
+    ft = dm.window.first_target
+    np.testing.assert_allclose(produced[ft:], expected[ft:], rtol=0,
+                               atol=1e-9 * np.max(np.abs(expected)))
 
 
 def test_it_builds_for_slow_data():

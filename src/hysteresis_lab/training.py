@@ -240,9 +240,15 @@ def _fit(
 
 def _initialise_from_data(model: L.LightningModule, datamodule: WindowDataModule) -> None:
     """Starting values read off the longest training recording, for models that take them
-    (``initialise_from_data``, e.g. the grey-box's mode); not for a warm-started refit."""
+    (``initialise_from_data``, e.g. the grey-box's mode), or off all of them
+    (``initialise_from_recordings``); not for a warm-started refit."""
     initialise = getattr(model, "initialise_from_data", None)
     if initialise is None or getattr(model, "_new_entries", None):
+        return
+    from_all = getattr(model, "initialise_from_recordings", None)
+    if from_all is not None:  # e.g. the linear model's ARX fit on every recording
+        train = datamodule.splits.train
+        from_all([rec.u for rec in train], [rec.y for rec in train])
         return
     longest = max(datamodule.splits.train, key=lambda rec: rec.n_samples)
     initialise(longest.u[:, 0], longest.y[:, 0], longest.fs)

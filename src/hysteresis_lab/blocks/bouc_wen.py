@@ -31,6 +31,7 @@ from torch import Tensor, nn
 
 from hysteresis_lab.blocks._bw_kernels import bw_backward, bw_states
 from hysteresis_lab.blocks._util import as_float_array, from_numpy, to_numpy64
+from hysteresis_lab.blocks.step import StepState, bouc_wen_advance, frozen
 
 GAMMA_RATIO_MAX = 0.999  # |gamma| < beta: both rates beta -/+ gamma stay positive
 
@@ -165,6 +166,20 @@ class BoucWen(nn.Module):
         if self.n_channels == 1:
             h_last = h_last[:, 0]
         return x.to(v.dtype), h_last.to(v.dtype)
+
+    def state_names(self) -> list[str]:
+        return ["v_prev"] + [f"h{c}" for c in range(self.n_channels)]
+
+    def step(self, v: Tensor, state: StepState) -> Tensor:
+        """One sample ``v`` (B,) -> ``x`` (B,); state: the previous input, then ``h_c``."""
+        v_prev = state.take(1)[:, 0]
+        h = state.take(self.n_channels)
+        d, beta, gamma = self.d, self.beta, self.gamma
+        d, a, r1, r2 = frozen(d, self.alpha * d, beta - gamma, beta + gamma)
+        h = bouc_wen_advance(h, (v - v_prev)[:, None], a[None], r1[None], r2[None])
+        state.put(v[:, None])
+        state.put(h)
+        return d * v - h.sum(dim=1)
 
     def export(self) -> dict[str, Any]:
         """Current parameters: ``d`` (float), ``alpha, beta, gamma`` (arrays, one per element)."""

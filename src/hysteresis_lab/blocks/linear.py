@@ -20,6 +20,7 @@ from scipy import signal
 from torch import Tensor, nn
 
 from hysteresis_lab.blocks._util import as_float_array, from_numpy, logit, to_numpy64
+from hysteresis_lab.blocks.step import StepState, delay_step, frozen, tdf2_step
 
 DAMPING_EPS = 1e-4
 DAMPING_MAX = 4.0  # heavily overdamped; far beyond it a pole reaches z = 1 in float64
@@ -105,6 +106,13 @@ class FirstOrderLag(nn.Module):
         """``x`` (B, T) -> (B, T)."""
         return iir_filter(x, *self.coefficients())
 
+    def state_names(self) -> list[str]:
+        return ["lag"]
+
+    def step(self, x: Tensor, state: StepState) -> Tensor:
+        """One sample (B,) -> (B,) (`hysteresis_lab.blocks.step`)."""
+        return tdf2_step(*frozen(*self.coefficients()), x, state)
+
     def export(self) -> dict[str, Any]:
         return {"fs": self.fs, "cutoff_hz": float(self.cutoff_hz.detach())}
 
@@ -137,6 +145,18 @@ class CreepBank(nn.Module):
             b = torch.tensor([1.0 - pole], dtype=torch.float64)
             a = torch.tensor([1.0, -pole], dtype=torch.float64)
             out = out + self.weights[i].to(x.dtype) * iir_filter(x, b, a)
+        return out
+
+    def state_names(self) -> list[str]:
+        return [f"creep_{tau:g}s" for tau in self.time_constants_s]
+
+    def step(self, x: Tensor, state: StepState) -> Tensor:
+        """One sample (B,) -> (B,) (`hysteresis_lab.blocks.step`)."""
+        out = x
+        for i, pole in enumerate(self.poles):
+            b = torch.tensor([1.0 - pole], dtype=torch.float64)
+            a = torch.tensor([1.0, -pole], dtype=torch.float64)
+            out = out + frozen(self.weights[i])[0] * tdf2_step(b, a, x, state)
         return out
 
     def export(self) -> dict[str, Any]:
@@ -223,6 +243,21 @@ class SecondOrderMode(nn.Module):
             out = out + w[m].to(device=x.device, dtype=x.dtype) * y
         return out
 
+    def state_names(self) -> list[str]:
+        return [f"mode{m}_z{i}" for m in range(self.n_modes) for i in (1, 2)]
+
+    def step(self, x: Tensor, state: StepState) -> Tensor:
+        """One sample (B,) -> (B,) (`hysteresis_lab.blocks.step`)."""
+        freqs, damp = self.frequency_hz, self.damping
+        if self.n_modes == 1:
+            return tdf2_step(*frozen(*mode_coefficients(freqs[0], damp[0], self.fs)), x, state)
+        (w,) = frozen(self.weights)
+        out = 0.0
+        for m in range(self.n_modes):
+            y = tdf2_step(*frozen(*mode_coefficients(freqs[m], damp[m], self.fs)), x, state)
+            out = out + w[m] * y
+        return out
+
     def export(self) -> dict[str, Any]:
         with torch.no_grad():
             return {
@@ -251,6 +286,13 @@ class Delay(nn.Module):
             return torch.zeros_like(x)
         pad = torch.zeros_like(x[:, :n])
         return torch.cat([pad, x[:, :-n]], dim=1)
+
+    def state_names(self) -> list[str]:
+        return [f"delay_{i}" for i in range(self.samples)]
+
+    def step(self, x: Tensor, state: StepState) -> Tensor:
+        """One sample (B,) -> (B,): the buffer of the last ``samples`` inputs, oldest first."""
+        return delay_step(self.samples, x, state)
 
     def export(self) -> dict[str, Any]:
         return {"samples": self.samples}

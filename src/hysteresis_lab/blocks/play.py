@@ -17,6 +17,7 @@ from torch import Tensor, nn
 from torch.nn import functional as F
 
 from hysteresis_lab.blocks._util import from_numpy, inv_softplus, to_numpy64
+from hysteresis_lab.blocks.step import StepState, frozen, play_step
 from hysteresis_lab.effects.operators import play_recursion
 
 
@@ -112,6 +113,15 @@ class PlayOperators(nn.Module):
         """``v`` (B, T) -> (B, T)."""
         p = play(v, self.thresholds)
         return self.w0.to(v.dtype) * v + p @ self.weights.to(v.dtype)
+
+    def state_names(self) -> list[str]:
+        return [f"play{i}" for i in range(self.raw_weights.shape[0])]
+
+    def step(self, v: Tensor, state: StepState) -> Tensor:
+        """One sample (B,) -> (B,); state: the operators' outputs."""
+        thresholds, w0, weights = frozen(self.thresholds, self.w0, self.weights)
+        p = play_step(v, thresholds, state)
+        return w0 * v + p @ weights
 
     def export(self) -> dict[str, Any]:
         with torch.no_grad():

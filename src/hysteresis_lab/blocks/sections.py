@@ -11,6 +11,7 @@ puts it in this form, reflecting any pole outside the unit circle inside it firs
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -19,6 +20,7 @@ from scipy import signal
 from torch import Tensor, nn
 
 from hysteresis_lab.blocks.linear import iir_filter
+from hysteresis_lab.blocks.step import StepState, delay_step, frozen, tdf2_step
 
 MAX_RADIUS = 0.9999  # poles are kept at most this far out (float64 keeps them stable)
 
@@ -59,6 +61,18 @@ class StableSections(nn.Module):
             x = iir_filter(x, self.numerators[i].double(), a[i])
         return x
 
+    def state_names(self) -> list[str]:
+        return [f"delay_{i}" for i in range(int(self.delay))] + [
+            f"section{i}_z{j}" for i in range(self.n_sections) for j in (1, 2)]
+
+    def step(self, x: Tensor, state: StepState) -> Tensor:
+        """One sample (B,) -> (B,): the delay buffer, then two states per section."""
+        x = delay_step(int(self.delay), x, state)
+        b, a = frozen(self.numerators.double(), self.denominators())
+        for i in range(self.n_sections):
+            x = tdf2_step(b[i], a[i], x, state)
+        return x
+
     def set_transfer_function(self, b: np.ndarray, a: np.ndarray) -> None:
         """Start from ``b(z^-1) / a(z^-1)`` (as `scipy.signal.lfilter` takes them); poles
         outside the unit circle are reflected inside it first, and no pole lies beyond
@@ -95,20 +109,31 @@ class StableSections(nn.Module):
 
 
 def arx_least_squares(
-    u: np.ndarray, y: np.ndarray, na: int, nb: int, nk: int = 1
+    u: np.ndarray | Sequence[np.ndarray], y: np.ndarray | Sequence[np.ndarray], na: int,
+    nb: int, nk: int = 1,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares ARX ``y[k] + a1 y[k-1] + ... = b_nk u[k-nk] + ... + c``: (b, a) in
-    powers of z^-1 (``b`` has ``nk + nb`` entries, the first ``nk`` zero), for 1-D ``u`` and
-    ``y``. The constant ``c`` takes an output offset (a rest position other than zero) and
-    is not returned; demeaning ``y`` instead would bias the fit of a recording that starts
-    at rest."""
-    u = np.asarray(u, dtype=float).reshape(-1)
-    y = np.asarray(y, dtype=float).reshape(-1)
-    start = max(na, nk + nb - 1)
-    rows = np.arange(start, len(y))
-    columns = [-y[rows - i] for i in range(1, na + 1)]
-    columns += [u[rows - nk - j] for j in range(nb)] + [np.ones(len(rows))]
-    theta, *_ = np.linalg.lstsq(np.column_stack(columns), y[rows], rcond=None)
+    """Least-squares ARX ``y[k] + a1 y[k-1] + ... = sum_j (b_j,nk u_j[k-nk] + ...) + c``:
+    (b, a) in powers of z^-1, ``b`` with ``nk + nb`` entries (the first ``nk`` zero) for a
+    1-D ``u``, (inputs, nk + nb) for ``u`` of shape (T, inputs); one denominator for all
+    inputs (a MISO fit of one output). ``u`` and ``y`` may also be lists of recordings, whose
+    regressions are stacked (none spans two recordings). The constant ``c`` takes an output
+    offset (a rest position other than zero) and is not returned; demeaning ``y`` instead
+    would bias the fit of a recording that starts at rest."""
+    us = [u] if isinstance(u, np.ndarray) else list(u)
+    ys = [y] if isinstance(y, np.ndarray) else list(y)
+    single = np.asarray(us[0]).ndim == 1
+    rows, targets = [], []
+    for u_rec, y_rec in zip(us, ys, strict=True):
+        u2 = np.asarray(u_rec, dtype=float).reshape(len(u_rec), -1)
+        y1 = np.asarray(y_rec, dtype=float).reshape(-1)
+        start = max(na, nk + nb - 1)
+        k = np.arange(start, len(y1))
+        columns = [-y1[k - i] for i in range(1, na + 1)]
+        columns += [u2[k - nk - j, c] for c in range(u2.shape[1]) for j in range(nb)]
+        rows.append(np.column_stack([*columns, np.ones(len(k))]))
+        targets.append(y1[k])
+    theta, *_ = np.linalg.lstsq(np.vstack(rows), np.concatenate(targets), rcond=None)
     a = np.concatenate([[1.0], theta[:na]])
-    b = np.concatenate([np.zeros(nk), theta[na : na + nb]])
-    return b, a
+    numerators = theta[na:-1].reshape(-1, nb)
+    b = np.hstack([np.zeros((len(numerators), nk)), numerators])
+    return (b[0] if single else b), a

@@ -11,7 +11,7 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
-MODELS = ("subnet", "greybox", "ffnn", "lstm", "cnn", "svm")
+MODELS = ("subnet", "greybox", "linear", "ffnn", "lstm", "cnn", "svm")
 DATASETS = ("default", "fsm", "p885", "bouc_wen", "emps", "cascaded_tanks")
 #: data config name -> bundled loader name (`hysteresis_lab.data.benchmarks.load_benchmark`)
 LOADER = {"fsm": "fsm_piezo_mirror", "p885": "piezo_p885", "bouc_wen": "bouc_wen",

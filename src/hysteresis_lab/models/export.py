@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import json
 import logging
+import warnings
 from pathlib import Path
 
 import torch
@@ -10,6 +12,7 @@ from torch import nn
 
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.base import NarxModule
+from hysteresis_lab.models.physical_chain import PhysicalChainModule
 from hysteresis_lab.models.state_space import StateSpaceModule
 
 log = logging.getLogger(__name__)
@@ -40,26 +43,36 @@ class PhysicalStep(nn.Module):
         return y, m.transition(state, (u - m.u_offset) / m.u_scale)
 
 
+class ChainStep(nn.Module):
+    """A physical chain's step (`PhysicalChainModule.step_physical`): ``(state (B, nx),
+    u [V] (B, n_base_inputs)) -> (y [µm] (B, ny), next state (B, nx))``, float64."""
+
+    def __init__(self, model: PhysicalChainModule) -> None:
+        super().__init__()
+        self.model = model
+
+    def forward(self, state: torch.Tensor, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.model.step_physical(state, u)
+
+
 def export_onnx(model: object, path: Path | str, opset: int = 17) -> Path:
     """Write ``model`` as ONNX with a dynamic batch axis; returns the path.
 
     The file maps past inputs and outputs to the next output (one-step prediction). A
     state-space model (`StateSpaceModule`) also gets ``<stem>_step.onnx``, its simulation
     step: the one-step file's encoder gives the initial state (``encode``), the step file
-    runs it forward from the input alone.
+    runs it forward from the input alone. A physical chain (the grey-box, the linear model)
+    is an output-error model, whose one-step prediction is its free run: it gets only
+    ``<stem>_step.onnx`` (`export_chain_step`), and that path is returned.
     """
-    if getattr(model, "whole_recordings", False):
-        raise ConfigError(
-            f"{type(model).__name__} is not exported to ONNX: its blocks run as compiled "
-            "recursions over whole recordings, which ONNX does not express. Fix: share its "
-            "model.ckpt (hysteresis_lab.models.io.load_model) or its physical_parameters()."
-        )
+    path = Path(path)
+    if isinstance(model, PhysicalChainModule):
+        return export_chain_step(model, path.with_name(f"{path.stem}_step.onnx"), opset)
     if not isinstance(model, NarxModule):
         raise ConfigError(
             f"{type(model).__name__} cannot be exported to ONNX here; only the networks can. "
             "Fix: share the SVM's model.skops file (load it with hysteresis_lab.models.io)."
         )
-    path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     wrapper = PhysicalModel(model.cpu().eval())
     window = model.window
@@ -86,3 +99,53 @@ def _export_step(model: StateSpaceModule, path: Path, opset: int) -> None:
         opset_version=opset, dynamo=False,
     )
     log.info("exported the simulation step of %s to %s", type(model).__name__, path)
+
+
+def export_chain_step(model: PhysicalChainModule, path: Path | str, opset: int = 17) -> Path:
+    """Write a physical chain's simulation step as ONNX; returns the path.
+
+    Inputs ``state`` (B, nx) and ``u`` (B, n_base_inputs, the measured inputs in their
+    units), outputs ``y`` (B, ny, the output at the sample of ``u``) and ``next_state``, all
+    float64 with a dynamic batch axis. The state at rest (zero input, as every recording
+    starts) is zeros; its columns are ``model.state_names()``, stored in the file's metadata
+    as ``state_names`` (JSON). Stepping from zeros over a recording gives the model's free run.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    model = model.cpu().eval()
+    try:
+        names = model.state_names()
+    except NotImplementedError:
+        raise ConfigError(
+            f"{type(model).__name__} has no one-sample step (chain_step, state_names), so its "
+            "simulation step cannot be exported to ONNX. Fix: implement them (see "
+            "hysteresis_lab.models.physical_chain), or share its model.ckpt "
+            "(hysteresis_lab.models.io.load_model)."
+        ) from None
+    state = torch.zeros(2, len(names), dtype=torch.float64)
+    u = torch.zeros(2, model.n_base_inputs, dtype=torch.float64)
+    with torch.no_grad(), warnings.catch_warnings():
+        # the blocks' shapes and coefficients are constants of the step (`frozen`)
+        warnings.simplefilter("ignore", torch.jit.TracerWarning)
+        torch.onnx.export(
+            ChainStep(model), (state, u), str(path), input_names=["state", "u"],
+            output_names=["y", "next_state"],
+            dynamic_axes={name: {0: "batch"} for name in ("state", "u", "y", "next_state")},
+            opset_version=opset, dynamo=False,
+        )
+    _add_metadata(path, {"state_names": json.dumps(names), "state_at_rest": "zeros",
+                         "model": type(model).__name__})
+    log.info("exported the simulation step of %s (%d states) to %s", type(model).__name__,
+             len(names), path)
+    return path
+
+
+def _add_metadata(path: Path, entries: dict[str, str]) -> None:
+    """Store ``entries`` in an ONNX file's ``metadata_props``."""
+    import onnx
+
+    proto = onnx.load(str(path))
+    for key, value in entries.items():
+        prop = proto.metadata_props.add()
+        prop.key, prop.value = key, value
+    onnx.save(proto, str(path))

@@ -44,6 +44,7 @@ from hysteresis_lab.blocks import (
     estimate_mode,
     estimate_static_gain,
 )
+from hysteresis_lab.blocks.step import StepState, frozen
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.base import NarxModule, mlp
 from hysteresis_lab.models.physical_chain import PhysicalChainModule
@@ -89,7 +90,7 @@ class GreyBox(PhysicalChainModule):
             problems.append(f"model.hysteresis='{hysteresis}' (one of {list(HYSTERESIS)})")
         if self.n_base_inputs != 1 or ny != 1:
             problems.append(f"{self.n_base_inputs} input(s) and {ny} output(s) (it models one "
-                            "actuator axis: 1 and 1; model=subnet takes MIMO data)")
+                            "actuator axis: 1 and 1; model=linear and model=subnet take MIMO data)")
         if unknown:
             problems.append(f"effects {unknown} (its blocks: {list(BLOCK_EFFECTS)}; model=subnet "
                             "or model=ffnn take any catalogue effect as an input)")
@@ -146,7 +147,11 @@ class GreyBox(PhysicalChainModule):
 
     # ------------------------------------------------------------------ the model
     def chain(self, v: torch.Tensor) -> torch.Tensor:
-        """Input over its scale (B, T) -> output before the offset (B, T), from rest."""
+        """Input over its scale (B, T, 1) -> output before the offset (B, T, 1), from rest."""
+        return self._chain(v[..., 0])[..., None]
+
+    def _chain(self, v: torch.Tensor) -> torch.Tensor:
+        """`chain` on (B, T) -> (B, T)."""
         x = self.delay(self.amplifier(v))
         v_in = v
         if self.hysteresis is not None:
@@ -169,6 +174,43 @@ class GreyBox(PhysicalChainModule):
         v_lags = nn.functional.pad(v, (nb - 1, 0)).unfold(1, nb, 1)  # (B, T, nb)
         x_lags = nn.functional.pad(x, (na - 1, 0)).unfold(1, na, 1)
         return self.residual(torch.cat([v_lags, x_lags], dim=-1))[..., 0]
+
+    def _step_blocks(self) -> list[tuple[str, nn.Module]]:
+        """The blocks with a state, in the chain's order."""
+        blocks = [("amplifier", self.amplifier), ("delay", self.delay),
+                  ("hysteresis", self.hysteresis), ("creep", self.creep), ("mode", self.mode)]
+        return [(name, block) for name, block in blocks if block is not None]
+
+    def state_names(self) -> list[str]:
+        """Amplifier lag, delay buffer (oldest first), hysteresis (Bouc–Wen: previous input
+        and states; Prandtl–Ishlinskii: play outputs), creep filters, modes' biquad states,
+        then the residual network's past inputs and chain outputs (oldest first)."""
+        names = [f"{name}.{part}" for name, block in self._step_blocks()
+                 for part in block.state_names()]
+        if self.residual is not None:
+            names += [f"residual.v_lag{i}" for i in range(self.window.nb - 1, 0, -1)]
+            names += [f"residual.x_lag{i}" for i in range(self.window.na - 1, 0, -1)]
+        return names
+
+    def chain_step(self, v: torch.Tensor, state: StepState) -> torch.Tensor:
+        """One sample of `chain`: (B, 1) -> (B, 1)."""
+        v_in = v[:, 0]
+        x = self.delay.step(self.amplifier.step(v_in, state), state)
+        if self.hysteresis is not None:
+            x = self.hysteresis.step(x, state)
+        x = frozen(self.gain)[0] * x
+        if self.creep is not None:
+            x = self.creep.step(x, state)
+        if self.mode is not None:
+            x = self.mode.step(x, state)
+        if self.residual is not None:
+            nb, na = self.window.nb, self.window.na
+            v_lags = torch.cat([state.take(nb - 1), v_in[:, None]], dim=1)
+            x_lags = torch.cat([state.take(na - 1), x[:, None]], dim=1)
+            state.put(v_lags[:, 1:])
+            state.put(x_lags[:, 1:])
+            x = x + self.residual(torch.cat([v_lags, x_lags], dim=-1))[:, 0]
+        return x[:, None]
 
     def _start_new_parameter(self, name: str, value: torch.Tensor, previous: NarxModule) -> None:
         """A new block starts where it changes nothing: creep weights 0, a new mode at
@@ -205,7 +247,7 @@ class GreyBox(PhysicalChainModule):
                     fresh = SecondOrderMode(fs, frequency, damping, n_modes=self.mode.n_modes,
                                             fmin=self.f_floor)
                     self.mode.load_state_dict(fresh.state_dict())
-            base = self.chain(torch.as_tensor(u_s[None], dtype=torch.float64))[0].numpy()
+            base = self._chain(torch.as_tensor(u_s[None], dtype=torch.float64))[0].numpy()
             scale = estimate_static_gain(base - base.mean(), y_s - y_s.mean())
             if not np.isfinite(scale) or scale <= 0:
                 scale = gain

@@ -1,12 +1,16 @@
-"""`linear`: stable linear dynamics from the input to the output, grown into a physical model
+"""`linear`: stable linear dynamics from the inputs to the outputs, grown into a physical model
 by the effect catalogue.
 
-    u -> [saturation] -> [dead zone] -> [backlash] -> [hysteresis] -> [creep]
-      -> dynamics (+ [resonance] in parallel) -> + offset -> y
+    u_j -> [saturation] -> [dead zone] -> [backlash] -> [hysteresis] -> [creep] -> x_j
+    y_o = sum_j dynamics_oj(x_j) (+ [resonance_oj](x_j) in parallel) + offset_o
 
-The dynamics are an output-error model of ``model.order`` poles, stable for any parameter
-value (`hysteresis_lab.blocks.StableSections`), started from a least-squares ARX fit and
-refined on the free-run error of whole recordings. Each declared effect (``model.effects``)
+Every input channel ``j`` has its own input blocks, every output ``o`` is a sum over the
+inputs of stable linear dynamics (one transfer function per input and output, so MIMO data
+such as the FSM mirror's 3x3 run as they are). The dynamics are an output-error model of
+``model.order`` poles per pair, stable for any parameter value
+(`hysteresis_lab.blocks.StableSections`), started from a least-squares ARX fit per output
+(all inputs, one denominator, on every training recording) and refined on the free-run error
+of whole recordings. Each declared effect (``model.effects``)
 puts its block where the physics puts it, and every block starts where it changes nothing
 (its weight at zero), so ``effects=[hysteresis]`` starts as the linear model and a loop
 refit that adds an effect starts exactly from the model it grows:
@@ -21,6 +25,7 @@ refit that adds an effect starts exactly from the model it grows:
 from __future__ import annotations
 
 import logging
+import re
 from collections.abc import Sequence
 from typing import Any
 
@@ -30,6 +35,7 @@ from torch import nn
 
 from hysteresis_lab.blocks import BoucWen, CreepBank, bouc_wen_scaled_params, play
 from hysteresis_lab.blocks.sections import StableSections, arx_least_squares
+from hysteresis_lab.blocks.step import StepState, frozen, play_step
 from hysteresis_lab.effects.augment import context_from_dict
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.physical_chain import PhysicalChainModule
@@ -53,22 +59,44 @@ class _Level(nn.Module):
     def level(self) -> torch.Tensor:
         return self.raw_level.exp()
 
+    def state_names(self) -> list[str]:
+        return []
+
+    def step(self, v: torch.Tensor, state: StepState) -> torch.Tensor:
+        """One sample (B,) -> (B,); a static block has no state."""
+        return self.apply_with(v, *frozen(self.weight, self.level))
+
+    def forward(self, v: torch.Tensor) -> torch.Tensor:
+        return self.apply_with(v, self.weight, self.level)
+
+    def apply_with(
+        self, v: torch.Tensor, weight: torch.Tensor, level: torch.Tensor
+    ) -> torch.Tensor:
+        """The block with weight ``weight`` and level ``level``."""
+        raise NotImplementedError
+
 
 class Saturation(_Level):
-    def forward(self, v: torch.Tensor) -> torch.Tensor:
-        c = self.level
-        return v - self.weight * (v - torch.maximum(torch.minimum(v, c), -c))
+    def apply_with(self, v: torch.Tensor, weight: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
+        return v - weight * (v - torch.maximum(torch.minimum(v, c), -c))
 
 
 class DeadZone(_Level):
-    def forward(self, v: torch.Tensor) -> torch.Tensor:
-        c = self.level
-        return v - self.weight * torch.maximum(torch.minimum(v, c), -c)
+    def apply_with(self, v: torch.Tensor, weight: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
+        return v - weight * torch.maximum(torch.minimum(v, c), -c)
 
 
 class Backlash(_Level):
     def forward(self, v: torch.Tensor) -> torch.Tensor:
         return v + self.weight * (play(v, self.level.reshape(1))[..., 0] - v)
+
+    def state_names(self) -> list[str]:
+        return ["play"]
+
+    def step(self, v: torch.Tensor, state: StepState) -> torch.Tensor:
+        """One sample (B,) -> (B,); state: the play operator's output."""
+        weight, level = frozen(self.weight, self.level)
+        return v + weight * (play_step(v, level.reshape(1), state)[:, 0] - v)
 
 
 class HysteresisCell(nn.Module):
@@ -84,6 +112,19 @@ class HysteresisCell(nn.Module):
         x, _ = self.bouc_wen(v)
         h = self.bouc_wen.d * v - x
         return v - self.weight * h
+
+    def state_names(self) -> list[str]:
+        return self.bouc_wen.state_names()
+
+    def step(self, v: torch.Tensor, state: StepState) -> torch.Tensor:
+        """One sample (B,) -> (B,); state: the Bouc–Wen cell's."""
+        d, weight = frozen(self.bouc_wen.d, self.weight)
+        return v - weight * (d * v - self.bouc_wen.step(v, state))
+
+
+def _pairs(n_out: int, n_in: int, make: Any) -> nn.ModuleList:
+    """``[output][input]`` blocks from ``make()``."""
+    return nn.ModuleList(nn.ModuleList(make() for _ in range(n_in)) for _ in range(n_out))
 
 
 class LinearModel(PhysicalChainModule):
@@ -108,9 +149,6 @@ class LinearModel(PhysicalChainModule):
         fs = float((kwargs.get("trained_on") or {}).get("fs") or fs)
         effects = list(self.hparams.get("effects") or [])
         problems = []
-        if self.n_base_inputs != 1 or ny != 1:
-            problems.append(f"{self.n_base_inputs} input(s) and {ny} output(s) (it models one "
-                            "input and one output; model=subnet takes MIMO data)")
         unknown = [e for e in effects if e not in LINEAR_EFFECTS]
         if unknown:
             problems.append(f"effects {unknown} (its blocks: {list(LINEAR_EFFECTS)})")
@@ -126,69 +164,164 @@ class LinearModel(PhysicalChainModule):
                 "model=linear cannot take " + "; ".join(problems) + ". Fix: change those "
                 "settings (hysteresis_lab/conf/model/linear.yaml has the defaults)."
             )
-        amplitude = self._input_amplitude()
-        self.input_blocks = nn.ModuleDict()
+        n_in = self.n_base_inputs
+        self.input_blocks = nn.ModuleList(
+            self._input_blocks(effects, self._input_amplitude(j)) for j in range(n_in))
+        self.creep = nn.ModuleList(CreepBank(fs, creep_time_constants_s) for _ in range(n_in)) \
+            if "creep" in effects else None
+        self.dynamics = _pairs(ny, n_in, lambda: StableSections(order))
+        self.resonance: nn.ModuleList | None = None
+        if "resonance" in effects:
+            self.resonance = _pairs(ny, n_in, self._resonance_section)
+        self.offset = nn.Parameter(torch.zeros(ny, dtype=torch.float64))
+
+    @staticmethod
+    def _input_blocks(effects: Sequence[str], amplitude: float) -> nn.ModuleDict:
+        """One input channel's blocks, in physical order."""
+        blocks = nn.ModuleDict()
         for name, block in (("saturation", lambda: Saturation(0.9 * amplitude)),
                             ("dead_zone", lambda: DeadZone(0.05 * amplitude)),
                             ("backlash", lambda: Backlash(0.05 * amplitude)),
                             ("hysteresis", HysteresisCell)):
             if name in effects:
-                self.input_blocks[name] = block()
-        self.creep = CreepBank(fs, creep_time_constants_s) if "creep" in effects else None
-        self.dynamics = StableSections(order)
-        self.resonance: StableSections | None = None
-        if "resonance" in effects:
-            self.resonance = StableSections(2)
-            with torch.no_grad():
-                self.resonance.numerators.zero_()
-                self.resonance.raw_denominators[:, 1] = 2.0  # a lightly damped pair to start
-        self.offset = nn.Parameter(torch.zeros((), dtype=torch.float64))
+                blocks[name] = block()
+        return blocks
 
-    def _input_amplitude(self) -> float:
-        """The measured input's amplitude over its scale (for the levels of input blocks)."""
+    @staticmethod
+    def _resonance_section() -> StableSections:
+        """A lightly damped pair at zero weight (numerator zero)."""
+        section = StableSections(2)
+        with torch.no_grad():
+            section.numerators.zero_()
+            section.raw_denominators[:, 1] = 2.0
+        return section
+
+    def _input_amplitude(self, channel: int) -> float:
+        """A measured input's amplitude over its scale (for the levels of input blocks)."""
         context = self.hparams.get("feature_context")
         if context is None:
             return 1.0
-        amplitude = float(context_from_dict(context).u_amplitude[0])
-        scale = float(self.u_scale[0])
+        amplitude = float(context_from_dict(context).u_amplitude[channel])
+        scale = float(self.u_scale[channel])
         return max(amplitude / scale, 1e-6) if scale > 0 else 1.0
 
-    def chain(self, v: torch.Tensor) -> torch.Tensor:
+    # ------------------------------------------------------------------ the model
+    def _input_path(self, v: torch.Tensor, j: int) -> torch.Tensor:
+        """Input ``j``'s blocks (B, T) -> (B, T)."""
         x = v
-        for block in self.input_blocks.values():
+        for block in self.input_blocks[j].values():
             x = block(x)
         if self.creep is not None:
-            x = self.creep(x)
-        y = self.dynamics(x)
-        if self.resonance is not None:
-            y = y + self.resonance(x)
+            x = self.creep[j](x)
+        return x
+
+    def chain(self, v: torch.Tensor) -> torch.Tensor:
+        xs = [self._input_path(v[..., j], j) for j in range(self.n_base_inputs)]
+        return torch.stack([self._output(o, xs, lambda block, x: block(x))
+                            for o in range(self.ny)], dim=-1)
+
+    def _output(self, o: int, xs: list[torch.Tensor], run: Any) -> torch.Tensor:
+        """Output ``o``: the sum over inputs of the dynamics (and resonance) of ``xs``;
+        ``run(block, x)`` applies a block (a whole pass or one step)."""
+        y = 0.0
+        for j, x in enumerate(xs):
+            y = y + run(self.dynamics[o][j], x)
+            if self.resonance is not None:
+                y = y + run(self.resonance[o][j], x)
         return y
 
+    def state_names(self) -> list[str]:
+        """Per input: its blocks' states (backlash: the play output; hysteresis: previous
+        input and Bouc–Wen state) and creep filters; then per output and input: the
+        dynamics' delay buffer and second-order section states, and the resonance's."""
+        names = []
+        for j, blocks in enumerate(self.input_blocks):
+            for name, block in blocks.items():
+                names += [f"input{j}.{name}.{part}" for part in block.state_names()]
+            if self.creep is not None:
+                names += [f"input{j}.creep.{part}" for part in self.creep[j].state_names()]
+        for o in range(self.ny):
+            for j in range(self.n_base_inputs):
+                names += [f"dynamics{o}{j}.{part}" for part in self.dynamics[o][j].state_names()]
+                if self.resonance is not None:
+                    names += [f"resonance{o}{j}.{part}"
+                              for part in self.resonance[o][j].state_names()]
+        return names
+
+    def chain_step(self, v: torch.Tensor, state: StepState) -> torch.Tensor:
+        xs = []
+        for j, blocks in enumerate(self.input_blocks):
+            x = v[:, j]
+            for block in blocks.values():
+                x = block.step(x, state)
+            if self.creep is not None:
+                x = self.creep[j].step(x, state)
+            xs.append(x)
+        return torch.stack([self._output(o, xs, lambda block, x: block.step(x, state))
+                            for o in range(self.ny)], dim=-1)
+
+    # ------------------------------------------------------------------ initial values
     def initialise_from_data(self, u: np.ndarray, y: np.ndarray, fs: float) -> None:
-        """The dynamics from a least-squares ARX fit (``order`` poles, ``delay``) and the
-        output offset, on a training recording (physical units, 1-D)."""
-        v = u / float(self.u_scale[0])
-        y_s = y / float(self.y_scale[0])
+        """`initialise_from_recordings` on one training recording (physical units;
+        1-D for one channel, else (T, channels))."""
+        self.initialise_from_recordings([u], [y])
+
+    def initialise_from_recordings(
+        self, us: Sequence[np.ndarray], ys: Sequence[np.ndarray]
+    ) -> None:
+        """The dynamics from a least-squares ARX fit per output (``order`` poles, one
+        denominator for all inputs, ``delay``) on the training recordings (physical units,
+        (T, channels) or 1-D; only the measured inputs are read), and the output offsets."""
+        n_in = self.n_base_inputs
+        vs = [np.asarray(u, float).reshape(len(u), -1)[:, :n_in] / self.u_scale[:n_in].numpy()
+              for u in us]
+        ys_s = [np.asarray(y, float).reshape(len(y), -1) / self.y_scale.numpy() for y in ys]
         order, delay = self.hparams.order, self.hparams.delay
         nb = max(1, order - max(delay, 1) + 1)
-        b, a = arx_least_squares(v, y_s, na=order, nb=nb, nk=delay)
-        self.dynamics.set_transfer_function(b, a)
+        radius = 0.0
+        for o in range(self.ny):
+            b, a = arx_least_squares(vs, [y[:, o] for y in ys_s], na=order, nb=nb, nk=delay)
+            for j in range(n_in):
+                self.dynamics[o][j].set_transfer_function(b[j], a)
+            radius = max(radius, float(np.max(np.abs(np.roots(a)))))
         with torch.no_grad():
-            base = self.chain(torch.as_tensor(v[None], dtype=torch.float64))[0].numpy()
-            self.offset.fill_(float(np.mean(y_s - base)))
-        log.info("linear start: ARX(%d, %d, %d) by least squares, poles |p| <= %.4f", order, nb,
-                 delay, float(np.max(np.abs(np.roots(a)))) if order else 0.0)
+            residuals = [y - self.chain(torch.as_tensor(v[None]))[0].numpy()
+                         for v, y in zip(vs, ys_s, strict=True)]
+            self.offset.copy_(torch.as_tensor(np.concatenate(residuals).mean(axis=0)))
+        log.info("linear start: ARX(%d, %d, %d) per output by least squares on %d recording(s), "
+                 "poles |p| <= %.4f", order, nb, delay, len(vs), radius)
+
+    def load_state_dict(self, state_dict: Any, strict: bool = True, assign: bool = False) -> Any:
+        """Also reads a one-input, one-output model saved before the MIMO layout."""
+        return super().load_state_dict(_mimo_keys(state_dict), strict=strict, assign=assign)
 
     def physical_parameters(self) -> dict[str, Any]:
-        """Every block's current parameters (for reports)."""
+        """Every block's current parameters (for reports); per output and input pair
+        ``dynamics[o][j]``, per input ``inputs[j]``."""
         with torch.no_grad():
-            out: dict[str, Any] = {"dynamics": self.dynamics.export(),
-                                   "offset": float(self.offset)}
-            for name, block in self.input_blocks.items():
-                out[name] = {k: v.detach().cpu().numpy().tolist()
-                             for k, v in block.named_parameters()}
+            out: dict[str, Any] = {
+                "dynamics": [[block.export() for block in row] for row in self.dynamics],
+                "offset": self.offset.cpu().numpy().tolist(),
+                "inputs": [{name: {k: v.detach().cpu().numpy().tolist()
+                                   for k, v in block.named_parameters()}
+                            for name, block in blocks.items()} for blocks in self.input_blocks],
+            }
             if self.creep is not None:
-                out["creep"] = self.creep.export()
+                out["creep"] = [block.export() for block in self.creep]
             if self.resonance is not None:
-                out["resonance"] = self.resonance.export()
+                out["resonance"] = [[block.export() for block in row] for row in self.resonance]
         return out
+
+
+def _mimo_keys(state_dict: Any) -> dict[str, Any]:
+    """A state dict of the one-input, one-output layout (``input_blocks.<name>``,
+    ``creep.weights``, ``dynamics.<parameter>``, a scalar ``offset``) in the MIMO one."""
+    out = {}
+    for key, value in state_dict.items():
+        new = re.sub(r"^input_blocks\.(?!\d)", "input_blocks.0.", key)
+        new = re.sub(r"^creep\.(?!\d)", "creep.0.", new)
+        new = re.sub(r"^(dynamics|resonance)\.(?!\d)", r"\1.0.0.", new)
+        if new == "offset" and value.dim() == 0:
+            value = value.reshape(1)
+        out[new] = value
+    return out

@@ -4,8 +4,10 @@ physical blocks (`hysteresis_lab.blocks`): the grey-box and the linear model.
 Such a model reads the input alone (an output-error model): its one-step prediction is its
 free run, it trains on the free-run error of whole recordings (each simulated from rest, the
 one state that is known; `hysteresis_lab.data.segments.RecordingDataModule`), and its output
-is ``chain(v) + offset`` with ``v`` the measured input over its scale (zero volts is zero).
-Subclasses build their blocks (and an ``offset`` parameter) and implement `chain`.
+is ``chain(v) + offset`` with ``v`` the measured inputs over their scales (zero volts is zero).
+Subclasses build their blocks (and an ``offset`` parameter) and implement `chain`, and for
+the exported simulation step (`step_physical`, `hysteresis_lab.models.export`) `chain_step`
+and `state_names`: the same chain one sample at a time on a flat state, zero at rest.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from hysteresis_lab.blocks.step import StepState, frozen
 from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.base import NarxModule
@@ -38,19 +41,51 @@ class PhysicalChainModule(NarxModule):
 
     # ------------------------------------------------------------------ the model
     def chain(self, v: torch.Tensor) -> torch.Tensor:  # pragma: no cover
-        """Input over its scale (B, T) -> output over its scale before the offset (B, T)."""
+        """Measured inputs over their scales (B, T, n_base_inputs) -> outputs over their
+        scales before the offset (B, T, ny), from rest."""
+        raise NotImplementedError
+
+    def chain_step(self, v: torch.Tensor, state: StepState) -> torch.Tensor:  # pragma: no cover
+        """One sample of `chain`: inputs (B, n_base_inputs) -> outputs (B, ny); each block
+        reads its part of ``state`` in the order of `state_names`."""
+        raise NotImplementedError
+
+    def state_names(self) -> list[str]:  # pragma: no cover
+        """The flat step state's columns, in order (``block.part``)."""
         raise NotImplementedError
 
     def _physical_input(self, u_scaled: torch.Tensor) -> torch.Tensor:
-        """Scaled input (B, T, nu) -> the measured input over its scale (B, T): zero volts
-        is zero here, so "at rest" means what it does physically."""
-        return u_scaled[..., 0].double() + self.u_offset[0] / self.u_scale[0]
+        """Scaled inputs (B, T, nu) -> the measured inputs over their scales (B, T,
+        n_base_inputs): zero volts is zero here, so "at rest" means what it does physically."""
+        n = self.n_base_inputs
+        return u_scaled[..., :n].double() + (self.u_offset[:n] / self.u_scale[:n]).double()
+
+    def _output_offset(self) -> torch.Tensor:
+        """What the scaled outputs add to the chain's (ny,), float64."""
+        return self.offset - (self.y_offset / self.y_scale).double()
 
     def simulate_full(self, u_scaled: torch.Tensor) -> torch.Tensor:
-        """Scaled inputs (B, T, nu) -> scaled outputs (B, T, 1), every row from rest."""
+        """Scaled inputs (B, T, nu) -> scaled outputs (B, T, ny), every row from rest."""
         x = self.chain(self._physical_input(u_scaled))
-        y_scaled = x + self.offset - self.y_offset[0] / self.y_scale[0]
-        return y_scaled.to(u_scaled.dtype)[..., None]
+        return (x + self._output_offset()).to(u_scaled.dtype)
+
+    def step_physical(
+        self, state: torch.Tensor, u: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """The simulation step in physical units, float64: ``(state (B, nx), measured inputs
+        u (B, n_base_inputs)) -> (outputs y (B, ny) at the sample of u, next state)``; the
+        state at rest is zero (`state_names` has its layout). Stepping it over a recording
+        from zeros reproduces `simulate_full`."""
+        n = self.n_base_inputs
+        u_offset, u_scale, u_rest, y_offset, y_scale, y_add = frozen(
+            self.u_offset[:n].double(), self.u_scale[:n].double(),
+            (self.u_offset[:n] / self.u_scale[:n]).double(), self.y_offset.double(),
+            self.y_scale.double(), self._output_offset())
+        v = (u.double() - u_offset) / u_scale + u_rest
+        steps = StepState(state.double())
+        x = self.chain_step(v, steps)
+        y = (x + y_add) * y_scale + y_offset
+        return y, steps.next_state()
 
     def simulate_scaled(self, u: torch.Tensor, y_initial: torch.Tensor) -> torch.Tensor:
         """Training's free run: from rest at the first sample (``y_initial`` is not needed);
