@@ -7,8 +7,8 @@ import pytest
 import torch
 
 from hysteresis_lab.data.windows import WindowSpec
+from hysteresis_lab.kernels.lstm import _tanh_rows
 from hysteresis_lab.models.lstm import LSTMNet, _LSTMKernel
-from hysteresis_lab.models.lstm_kernel import _tanh_rows
 from kernel_checks import check_batch_independence, check_run_all
 
 # (window, nu, ny, num_layers, lstm_layers): default lags; masked lags, delay 2, two inputs,

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from hysteresis_lab.evaluation.predict import free_run
-from hysteresis_lab.models.svm_kernel import SVMKernel
+from hysteresis_lab.kernels.svm import SVMKernel
 from hysteresis_lab.training import build_model, fit
 from kernel_checks import step_loop
 from narx import TRAINER, datamodule_for, narx_data

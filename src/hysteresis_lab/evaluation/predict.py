@@ -22,7 +22,7 @@ from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.scaling import Scaler
 from hysteresis_lab.data.windows import WindowSpec, assemble, make_windows
 from hysteresis_lab.errors import ConfigError, DataError
-from hysteresis_lab.models.fast import sequence_masks
+from hysteresis_lab.kernels.interface import sequence_masks
 from hysteresis_lab.models.interface import SystemModel
 
 
@@ -289,7 +289,7 @@ def _loop_kernel(
 ) -> np.ndarray:
     """Run ``kernel.step`` over all samples; ``y`` holds the lag history (re-measured at
     restarts), ``out`` the predictions. A kernel with ``run_all`` runs a restart-free
-    simulation in one call (see `hysteresis_lab.models.fast.FreeRunKernel`)."""
+    simulation in one call (see `hysteresis_lab.kernels.interface.FreeRunKernel`)."""
     ft, na = window.first_target, window.na
     run_all = getattr(kernel, "run_all", None)
     if run_all is not None and not reset.any():

@@ -37,7 +37,7 @@ from hysteresis_lab.data.windows import Layout, WindowSpec, assemble
 from hysteresis_lab.effects.augment import context_from_dict
 from hysteresis_lab.effects.registry import check_effects, get_effect
 from hysteresis_lab.errors import ConfigError, DivergedError
-from hysteresis_lab.models.fast import input_lags
+from hysteresis_lab.kernels.interface import input_lags
 from hysteresis_lab.models.interface import NetworkModel
 
 log = logging.getLogger(__name__)

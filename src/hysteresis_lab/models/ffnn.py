@@ -8,8 +8,8 @@ import numpy as np
 
 from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.kernels.interface import FlatKernel, FreeRunKernel, dense_layers, run_dense
 from hysteresis_lab.models.base import NarxModule, mlp
-from hysteresis_lab.models.fast import FlatKernel, FreeRunKernel, dense_layers, run_dense
 
 
 class FFNN(NarxModule):

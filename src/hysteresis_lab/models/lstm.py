@@ -10,9 +10,9 @@ from torch import nn
 
 from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.kernels.interface import FreeRunKernel, dense_layers, run_dense, sequence_masks
+from hysteresis_lab.kernels.lstm import lstm_free_run
 from hysteresis_lab.models.base import NarxModule, mlp
-from hysteresis_lab.models.fast import FreeRunKernel, dense_layers, run_dense, sequence_masks
-from hysteresis_lab.models.lstm_kernel import lstm_free_run
 
 
 class _LSTMHead(nn.Module):

@@ -21,9 +21,9 @@ import torch
 from torch import nn
 
 from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.kernels.subnet import packed_mlp, subnet_free_run
 from hysteresis_lab.models.base import mlp
 from hysteresis_lab.models.state_space import StateSpaceModule
-from hysteresis_lab.models.subnet_kernel import packed_mlp, subnet_free_run
 
 
 class SUBNET(StateSpaceModule):

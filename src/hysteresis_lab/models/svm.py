@@ -29,9 +29,9 @@ from sklearn.svm import SVR, LinearSVR
 from hysteresis_lab.data.scaling import Scaler
 from hysteresis_lab.data.windows import WindowSpec, assemble
 from hysteresis_lab.errors import ConfigError
-from hysteresis_lab.models.fast import FlatKernel, FreeRunKernel
+from hysteresis_lab.kernels.interface import FlatKernel, FreeRunKernel
+from hysteresis_lab.kernels.svm import SVMKernel
 from hysteresis_lab.models.interface import EstimatorModel
-from hysteresis_lab.models.svm_kernel import SVMKernel
 
 log = logging.getLogger(__name__)
 

@@ -16,8 +16,8 @@ import numba
 import numpy as np
 
 from hysteresis_lab.data.windows import WindowSpec
-from hysteresis_lab.models.fast import FlatKernel, input_lags
-from hysteresis_lab.models.jit_ops import JIT, term_array
+from hysteresis_lab.kernels.interface import FlatKernel, input_lags
+from hysteresis_lab.kernels.jit_ops import JIT, term_array
 
 #: kernel function codes of `_steps`
 KERNEL_CODES = {"rbf": 0, "sigmoid": 1, "poly": 2}

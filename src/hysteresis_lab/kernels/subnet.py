@@ -7,7 +7,7 @@ import numba
 import numpy as np
 from torch import nn
 
-from hysteresis_lab.models.jit_ops import JIT_FMA
+from hysteresis_lab.kernels.jit_ops import JIT_FMA
 
 
 def packed_mlp(seq: nn.Sequential) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -7,7 +7,7 @@ steps, mostly of a single recording). `cnn_free_run` runs the whole loop (regres
 prediction) in one compiled function with the same float32 arithmetic; only the summation
 order of the products differs (float32 rounding), and the dense head runs in float32 like the
 LSTM's (the step kernel uses float64 there). The matrix products and the dense head are those
-of `hysteresis_lab.models.jit_ops`.
+of `hysteresis_lab.kernels.jit_ops`.
 
 Functions compile on first use (``cache=True`` keeps the machine code between sessions).
 """
@@ -17,7 +17,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from hysteresis_lab.models.jit_ops import (
+from hysteresis_lab.kernels.jit_ops import (
     JIT,
     check_free_run_arrays,
     dense_head,

@@ -27,7 +27,7 @@ import math
 import numba
 import numpy as np
 
-from hysteresis_lab.models.jit_ops import (
+from hysteresis_lab.kernels.jit_ops import (
     JIT,
     JIT_FMA,
     check_free_run_arrays,
