@@ -23,6 +23,7 @@ from hysteresis_lab.data.segments import simulation_data
 from hysteresis_lab.errors import ConfigError, DivergedError
 from hysteresis_lab.models.interface import SystemModel
 from hysteresis_lab.models.registry import get_model_class
+from hysteresis_lab.models.settings import Stage, TrainingSettings
 from hysteresis_lab.trainer import TrainerSettings, build_trainer
 
 log = logging.getLogger(__name__)
@@ -161,21 +162,12 @@ def _selection_loss(
         model.simulation_mode = False
 
 
-def stage_lr(model: L.LightningModule, stage: str) -> float:
-    """The learning rate of a training stage, decided here only.
-
-    ``stage``: "one_step" (the study's stage, or the whole fit) uses ``model.lr``, or for a
-    warm-started refit ``refit_lr`` (default ``lr / 10``); "simulation" (the free-run error
-    as the only objective) the same; "fine_tune" (the free-run stage after a one-step stage
-    or from a fitted network) ``simulation_lr``, default a tenth of the one-step rate.
-    """
-    hparams = model.hparams
-    lr = float(hparams.lr)
-    if getattr(model, "_new_entries", None):  # a refit from a fitted (warm-start) network
-        lr = float(hparams.get("refit_lr") or 0.1 * lr)
-    if stage == "fine_tune":
-        lr = float(hparams.get("simulation_lr") or 0.1 * lr)
-    return lr
+def stage_lr(model: L.LightningModule, stage: Stage) -> float:
+    """The learning rate of a training ``stage`` of ``model``: its `TrainingSettings` decide
+    (`TrainingSettings.stage_lr`); a warm-started refit (``_new_entries`` set by
+    ``warm_start_from``) counts as a refit."""
+    settings = TrainingSettings.from_hparams(model.hparams)
+    return settings.stage_lr(stage, refit=bool(getattr(model, "_new_entries", None)))
 
 
 def _fit(
@@ -197,7 +189,7 @@ def _fit(
         return TrainResult(model, val_mse, time.perf_counter() - start)
 
     steps = model.simulation_horizon
-    fine_tune_epochs = model.hparams.get("simulation_epochs")
+    fine_tune_epochs = TrainingSettings.from_hparams(model.hparams).simulation_epochs
     stages = (model, datamodule, settings, output_dir, logger)
     _initialise_from_data(model, datamodule)
     if steps > 0 and fine_tune_epochs is not None and model.simulation_trained:
@@ -404,7 +396,7 @@ def _fit_free_run(
     segments = simulation_data(datamodule, model, steps)
     checkpoint = _best_checkpoint(output_dir / folder)
     all_callbacks: list[Any] = [checkpoint, *(callbacks or [])]
-    patience = model.hparams.get("patience")
+    patience = TrainingSettings.from_hparams(model.hparams).patience
     if patience:
         all_callbacks.append(EarlyStopping(monitor="val_loss", mode="min", patience=patience))
     # feedback through many steps: keep updates bounded

@@ -35,16 +35,18 @@ from torch import nn
 
 from hysteresis_lab.data.windows import Layout, WindowSpec, assemble
 from hysteresis_lab.effects.augment import context_from_dict
-from hysteresis_lab.effects.registry import check_effects, get_effect
+from hysteresis_lab.effects.registry import get_effect
 from hysteresis_lab.errors import ConfigError, DivergedError
 from hysteresis_lab.kernels.interface import input_lags
 from hysteresis_lab.models.interface import NetworkModel
+from hysteresis_lab.models.settings import (
+    EffectSettings,
+    TrainingSettings,
+    as_effect_names,
+    check_channels,
+)
 
 log = logging.getLogger(__name__)
-
-LR_SCHEDULES = ("cosine", "plateau", "none")
-OBJECTIVES = ("one_step", "simulation")
-EFFECT_PATHS = ("network", "linear")
 
 
 class NarxModule(L.LightningModule, NetworkModel):
@@ -81,49 +83,20 @@ class NarxModule(L.LightningModule, NetworkModel):
         trained_on: dict[str, Any] | None = None,
     ) -> None:
         super().__init__()
-        if nu < 1 or ny < 1:
-            raise ConfigError(
-                f"a model needs nu >= 1 and ny >= 1 (got nu={nu}, ny={ny}). Fix: give the data "
-                "at least one input and one output column."
-            )
-        if lr_schedule not in LR_SCHEDULES:
-            raise ConfigError(
-                f"unknown lr_schedule '{lr_schedule}'. Fix: model.lr_schedule=one of "
-                f"{list(LR_SCHEDULES)}."
-            )
-        if not lr > 0:
-            raise ConfigError(f"learning rate lr={lr} must be positive. Fix: model.lr=1e-3.")
-        check_objective(objective, horizon, simulation_epochs, simulation_lr)
-        if patience is not None and not patience >= 1:
-            raise ConfigError(
-                f"model.patience={patience!r} must be >= 1 epochs, or null (no early stopping)."
-            )
-        if refit_lr is not None and not refit_lr > 0:
-            raise ConfigError(
-                f"model.refit_lr must be positive or null (got {refit_lr}). Fix: e.g. "
-                "model.refit_lr=1e-4, or null for lr / 10."
-            )
-        check_effects(effects)
-        if effects and feature_context is None:
-            raise ConfigError(
-                "a model with effects needs the feature_context of its training data. Fix: build "
-                "it through hysteresis_lab.pipeline (hysteresis-lab-train), which supplies it."
-            )
-        if effect_path not in EFFECT_PATHS:
-            raise ConfigError(
-                f"unknown effect_path '{effect_path}'. Fix: model.effect_path=one of "
-                f"{list(EFFECT_PATHS)}."
-            )
-        if n_base_inputs is not None and not 1 <= n_base_inputs <= nu:
-            raise ConfigError(f"n_base_inputs={n_base_inputs} must lie in 1..nu={nu}.")
+        check_channels(nu, ny)
+        #: how it trains (checked here: a bad setting fails before any data is read)
+        self.training_settings = TrainingSettings(
+            lr=lr, lr_schedule=lr_schedule, weight_decay=weight_decay, objective=objective,
+            horizon=horizon, simulation_epochs=simulation_epochs, simulation_lr=simulation_lr,
+            patience=patience, refit_lr=refit_lr,
+        )
+        effect_settings = EffectSettings(
+            as_effect_names(effects), feature_context, effect_path, n_base_inputs
+        ).checked(nu)
         self.window = WindowSpec(na=na, nb=nb, nk=nk)
         self.save_hyperparameters()
         self.hparams["model_name"] = type(self).registry_name or type(self).__name__
-        scaler = scaler or {}
-        for key, size in (("u_offset", nu), ("u_scale", nu), ("y_offset", ny), ("y_scale", ny)):
-            default = 0.0 if key.endswith("offset") else 1.0
-            values = torch.as_tensor(scaler.get(key, [default] * size), dtype=torch.float32)
-            self.register_buffer(key, values.reshape(size))
+        self._register_scaler(scaler or {}, nu, ny)
         self.nu, self.ny = nu, ny
         self.n_base_inputs = nu if n_base_inputs is None else n_base_inputs
         self.net: nn.Module = nn.Identity()
@@ -131,34 +104,48 @@ class NarxModule(L.LightningModule, NetworkModel):
         self.effect_weight: nn.Parameter | None = None
         #: input block: base inputs += effect channels @ input_weight.T (scaled units)
         self.input_weight: nn.Parameter | None = None
-        routes = self._channel_routes(effects, feature_context, effect_path)
-        self._routed = any(route in ("linear", "input") for route in routes)
-        if self._routed:
-            linear = torch.tensor([route == "linear" for route in routes])
-            to_input = torch.tensor([route == "input" for route in routes])
-            self.register_buffer("away_channels", linear | to_input, persistent=False)
-            self.register_buffer(
-                "net_mask", (~self._regressor_columns(linear | to_input)).float(), persistent=False
-            )
-            if linear.any():
-                effect_columns = self._regressor_columns(linear)
-                self.register_buffer("effect_mask", effect_columns.float(), persistent=False)
-                shape = (ny, len(effect_columns)) if self.layout == "flat" else (
-                    ny, len(effect_columns), self.window.seq_len)
-                self.effect_weight = nn.Parameter(torch.zeros(shape))
-            if to_input.any():
-                self.register_buffer(
-                    "input_channels", torch.nonzero(to_input).flatten(), persistent=False
-                )
-                self.input_weight = nn.Parameter(
-                    torch.zeros(self.n_base_inputs, int(to_input.sum()))
-                )
+        self._route_effect_channels(effect_settings)
         self.loss_fn = nn.MSELoss()
         #: set by `hysteresis_lab.training` while training on free-run segments
         self.simulation_mode = False
         #: the learning rate of the running training stage, set by `hysteresis_lab.training`
         self.stage_lr: float | None = None
         self._skipped_batches = 0
+
+    def _register_scaler(self, scaler: dict[str, Sequence[float]], nu: int, ny: int) -> None:
+        """Normalisation buffers (saved with the weights): offsets and scales per channel."""
+        for key, size in (("u_offset", nu), ("u_scale", nu), ("y_offset", ny), ("y_scale", ny)):
+            default = 0.0 if key.endswith("offset") else 1.0
+            values = torch.as_tensor(scaler.get(key, [default] * size), dtype=torch.float32)
+            self.register_buffer(key, values.reshape(size))
+
+    def _route_effect_channels(self, settings: EffectSettings) -> None:
+        """Masks and weights for effect channels that do not enter the network as ordinary
+        inputs: the linear effect path (``effect_weight``) and the input block
+        (``input_weight``); see `_channel_routes`."""
+        routes = self._channel_routes(
+            settings.effects, settings.feature_context, settings.effect_path
+        )
+        self._routed = any(route in ("linear", "input") for route in routes)
+        if not self._routed:
+            return
+        linear = torch.tensor([route == "linear" for route in routes])
+        to_input = torch.tensor([route == "input" for route in routes])
+        self.register_buffer("away_channels", linear | to_input, persistent=False)
+        self.register_buffer(
+            "net_mask", (~self._regressor_columns(linear | to_input)).float(), persistent=False
+        )
+        if linear.any():
+            effect_columns = self._regressor_columns(linear)
+            self.register_buffer("effect_mask", effect_columns.float(), persistent=False)
+            shape = (self.ny, len(effect_columns)) if self.layout == "flat" else (
+                self.ny, len(effect_columns), self.window.seq_len)
+            self.effect_weight = nn.Parameter(torch.zeros(shape))
+        if to_input.any():
+            self.register_buffer(
+                "input_channels", torch.nonzero(to_input).flatten(), persistent=False
+            )
+            self.input_weight = nn.Parameter(torch.zeros(self.n_base_inputs, int(to_input.sum())))
 
     # ------------------------------------------------------------------ model
     @property
@@ -372,7 +359,7 @@ class NarxModule(L.LightningModule, NetworkModel):
     def on_train_batch_end(self, outputs: Any, batch: Any, batch_idx: int) -> None:
         """With `train_new_inputs_only`: put back the old entries of the partly trained
         tensors (their gradient is masked, but Adam's weight decay would still shrink them)."""
-        if not (self.new_inputs_only and self.hparams.weight_decay):
+        if not (self.new_inputs_only and self.training_settings.weight_decay):
             return
         with torch.no_grad():
             parameters = dict(self.named_parameters())
@@ -397,9 +384,7 @@ class NarxModule(L.LightningModule, NetworkModel):
     @property
     def simulation_horizon(self) -> int:
         """Samples simulated per training segment; 0 when the objective is one-step."""
-        if self.hparams.get("objective", "one_step") != "simulation":
-            return 0
-        return int(self.hparams.get("horizon") or 0)
+        return self.training_settings.simulation_horizon
 
     def _loss(self, batch: tuple[torch.Tensor, torch.Tensor]) -> torch.Tensor:
         """One-step loss on (regressors, target) windows, or in ``simulation_mode`` the
@@ -455,10 +440,11 @@ class NarxModule(L.LightningModule, NetworkModel):
         return loss
 
     def configure_optimizers(self) -> Any:
-        lr = self.stage_lr or self.hparams.lr
+        settings = self.training_settings
+        lr = self.stage_lr or settings.lr
         trainable = [p for p in self.parameters() if p.requires_grad]
-        optimizer = torch.optim.Adam(trainable, lr=lr, weight_decay=self.hparams.weight_decay)
-        schedule = self.hparams.lr_schedule
+        optimizer = torch.optim.Adam(trainable, lr=lr, weight_decay=settings.weight_decay)
+        schedule = settings.lr_schedule
         if schedule == "cosine":
             epochs = max(1, int(self.trainer.max_epochs or 1))
             scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(
@@ -477,29 +463,6 @@ class NarxModule(L.LightningModule, NetworkModel):
                 "lr_scheduler": {"scheduler": scheduler, "monitor": "val_loss"},
             }
         return optimizer
-
-
-def check_objective(
-    objective: str, horizon: int, simulation_epochs: int | None, simulation_lr: float | None
-) -> None:
-    """Refuse training-objective settings that cannot train (see the module docstring)."""
-    if objective not in OBJECTIVES:
-        raise ConfigError(
-            f"unknown model.objective '{objective}'. Fix: model.objective=one of "
-            f"{list(OBJECTIVES)} (simulation: the free-run error, our recommendation)."
-        )
-    bad = []
-    if objective == "simulation" and not (isinstance(horizon, int) and horizon >= 1):
-        bad.append(f"horizon={horizon!r} (a whole number >= 1)")
-    if simulation_epochs is not None and not simulation_epochs >= 1:
-        bad.append(f"simulation_epochs={simulation_epochs!r} (>= 1, or null)")
-    if simulation_lr is not None and not simulation_lr > 0:
-        bad.append(f"simulation_lr={simulation_lr!r} (> 0, or null)")
-    if bad:
-        raise ConfigError(
-            f"simulation-error training settings out of range: {', '.join(bad)}. Fix: e.g. "
-            "model.objective=simulation model.horizon=200 model.simulation_epochs=null."
-        )
 
 
 def mlp(n_in: int, n_out: int, hidden: int, n_hidden_layers: int) -> nn.Sequential:
