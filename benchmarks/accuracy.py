@@ -40,6 +40,7 @@ from hysteresis_lab.evaluation.accuracy_table import (
     render_markdown,
     write_results,
 )
+from hysteresis_lab.run_folder import RunFolder
 
 log = logging.getLogger("accuracy")
 
@@ -133,7 +134,8 @@ def run_pair(
         return {"model": model, "data": data, "skipped": UNSUPPORTED[(model, data)], **stamp}
     overrides = recommended(model, data)
     run_dir = root / f"{model}_{data}"
-    metrics_path, settings_path = run_dir / "metrics.json", run_dir / "accuracy_settings.json"
+    metrics_path = RunFolder(run_dir).metrics
+    settings_path = run_dir / "accuracy_settings.json"
     if resume and metrics_path.is_file():
         saved = json.loads(settings_path.read_text()) if settings_path.is_file() else {}
         if saved.get("overrides") == overrides:

@@ -21,10 +21,11 @@ from typing import Any
 import numpy as np
 
 from hysteresis_lab.data.splits import DatasetSplits
+from hysteresis_lab.run_folder import RunFolder
 
 log = logging.getLogger(__name__)
 
-FIT_RECORD = "fit_record.json"
+FIT_RECORD = RunFolder.FIT_RECORD
 
 
 def fingerprint(settings: Mapping[str, Any], splits: DatasetSplits, start: Any | None) -> str:

@@ -10,7 +10,6 @@ final metrics as hparams).
 
 from __future__ import annotations
 
-import json
 import logging
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
@@ -34,9 +33,10 @@ from hysteresis_lab.errors import DataError
 from hysteresis_lab.evaluation.evaluate import Evaluation, evaluate_model, scoring_start
 from hysteresis_lab.evaluation.plots import loops_figure, residuals_figure, save_figure
 from hysteresis_lab.evaluation.predict import check_n_step
-from hysteresis_lab.evaluation.report import metrics_document, write_json
+from hysteresis_lab.evaluation.report import metrics_document
 from hysteresis_lab.models.interface import SystemModel
 from hysteresis_lab.models.io import load_model, model_window, save_model
+from hysteresis_lab.run_folder import RunFolder
 from hysteresis_lab.trainer import TrainerSettings
 from hysteresis_lab.training import (
     TrainResult,
@@ -50,9 +50,9 @@ from hysteresis_lab.training import (
 log = logging.getLogger(__name__)
 
 #: where a loop refit that lost on validation leaves its own model, beside its metrics (a
-#: warm-started one: ``model.ckpt`` beside them holds the start it lost to)
-REJECTED_REFIT_MODEL = "rejected_refit_model"
-REJECTED_REFIT_METRICS = "rejected_refit_metrics.json"
+#: warm-started one: ``model.ckpt`` beside them holds the start it lost to); see `RunFolder`
+REJECTED_REFIT_MODEL = RunFolder.REJECTED_REFIT_MODEL_STEM
+REJECTED_REFIT_METRICS = RunFolder.REJECTED_REFIT_METRICS
 
 
 @dataclass
@@ -181,7 +181,7 @@ def run_model(
         callbacks=callbacks, keep_start_unless_beaten=warm_start is not None,
         min_gain=settings.min_refit_gain,
     )
-    model_path = save_model(trained.model, config.output_dir / "model")
+    model_path = save_model(trained.model, RunFolder(config.output_dir).model_stem)
     log.info("saved %s", model_path)
     if not settings.evaluate:
         return _unscored_result(config, data, trained, datamodule.window)
@@ -264,7 +264,8 @@ def _tensorboard_logger(config: RunConfig) -> TensorBoardLogger | None:
     if not config.settings.use_tensorboard:
         return None
     return TensorBoardLogger(
-        save_dir=str(config.output_dir), name="tensorboard", version="", default_hp_metric=False
+        save_dir=str(config.output_dir), name=RunFolder.TENSORBOARD, version="",
+        default_hp_metric=False,
     )
 
 
@@ -278,7 +279,7 @@ def _unscored_result(
         "val_mse_scaled": trained.val_mse,
         "train_seconds": trained.train_seconds,
     }
-    write_json(document, config.output_dir / "metrics.json")
+    RunFolder(config.output_dir).write_metrics(document)
     return RunResult(
         document, trained.val_mse, Evaluation(), trained.model, window, trained.improved,
         trained.refit_validation,
@@ -297,6 +298,7 @@ def _score_and_report(
     """Score the trained model on the test recordings; write metrics.json, figures, the fit
     record and the TensorBoard summary."""
     settings, output_dir = config.settings, config.output_dir
+    folder = RunFolder(output_dir)
     evaluation = evaluate_model(
         trained.model, data.test, window, n_init=data.n_init, n_steps=settings.n_steps,
         device=evaluation_device(config.trainer),
@@ -310,9 +312,9 @@ def _score_and_report(
         trained.train_seconds,
         extra={"val_mse_scaled": trained.val_mse, "data": data.name, "model_path": str(model_path)},
     )
-    write_json(document, output_dir / "metrics.json")
+    folder.write_metrics(document)
     if settings.plots:
-        _write_figures(data, evaluation, output_dir, config.model_name, logger)
+        _write_figures(data, evaluation, folder, config.model_name, logger)
     if record_key is not None:
         _write_fit_record(output_dir, record_key, model_path, trained, rejected_refit is not None)
     if logger is not None:
@@ -344,15 +346,15 @@ def _keep_rejected_refit(
     beside the kept model (`REJECTED_REFIT_MODEL`, `REJECTED_REFIT_METRICS`)."""
     if trained.rejected_state is None:
         return None
-    output_dir = config.output_dir
+    folder = RunFolder(config.output_dir)
     # the refit's own weights for the scoring and the save; the kept start's afterwards
     with _weights(trained.model, trained.rejected_state) as rejected:
         rejected_refit = _score_rejected_refit(
             rejected, trained, data, window, config.trainer, config.settings.n_steps, units,
             config.model_name,
         )
-        log.info("saved %s", save_model(rejected, output_dir / REJECTED_REFIT_MODEL))
-    write_json(rejected_refit, output_dir / REJECTED_REFIT_METRICS)
+        log.info("saved %s", save_model(rejected, folder.rejected_refit_stem))
+    folder.write_rejected_refit_metrics(rejected_refit)
     return rejected_refit
 
 
@@ -360,8 +362,8 @@ def _write_fit_record(
     output_dir: Path, key: str, model_path: Path, trained: TrainResult, rejected: bool
 ) -> None:
     """Record the finished fit (its files and what `RunResult` needs) for a later reuse."""
-    files = [model_path.name, "metrics.json"]
-    files += [REJECTED_REFIT_METRICS] if rejected else []
+    files = [model_path.name, RunFolder.METRICS]
+    files += [RunFolder.REJECTED_REFIT_METRICS] if rejected else []
     fit_record.write_record(output_dir, key, {
         "files": files, "model_file": model_path.name,
         "val_mse": trained.val_mse, "improved": trained.improved,
@@ -410,11 +412,9 @@ def _reused_fit(
         model, data.test, window, n_init=data.n_init, n_steps=n_steps,
         device=evaluation_device(trainer_cfg),
     )
-    document = json.loads((output_dir / "metrics.json").read_text())
-    rejected_refit = (
-        json.loads((output_dir / REJECTED_REFIT_METRICS).read_text())
-        if record["rejected"] else None
-    )
+    folder = RunFolder(output_dir)
+    document = folder.read_metrics()
+    rejected_refit = folder.read_rejected_refit_metrics() if record["rejected"] else None
     return RunResult(
         document, record["val_mse"], evaluation, model, window, record["improved"],
         record["refit_validation"], rejected_refit,
@@ -494,7 +494,7 @@ def _weights(model: torch.nn.Module, state: Mapping[str, torch.Tensor]) -> Itera
 def _write_figures(
     data: DatasetSplits,
     evaluation: Evaluation,
-    output_dir: Path,
+    folder: RunFolder,
     title: str,
     logger: TensorBoardLogger | None,
 ) -> None:
@@ -503,7 +503,7 @@ def _write_figures(
         "residuals": residuals_figure(data.test, evaluation.predictions, title=title),
     }
     for name, fig in figures.items():
-        save_figure(fig, output_dir / f"{name}.png")
+        save_figure(fig, folder.figure(name))
         if logger is not None:
             logger.experiment.add_figure(f"test/{name}", fig)
 

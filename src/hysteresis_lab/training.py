@@ -24,6 +24,7 @@ from hysteresis_lab.errors import ConfigError, DivergedError
 from hysteresis_lab.models.interface import SystemModel
 from hysteresis_lab.models.registry import get_model_class
 from hysteresis_lab.models.settings import Stage, TrainingSettings
+from hysteresis_lab.run_folder import RunFolder
 from hysteresis_lab.trainer import TrainerSettings, build_trainer
 
 log = logging.getLogger(__name__)
@@ -255,7 +256,7 @@ def _fit_one_step(
     callbacks: list[Any] | None,
 ) -> tuple[Path | None, float]:
     """The study's training on the one-step error; the best checkpoint's path and loss."""
-    checkpoint = _best_checkpoint(output_dir / "checkpoints")
+    checkpoint = _best_checkpoint(output_dir / RunFolder.CHECKPOINTS)
     all_callbacks: list[Any] = [checkpoint, *(callbacks or [])]
     if logger is not None:
         all_callbacks.append(LearningRateMonitor(logging_interval="epoch"))

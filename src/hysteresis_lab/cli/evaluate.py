@@ -29,8 +29,9 @@ def run(cfg: DictConfig) -> dict:
     from hysteresis_lab.effects.augment import for_model
     from hysteresis_lab.evaluation.evaluate import evaluate_model
     from hysteresis_lab.evaluation.plots import loops_figure, residuals_figure, save_figure
-    from hysteresis_lab.evaluation.report import metrics_document, write_json
+    from hysteresis_lab.evaluation.report import metrics_document
     from hysteresis_lab.models.io import load_model, model_window
+    from hysteresis_lab.run_folder import RunFolder
 
     if OmegaConf.is_missing(cfg, "checkpoint") or not cfg.checkpoint:
         raise ConfigError(
@@ -43,7 +44,7 @@ def run(cfg: DictConfig) -> dict:
             f"no test file to evaluate on: data.test is empty (data={data_cfg.get('name')}). "
             "Fix: data.test=[new.csv] (a list of recordings to score)."
         )
-    output_dir = Path(HydraConfig.get().runtime.output_dir)
+    folder = RunFolder(Path(HydraConfig.get().runtime.output_dir))
     model = load_model(resolve_checkpoint(Path(str(cfg.checkpoint))))
     splits_cfg = data_cfg.get("splits") or {}
     if "train" in splits_cfg and not splits_cfg["train"] and data_cfg.get("test"):
@@ -70,24 +71,24 @@ def run(cfg: DictConfig) -> dict:
         train_seconds=0.0,
         extra={"checkpoint": str(cfg.checkpoint), "data": splits.name},
     )
-    write_json(document, output_dir / "metrics.json")
+    folder.write_metrics(document)
     if cfg.plots:
-        save_figure(
-            loops_figure(splits.test, evaluation.predictions), output_dir / "hysteresis_loops.png"
-        )
-        save_figure(
-            residuals_figure(splits.test, evaluation.predictions), output_dir / "residuals.png"
-        )
-    log.info("metrics written to %s", output_dir / "metrics.json")
+        save_figure(loops_figure(splits.test, evaluation.predictions),
+                    folder.figure("hysteresis_loops"))
+        save_figure(residuals_figure(splits.test, evaluation.predictions),
+                    folder.figure("residuals"))
+    log.info("metrics written to %s", folder.metrics)
     return document
 
 
 def resolve_checkpoint(path: Path) -> Path:
     """Accept a model file or a run folder that holds ``model.ckpt`` / ``model.skops``."""
+    from hysteresis_lab.run_folder import RunFolder
+
     if path.is_dir():
-        for name in ("model.ckpt", "model.skops"):
-            if (path / name).is_file():
-                return path / name
+        model_file = RunFolder(path).model_file()
+        if model_file is not None:
+            return model_file
         raise ConfigError(
             f"{path} holds no model.ckpt or model.skops. Fix: pass checkpoint=<run folder of "
             "hysteresis-lab-train> or the model file itself."

@@ -1,0 +1,111 @@
+"""The run folder: what one fit (``hysteresis-lab-train``, a paper model, a loop round) leaves
+on disk, named in one place.
+
+::
+
+    <run folder>/
+      model.ckpt | model.skops          the fitted model (a network | the SVM)
+      metrics.json                      scores per test recording, their mean, training time
+      fit_record.json                   what the fit depended on (`hysteresis_lab.fit_record`)
+      rejected_refit_model.*            a loop refit that lost on validation: its own model
+      rejected_refit_metrics.json       ... and its scores (``model.*`` holds its start)
+      hysteresis_loops.png, residuals.png
+      tensorboard/                      TensorBoard logs (``logger=none``: absent)
+      checkpoints/                      Lightning's best-epoch checkpoints of each stage
+
+`pipeline` writes it, the loop sets a losing refit aside in it, `hysteresis-lab-evaluate` and
+the benchmark scripts read it: all through `RunFolder`.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, ClassVar
+
+from hysteresis_lab.evaluation.report import write_json
+
+
+@dataclass(frozen=True)
+class RunFolder:
+    """The files of one run under ``path`` (see the module docstring)."""
+
+    path: Path
+
+    MODEL_STEM: ClassVar[str] = "model"
+    #: a network's checkpoint, then the SVM's file
+    MODEL_SUFFIXES: ClassVar[tuple[str, ...]] = (".ckpt", ".skops")
+    METRICS: ClassVar[str] = "metrics.json"
+    FIT_RECORD: ClassVar[str] = "fit_record.json"
+    REJECTED_REFIT_MODEL_STEM: ClassVar[str] = "rejected_refit_model"
+    REJECTED_REFIT_METRICS: ClassVar[str] = "rejected_refit_metrics.json"
+    TENSORBOARD: ClassVar[str] = "tensorboard"
+    CHECKPOINTS: ClassVar[str] = "checkpoints"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "path", Path(self.path))
+
+    # ------------------------------------------------------------------ paths
+    @property
+    def model_stem(self) -> Path:
+        """Where the model is saved, without its suffix (`hysteresis_lab.models.io`)."""
+        return self.path / self.MODEL_STEM
+
+    @property
+    def metrics(self) -> Path:
+        return self.path / self.METRICS
+
+    @property
+    def fit_record(self) -> Path:
+        return self.path / self.FIT_RECORD
+
+    @property
+    def rejected_refit_stem(self) -> Path:
+        """Where a losing refit's own model is saved, without its suffix."""
+        return self.path / self.REJECTED_REFIT_MODEL_STEM
+
+    @property
+    def rejected_refit_metrics(self) -> Path:
+        return self.path / self.REJECTED_REFIT_METRICS
+
+    def figure(self, name: str) -> Path:
+        """A figure of the run (``hysteresis_loops``, ``residuals``) as PNG."""
+        return self.path / f"{name}.png"
+
+    def model_file(self) -> Path | None:
+        """The saved model (``model.ckpt`` or ``model.skops``), None when there is none."""
+        return _first_existing(self.model_stem, self.MODEL_SUFFIXES)
+
+    def rejected_refit_model_file(self) -> Path | None:
+        """A losing refit's own model, None when the run kept its refit."""
+        return _first_existing(self.rejected_refit_stem, self.MODEL_SUFFIXES)
+
+    # ------------------------------------------------------------------ documents
+    def read_metrics(self) -> dict[str, Any]:
+        return json.loads(self.metrics.read_text())
+
+    def write_metrics(self, document: dict[str, Any]) -> None:
+        write_json(document, self.metrics)
+
+    def read_rejected_refit_metrics(self) -> dict[str, Any]:
+        return json.loads(self.rejected_refit_metrics.read_text())
+
+    def write_rejected_refit_metrics(self, document: dict[str, Any]) -> None:
+        write_json(document, self.rejected_refit_metrics)
+
+    def set_model_aside_as_rejected(self, model_path: Path) -> Path:
+        """Rename the run's model (``model_path``) and metrics to the rejected refit's names
+        (the loop's refit that validation refused); returns the model's new path."""
+        aside = self.rejected_refit_stem.with_suffix(Path(model_path).suffix)
+        Path(model_path).replace(aside)
+        self.metrics.replace(self.rejected_refit_metrics)
+        return aside
+
+
+def _first_existing(stem: Path, suffixes: tuple[str, ...]) -> Path | None:
+    for suffix in suffixes:
+        path = stem.with_suffix(suffix)
+        if path.is_file():
+            return path
+    return None
