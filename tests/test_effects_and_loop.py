@@ -25,7 +25,7 @@ from hysteresis_lab.signals import sine
 
 FS = 2000.0
 CATALOGUE = {"hysteresis", "creep", "resonance", "rate", "drift", "saturation", "dead_zone",
-             "backlash"}
+             "backlash", "overflow"}
 
 
 def sines() -> list[Recording]:
@@ -455,17 +455,22 @@ def test_full_and_cold_refits_run_end_to_end(setting, tmp_path):
     proc = run_app("loop", *data_overrides(train, tests), "model=ffnn", "loop.max_rounds=1",
                    setting, "loop.refit_lr_factors=[1.0]", "trainer.max_epochs=2",
                    "model.simulation_epochs=1", "trainer.enable_progress_bar=false", "logger=none",
-                   # the fixed scale under which this short fit leaves creep significant (with
-                   # the files' own statistics its residual holds hysteresis at p > alpha)
                    "data.scaling.mode=paper",
+                   # the slow sine chooses, the other is the test; this short fit's held-out
+                   # evidence is weak, so any positive score counts: a refit must run
+                   "data.diagnose=[sine_5]", "loop.min_score=0", "loop.alpha=0.5",
                    f"hydra.run.dir={tmp_path}/loop")
     assert proc.returncode == 0, proc.stderr[-3000:]
-    rounds = json.loads((tmp_path / "loop" / "loop_report.json").read_text())["rounds"]
-    added = rounds[0]["added"]  # creep is on and undeclared: the short fit leaves some
-    assert added in {"creep", "hysteresis", "backlash"}
+    report = json.loads((tmp_path / "loop" / "loop_report.json").read_text())
+    assert report["roles"]["diagnosis"] == ["sine_5"] and report["roles"]["test"] == ["sine_20"]
+    rounds = report["rounds"]
+    added = rounds[0]["added"]
+    assert added in set(available_effects()) - {"drift", "overflow"}  # an input operator
     assert rounds[1]["effects"] == [added]
     loss = rounds[1]["refit_validation_loss"]
-    assert ("rejected" in rounds[1]) is not (loss["refit"] < loss["start"])
+    # kept only when it beats its start in training and on the held-out validation stretch
+    held_out_better = rounds[1]["held_out"]["loss"] < rounds[0]["held_out"]["loss"]
+    assert ("rejected" in rounds[1]) is not (loss["refit"] < loss["start"] and held_out_better)
     round_0 = tmp_path / "loop" / "round_0"
     if setting == "loop.warm_start=false":  # no warm start: no refit rates, judged cold
         assert "refit_candidates" not in rounds[1] and "refit_lr" not in rounds[1]

@@ -71,7 +71,8 @@ def test_an_added_effect_block_starts_where_it_changes_nothing(tmp_path):
     L.seed_everything(0)
     plain = fit(build_model({"name": "linear"}, dm, trained_on={"fs": data.fs}), dm,
                 {**TRAINER, "max_epochs": 1}, tmp_path).model
-    effects = ["saturation", "dead_zone", "backlash", "hysteresis", "creep", "resonance"]
+    effects = ["saturation", "dead_zone", "backlash", "hysteresis", "creep", "resonance",
+               "overflow"]
     augmented, context = augment_splits(data, effects)
     dm_grown = WindowDataModule(augmented, scaling="paper")
     grown = build_model({"name": "linear", "effects": effects}, dm_grown,
@@ -90,6 +91,14 @@ def test_an_added_effect_block_starts_where_it_changes_nothing(tmp_path):
         assert max(np.max(np.abs(a - b)) for a, b in zip(after, before, strict=True)) > 1e-3, name
         with torch.no_grad():
             grown.input_blocks[name].weight.zero_()
+    with torch.no_grad():  # the output block acts after the dynamics: levels inside the range
+        grown.overflow.levels.copy_(torch.tensor([-0.1, 0.1]))
+        grown.overflow.weights.fill_(1.0)
+    clipped = free_run(grown, augmented.test, dm.window)
+    scale = float(grown.y_scale[0])
+    for rec, y in zip(augmented.test, clipped, strict=True):
+        assert np.max(y[dm.window.first_target:]) == pytest.approx(0.1 * scale)  # the level
+        assert np.max(rec.y) > 0.2 * scale
 
 
 def test_effects_without_a_block_are_refused():

@@ -148,3 +148,30 @@ class Backlash(Effect):
                 np.ascontiguousarray(x), self.fractions * ctx.u_amplitude[i]
             ),
         )
+
+
+class Overflow(Effect):
+    """Output saturation / overflow: the output cannot pass a level (a tank overflows, a
+    sensor or an amplifier stage clips), after the dynamics.
+
+    It has no input operators: a model carries it as an output block (``model=linear``:
+    ``y - w_hi relu(y - c_hi) + w_lo relu(c_lo - y)``). Its evidence is the model's own
+    free-run output beyond 70-95 % of its range on either side: a model that does not clip
+    overshoots where the system clips, so its residual follows those excesses.
+    """
+
+    name = "overflow"
+    description = "output saturation / overflow (the model's own output clipped near its extremes)"
+    block = "output"
+    fractions = np.array([0.7, 0.8, 0.9, 0.95])
+
+    def features(self, u: np.ndarray, ctx: FeatureContext) -> np.ndarray:
+        return np.zeros((len(u), 0))
+
+    def output_evidence(self, y_model: np.ndarray, span: tuple[float, float]) -> np.ndarray:
+        low, high = span
+        y = np.asarray(y_model, dtype=float).reshape(-1)
+        width = max(high - low, 1e-12)
+        upper = [np.maximum(y - (low + f * width), 0.0) for f in self.fractions]
+        lower = [np.minimum(y - (high - f * width), 0.0) for f in self.fractions]
+        return np.nan_to_num(np.column_stack(upper + lower))

@@ -2,7 +2,7 @@
 by the effect catalogue.
 
     u -> [saturation] -> [dead zone] -> [backlash] -> [hysteresis] -> [creep]
-      -> dynamics (+ [resonance] in parallel) -> + offset -> y
+      -> dynamics (+ [resonance] in parallel) -> + offset -> [overflow] -> y
 
 The dynamics are an output-error model of ``model.order`` poles, stable for any parameter
 value (`hysteresis_lab.blocks.StableSections`), started from a least-squares ARX fit and
@@ -15,7 +15,10 @@ refit that adds an effect starts exactly from the model it grows:
 * ``dead_zone``: ``v - w clip(v, ±c)``; ``backlash``: ``v + w (play_c(v) - v)``;
 * ``hysteresis``: ``v - w h(v)``, ``h`` the Bouc–Wen state (the grey-box's cell);
 * ``creep``: a first-order filter bank (the grey-box's block), weights from zero;
-* ``resonance``: a second-order section in parallel with the dynamics, numerator from zero.
+* ``resonance``: a second-order section in parallel with the dynamics, numerator from zero;
+* ``overflow``: ``y - w_hi relu(y - c_hi) + w_lo relu(c_lo - y)`` on the output, after the
+  dynamics (a tank that overflows, a sensor that clips), levels from the training output's
+  extremes.
 """
 
 from __future__ import annotations
@@ -37,7 +40,8 @@ from hysteresis_lab.models.physical_chain import PhysicalChainModule
 log = logging.getLogger(__name__)
 
 #: catalogue effects the linear model carries as blocks, in physical order
-LINEAR_EFFECTS = ("saturation", "dead_zone", "backlash", "hysteresis", "creep", "resonance")
+LINEAR_EFFECTS = ("saturation", "dead_zone", "backlash", "hysteresis", "creep", "resonance",
+                  "overflow")
 
 
 class _Level(nn.Module):
@@ -84,6 +88,22 @@ class HysteresisCell(nn.Module):
         x, _ = self.bouc_wen(v)
         h = self.bouc_wen.d * v - x
         return v - self.weight * h
+
+
+class Overflow(nn.Module):
+    """Output saturation after the dynamics: ``y - w_hi relu(y - c_hi) + w_lo relu(c_lo - y)``
+    (``w = 1``: a hard clip at ``c``), the weights from zero, the levels from ``low`` and
+    ``high`` (the output over its scale)."""
+
+    def __init__(self, low: float, high: float) -> None:
+        super().__init__()
+        self.weights = nn.Parameter(torch.zeros(2, dtype=torch.float64))  # (low, high)
+        self.levels = nn.Parameter(torch.tensor([low, high], dtype=torch.float64))
+
+    def forward(self, y: torch.Tensor) -> torch.Tensor:
+        low, high = self.levels[0], self.levels[1]
+        return (y - self.weights[1] * torch.relu(y - high)
+                + self.weights[0] * torch.relu(low - y))
 
 
 class LinearModel(PhysicalChainModule):
@@ -143,6 +163,17 @@ class LinearModel(PhysicalChainModule):
                 self.resonance.numerators.zero_()
                 self.resonance.raw_denominators[:, 1] = 2.0  # a lightly damped pair to start
         self.offset = nn.Parameter(torch.zeros((), dtype=torch.float64))
+        self.overflow = Overflow(*self._output_extremes()) if "overflow" in effects else None
+
+    def _output_extremes(self) -> tuple[float, float]:
+        """The training output's lowest and highest value over its scale (the overflow
+        block's starting levels; the scaled output's ±3 without a record of them)."""
+        context = self.hparams.get("feature_context")
+        ctx = context_from_dict(context) if context is not None else None
+        scale, offset = float(self.y_scale[0]), float(self.y_offset[0])
+        if ctx is None or ctx.y_low is None or ctx.y_high is None or scale <= 0:
+            return (offset - 3.0 * scale) / scale, (offset + 3.0 * scale) / scale
+        return float(ctx.y_low[0]) / scale, float(ctx.y_high[0]) / scale
 
     def _input_amplitude(self) -> float:
         """The measured input's amplitude over its scale (for the levels of input blocks)."""
@@ -162,6 +193,8 @@ class LinearModel(PhysicalChainModule):
         y = self.dynamics(x)
         if self.resonance is not None:
             y = y + self.resonance(x)
+        if self.overflow is not None:  # on the output itself, offset included
+            y = self.overflow(y + self.offset) - self.offset
         return y
 
     def initialise_from_data(self, u: np.ndarray, y: np.ndarray, fs: float) -> None:
@@ -191,4 +224,7 @@ class LinearModel(PhysicalChainModule):
                 out["creep"] = self.creep.export()
             if self.resonance is not None:
                 out["resonance"] = self.resonance.export()
+            if self.overflow is not None:
+                out["overflow"] = {k: v.detach().cpu().numpy().tolist()
+                                   for k, v in self.overflow.named_parameters()}
         return out
