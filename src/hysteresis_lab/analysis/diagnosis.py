@@ -361,11 +361,18 @@ def _not_tested(
     return EffectScore(name, 0.0, 1.0, False, evidence, predictable, tested=False)
 
 
+def _has_state_evidence(effect: Effect) -> bool:
+    """Whether the effect also acts inside the dynamics (`Effect.state_evidence`)."""
+    return type(effect).state_evidence is not Effect.state_evidence
+
+
 def _output_evidence(
-    effect: Effect, model_outputs: Sequence[np.ndarray], outputs: Sequence[int]
+    effect: Effect, model_outputs: Sequence[np.ndarray], outputs: Sequence[int],
+    state: bool = False,
 ) -> list[np.ndarray]:
-    """An output-side effect's signals per recording from the model's free-run output; the
-    span its levels are set in is that output's over all the recordings (one law)."""
+    """An output-side effect's signals per recording from the model's free-run output
+    (``state``: its state-side ones); the span its levels are set in is that output's over
+    all the recordings (one law)."""
     spans = {}
     for j in set(outputs):
         pooled = np.concatenate([
@@ -374,7 +381,8 @@ def _output_evidence(
         ])
         pooled = pooled[np.isfinite(pooled)]
         spans[j] = (float(pooled.min()), float(pooled.max())) if len(pooled) else (0.0, 1.0)
-    return [effect.output_evidence(np.asarray(y, dtype=float).reshape(-1), spans[o])
+    read = effect.state_evidence if state else effect.output_evidence
+    return [read(np.asarray(y, dtype=float).reshape(-1), spans[o])
             for y, o in zip(model_outputs, outputs, strict=True)]
 
 
@@ -447,6 +455,10 @@ def diagnose(
                                    [outputs[i] for i in tested])
         else:
             raw = [effect.evidence(recordings[i].u, context) for i in tested]
+            if model_outputs is not None and _has_state_evidence(effect):
+                state = _output_evidence(effect, [model_outputs[i] for i in tested],
+                                         [outputs[i] for i in tested], state=True)
+                raw = [np.column_stack([r, x]) for r, x in zip(raw, state, strict=True)]
         evidence_signals = [
             _centre(_lagged_rows(signal, p.keep, own_lags)) * p.weight
             for signal, p in zip(raw, shown, strict=True)

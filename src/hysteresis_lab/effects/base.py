@@ -48,6 +48,12 @@ class Effect:
     def evidence(self, u: np.ndarray, ctx: FeatureContext) -> np.ndarray:
         return self.features(u, ctx)
 
+    def state_evidence(self, y_model: np.ndarray, span: tuple[float, float]) -> np.ndarray | None:
+        """Candidate signals of the effect acting inside the dynamics, from the model's own
+        free-run output (a hysteretic restoring force depends on the displacement's
+        history); None: the effect has none. They join `evidence` in the diagnosis."""
+        return None
+
     def output_evidence(self, y_model: np.ndarray, span: tuple[float, float]) -> np.ndarray:
         """An output-side effect's candidate signals from the model's own free-run output
         ``y_model`` (N,), ``span`` its (lowest, highest) value over the recordings diagnosed

@@ -19,7 +19,9 @@ def _per_input(u: np.ndarray, make) -> np.ndarray:
 
 
 class Hysteresis(Effect):
-    """Rate-independent hysteresis memory: Prandtl–Ishlinskii play operators (8 thresholds)."""
+    """Rate-independent hysteresis memory: Prandtl–Ishlinskii play operators (8 thresholds)
+    of the input, and of the model's own output as state evidence (in the dynamics'
+    feedback)."""
 
     name = "hysteresis"
     description = "hysteresis memory (Prandtl-Ishlinskii play operators)"
@@ -32,6 +34,14 @@ class Hysteresis(Effect):
                 np.ascontiguousarray(x), self.fractions * ctx.u_amplitude[i]
             ),
         )
+
+
+    def state_evidence(self, y_model: np.ndarray, span: tuple[float, float]) -> np.ndarray:
+        """Play operators of the model's output (thresholds 2-40 % of its span): hysteresis
+        in the feedback of the dynamics, such as a Bouc–Wen restoring force."""
+        width = max(span[1] - span[0], 1e-12)
+        y = np.ascontiguousarray(np.nan_to_num(np.asarray(y_model, dtype=float).reshape(-1)))
+        return play_operators(y, np.array([0.02, 0.05, 0.1, 0.2, 0.4]) * width)
 
 
 class Creep(Effect):

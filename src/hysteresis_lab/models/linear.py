@@ -106,6 +106,21 @@ class Overflow(nn.Module):
                 + self.weights[0] * torch.relu(low - y))
 
 
+class StateHysteresis(nn.Module):
+    """Hysteresis in the dynamics' feedback (a hysteretic restoring force, as in the
+    Bouc–Wen oscillator), to first order: play operators of the linear response ``y`` at
+    ``thresholds`` (the output over its scale), weighted from zero, are subtracted from the
+    dynamics' input: ``x - w @ play(y)``."""
+
+    def __init__(self, thresholds: Sequence[float]) -> None:
+        super().__init__()
+        self.register_buffer("thresholds", torch.as_tensor(thresholds, dtype=torch.float64))
+        self.weights = nn.Parameter(torch.zeros(len(thresholds), dtype=torch.float64))
+
+    def forward(self, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+        return x - play(y, self.thresholds) @ self.weights
+
+
 class LinearModel(PhysicalChainModule):
     """Stable linear dynamics with the declared effects' blocks (see the module docstring)."""
 
@@ -164,6 +179,11 @@ class LinearModel(PhysicalChainModule):
                 self.resonance.raw_denominators[:, 1] = 2.0  # a lightly damped pair to start
         self.offset = nn.Parameter(torch.zeros((), dtype=torch.float64))
         self.overflow = Overflow(*self._output_extremes()) if "overflow" in effects else None
+        self.state_hysteresis = None
+        if "hysteresis" in effects:
+            low, high = self._output_extremes()
+            self.state_hysteresis = StateHysteresis(
+                [f * (high - low) for f in (0.02, 0.05, 0.1, 0.2, 0.4)])
 
     def _output_extremes(self) -> tuple[float, float]:
         """The training output's lowest and highest value over its scale (the overflow
@@ -191,6 +211,8 @@ class LinearModel(PhysicalChainModule):
         if self.creep is not None:
             x = self.creep(x)
         y = self.dynamics(x)
+        if self.state_hysteresis is not None:  # the linear response's hysteresis fed back
+            y = self.dynamics(self.state_hysteresis(x, y))
         if self.resonance is not None:
             y = y + self.resonance(x)
         if self.overflow is not None:  # on the output itself, offset included
