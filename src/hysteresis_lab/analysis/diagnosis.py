@@ -354,8 +354,9 @@ def _not_tested(
     elif why is None:
         why = (
             "no recording diagnosed holds the input constant; on a moving input a trend cannot be "
-            "told from slow input-driven error. Fix: add a recording with the input held (on "
-            "the simulator: data.splits.test_hold_s=10)"
+            "told from slow input-driven error. Fix: diagnose a recording with the input held "
+            "(data.diagnose=[...]; on the simulator: data.splits.test_hold_s=10 "
+            "data.diagnose=[hold_10s])"
         )
     evidence = f"{description}: not tested: {why}"
     return EffectScore(name, 0.0, 1.0, False, evidence, predictable, tested=False)
