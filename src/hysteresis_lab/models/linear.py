@@ -220,19 +220,33 @@ class LinearModel(PhysicalChainModule):
         return y
 
     def initialise_from_data(self, u: np.ndarray, y: np.ndarray, fs: float) -> None:
-        """The dynamics from a least-squares ARX fit (``order`` poles, ``delay``) and the
-        output offset, on a training recording (physical units, 1-D)."""
-        v = u / float(self.u_scale[0])
+        """The dynamics from a least-squares ARX fit (up to ``order`` poles, ``delay``) and
+        the output offset, on a training recording (physical units, 1-D). Every order from
+        1 to ``order`` is fitted and simulated from rest; ``order`` starts unless its free run
+        is further from the recording than its mean, then the order that simulates best
+        does: on data that excite few frequencies (a single sine) a high-order ARX is not
+        identified and its free run can be far off."""
+        v = torch.as_tensor(u[None] / float(self.u_scale[0]), dtype=torch.float64)
         y_s = y / float(self.y_scale[0])
-        order, delay = self.hparams.order, self.hparams.delay
-        nb = max(1, order - max(delay, 1) + 1)
-        b, a = arx_least_squares(v, y_s, na=order, nb=nb, nk=delay)
+        delay = self.hparams.delay
+        fits = []
+        for order in range(1, self.hparams.order + 1):
+            nb = max(1, order - max(delay, 1) + 1)
+            b, a = arx_least_squares(v[0].numpy(), y_s, na=order, nb=nb, nk=delay)
+            self.dynamics.set_transfer_function(b, a)
+            with torch.no_grad():
+                base = self.chain(v)[0].numpy()
+            error = float(np.mean((y_s - base - np.mean(y_s - base)) ** 2))
+            fits.append((error if np.isfinite(error) else np.inf, order, nb, b, a))
+        full = fits[-1]  # a start that simulates worse than the mean is no start
+        _, order, nb, b, a = full if full[0] < np.var(y_s) else min(fits, key=lambda f: f[0])
         self.dynamics.set_transfer_function(b, a)
         with torch.no_grad():
-            base = self.chain(torch.as_tensor(v[None], dtype=torch.float64))[0].numpy()
+            base = self.chain(v)[0].numpy()
             self.offset.fill_(float(np.mean(y_s - base)))
-        log.info("linear start: ARX(%d, %d, %d) by least squares, poles |p| <= %.4f", order, nb,
-                 delay, float(np.max(np.abs(np.roots(a)))) if order else 0.0)
+        log.info("linear start: ARX(%d, %d, %d) by least squares (model.order=%d), poles "
+                 "|p| <= %.4f", order, nb, delay, self.hparams.order,
+                 float(np.max(np.abs(np.roots(a)))))
 
     def physical_parameters(self) -> dict[str, Any]:
         """Every block's current parameters (for reports)."""
