@@ -15,6 +15,7 @@ import argparse
 import datetime
 import json
 import logging
+import shutil
 import subprocess
 import sys
 import time
@@ -36,6 +37,8 @@ log = logging.getLogger("loop_measured")
 
 def run_one(name: str, folder: Path) -> dict:
     """Run the loop on data set ``name`` into ``folder``; its report and wall time."""
+    if folder.exists():  # a fresh run: the loop would reuse the fits it finds there
+        shutil.rmtree(folder)
     command = ["hysteresis-lab-loop", f"data={name}", *QUIET, f"hydra.run.dir={folder}"]
     start = time.perf_counter()
     proc = subprocess.run([sys.executable, "-m", "hysteresis_lab.cli.loop", *command[1:]],
