@@ -43,7 +43,6 @@ from hysteresis_lab.evaluation.plots import loops_figure, save_figure
 from hysteresis_lab.evaluation.predict import free_run
 from hysteresis_lab.evaluation.report import write_json
 from hysteresis_lab.models.base import NarxModule
-from hysteresis_lab.models.physical_chain import PhysicalChainModule
 from hysteresis_lab.models.registry import get_model_class
 from hysteresis_lab.pipeline import (
     REJECTED_REFIT_METRICS,
@@ -194,7 +193,7 @@ def run_loop(
             output_dir / f"round_{number}",
             _refit_rates(model_cfg, settings) if warm_start is not None else [None],
             warm_start=warm_start,
-            refit=_refit_mode(settings.refit, trying, start["model"]),
+            refit=_refit_mode(settings.refit, trying),
         )
         if trying is not None and warm_start is None:
             result = judge_cold_refit(result, kept[-1][0], settings.min_refit_gain)
@@ -567,20 +566,12 @@ def _refit_loss(result: RunResult) -> float:
     return float(loss["refit"]) if loss else float("inf")
 
 
-def _refit_mode(refit: str, added: str | None, model_name: str) -> str:
-    """``refit``, except where the whole model refits with the added effect: a physical
-    model (`PhysicalChainModule`: the linear model, the grey-box), whose few parameters are
-    its dynamics, which must give the effect its share (they were fitted to stand in for
-    it); and an effect that enters a network's input block (it changes what the fitted
-    network sees) or acts on the output (the gain a fit lowered to meet a clipped output
-    comes back under the clip)."""
-    if refit != "new_inputs" or added is None:
-        return refit
-    if issubclass(get_model_class(model_name), PhysicalChainModule):
-        log.info("'%s' added to a physical model: all its parameters refit", added)
-        return "full"
-    block = get_effect(added).block
-    if block in ("input", "output"):
+def _refit_mode(refit: str, added: str | None) -> str:
+    """``refit``, except for an effect that enters through the input block (it changes what
+    the fitted network sees, the corrected input) or acts on the output (the gain a fit
+    lowered to meet a clipped output comes back under the clip): the model refits whole."""
+    block = get_effect(added).block if added is not None else None
+    if refit == "new_inputs" and block in ("input", "output"):
         log.info("'%s' acts on the model's %s: the whole model refits", added, block)
         return "full"
     return refit
