@@ -70,6 +70,7 @@ def test_overflow_is_scored_from_the_models_own_output():
     assert not overflow.tested and "no free-run prediction" in overflow.evidence
 
 
+@pytest.mark.slow
 def test_the_loop_names_overflow_and_its_refit_cuts_the_free_run_error(tmp_path):
     """From model=linear effects=[] on a system whose output clips: the held-out residual
     names overflow, the refit carries it as an output block after the dynamics, and the
@@ -150,6 +151,7 @@ def test_a_free_run_that_leaves_the_output_range_diverges():
     assert _diverges(y, np.where(np.arange(200)[:, None] == 5, np.nan, y))
 
 
+@pytest.mark.slow
 def test_the_default_loop_starts_linear_and_names_its_start(tmp_path):
     """`hysteresis-lab-loop` with no model starts from model=linear effects=[]; the report
     names the start and which recordings played which role."""
