@@ -35,7 +35,6 @@ class Hysteresis(Effect):
             ),
         )
 
-
     def state_evidence(self, y_model: np.ndarray, span: tuple[float, float]) -> np.ndarray:
         """Play operators of the model's output (thresholds 2-40 % of its span): hysteresis
         in the feedback of the dynamics, such as a Bouc–Wen restoring force."""

@@ -13,7 +13,9 @@ refit that adds an effect starts exactly from the model it grows:
 
 * ``saturation``: ``v - w (v - clip(v, ±c))``, amplifier clipping ahead of the actuator;
 * ``dead_zone``: ``v - w clip(v, ±c)``; ``backlash``: ``v + w (play_c(v) - v)``;
-* ``hysteresis``: ``v - w h(v)``, ``h`` the Bouc–Wen state (the grey-box's cell);
+* ``hysteresis``: ``v - w h(v)``, ``h`` the Bouc–Wen state (the grey-box's cell), and
+  inside the dynamics' feedback to first order: play operators of the linear response,
+  weighted from zero, subtracted from the dynamics' input (a hysteretic restoring force);
 * ``creep``: a first-order filter bank (the grey-box's block), weights from zero;
 * ``resonance``: a second-order section in parallel with the dynamics, numerator from zero;
 * ``overflow``: ``y - w_hi relu(y - c_hi) + w_lo relu(c_lo - y)`` on the output, after the
