@@ -18,7 +18,10 @@ each output gets coefficients of its own (one law per output, shared by the reco
 An output-side effect (``Effect.block == "output"``: overflow, output clipping) acts after the
 dynamics on what the model puts out, so its candidate signals come from the model's own
 free-run output (``predictions``), not from the input: a model that does not clip overshoots
-where the system clips, and its residual follows those excesses.
+where the system clips, and its residual follows those excesses. Their baseline also holds
+the model's output (a gain error is no overflow). An effect that also acts inside the
+dynamics (`Effect.state_evidence`: hysteresis in the feedback, as a Bouc–Wen restoring
+force) adds signals of the model's output to its input-side ones.
 
 Each effect is tested on the recordings that can show it. An input-dependent effect: those
 whose input moves. An input-independent one (drift): those that hold the input constant — on
