@@ -73,10 +73,11 @@ CHAIN_CASES = {
     "greybox_residual": ({"name": "greybox", "residual_neurons": 4}, 1, 1),
     "linear": ({"name": "linear"}, 1, 1),
     "linear_effects": ({"name": "linear", "effects": ["saturation", "dead_zone", "backlash",
-                                                      "hysteresis", "creep", "resonance"]}, 1, 1),
+                                                      "hysteresis", "creep", "resonance",
+                                                      "overflow"]}, 1, 1),
     "linear_mimo": ({"name": "linear", "order": 3, "delay": 0}, 3, 2),
-    "linear_mimo_effects": ({"name": "linear", "order": 2, "effects": ["hysteresis", "creep"]},
-                            2, 2),
+    "linear_mimo_effects": ({"name": "linear", "order": 2,
+                             "effects": ["hysteresis", "creep", "overflow"]}, 2, 2),
 }
 
 

@@ -71,7 +71,8 @@ def test_an_added_effect_block_starts_where_it_changes_nothing(tmp_path):
     L.seed_everything(0)
     plain = fit(build_model({"name": "linear"}, dm, trained_on={"fs": data.fs}), dm,
                 {**TRAINER, "max_epochs": 1}, tmp_path).model
-    effects = ["saturation", "dead_zone", "backlash", "hysteresis", "creep", "resonance"]
+    effects = ["saturation", "dead_zone", "backlash", "hysteresis", "creep", "resonance",
+               "overflow"]
     augmented, context = augment_splits(data, effects)
     dm_grown = WindowDataModule(augmented, scaling="paper")
     grown = build_model({"name": "linear", "effects": effects}, dm_grown,
@@ -90,6 +91,14 @@ def test_an_added_effect_block_starts_where_it_changes_nothing(tmp_path):
         assert max(np.max(np.abs(a - b)) for a, b in zip(after, before, strict=True)) > 1e-3, name
         with torch.no_grad():
             grown.input_blocks[0][name].weight.zero_()
+    with torch.no_grad():  # the output block acts after the dynamics: levels inside the range
+        grown.overflow[0].levels.copy_(torch.tensor([-0.1, 0.1]))
+        grown.overflow[0].weights.fill_(1.0)
+    clipped = free_run(grown, augmented.test, dm.window)
+    scale = float(grown.y_scale[0])
+    for rec, y in zip(augmented.test, clipped, strict=True):
+        assert np.max(y[dm.window.first_target:]) == pytest.approx(0.1 * scale)  # the level
+        assert np.max(rec.y) > 0.2 * scale
 
 
 def test_effects_without_a_block_are_refused():
@@ -148,3 +157,21 @@ def test_a_model_saved_in_the_single_channel_layout_loads():
     fresh.load_state_dict(old)
     assert float(fresh.offset[0]) == 0.25
     torch.testing.assert_close(fresh.dynamics[0][0].numerators, model.dynamics[0][0].numerators)
+
+
+def test_a_single_sine_starts_from_an_arx_order_it_identifies():
+    """P-885's one 1 Hz sine does not identify an order-6 ARX (its free run from rest lay at
+    74 um on a ±22 um record): the start falls back to the order that simulates best, and
+    its free run stays within the output's spread."""
+    from hysteresis_lab.data.benchmarks import piezo_p885
+
+    data = piezo_p885()
+    dm = WindowDataModule(data, scaling="standard")
+    dm.setup()
+    model = build_model({"name": "linear", "order": 6}, dm, trained_on={"fs": data.fs})
+    train = data.train[0]
+    model.initialise_from_data(train.u[:, 0], train.y[:, 0], train.fs)
+    predicted = free_run(model, data.test, dm.window)[0]
+    ft = dm.window.first_target
+    rmse = np.sqrt(np.mean((predicted[ft:] - data.test[0].y[ft:]) ** 2))
+    assert rmse < 0.5 * np.std(data.test[0].y)

@@ -15,6 +15,14 @@ weighs the same, however long; the score is the mean over recordings of the held
 A recording with several outputs (a MIMO system) counts as one recording per output, and
 each output gets coefficients of its own (one law per output, shared by the recordings).
 
+An output-side effect (``Effect.block == "output"``: overflow, output clipping) acts after the
+dynamics on what the model puts out, so its candidate signals come from the model's own
+free-run output (``predictions``), not from the input: a model that does not clip overshoots
+where the system clips, and its residual follows those excesses. Their baseline also holds
+the model's output (a gain error is no overflow). An effect that also acts inside the
+dynamics (`Effect.state_evidence`: hysteresis in the feedback, as a Bouc–Wen restoring
+force) adds signals of the model's output to its input-side ones.
+
 Each effect is tested on the recordings that can show it. An input-dependent effect: those
 whose input moves. An input-independent one (drift): those that hold the input constant — on
 a moving input a trend per recording cannot be told apart from slow input-driven error (a
@@ -44,7 +52,7 @@ import numpy as np
 from scipy import stats
 
 from hysteresis_lab.data.recording import Recording
-from hysteresis_lab.effects.base import FeatureContext
+from hysteresis_lab.effects.base import Effect, FeatureContext
 from hysteresis_lab.effects.registry import available_effects, get_effect
 
 log = logging.getLogger(__name__)
@@ -95,6 +103,9 @@ class _Prepared:
     base: np.ndarray
     keep: np.ndarray  # the rows kept (finite residual, subsampled)
     weight: float
+    #: the model's free run (lagged, de-meaned, scaled), in the baseline of output-side
+    #: effects only (None: not given)
+    model_output: np.ndarray | None = None
 
 
 @dataclass
@@ -107,7 +118,14 @@ class _Block:
 
 
 def _centre(x: np.ndarray) -> np.ndarray:
-    return x - x.mean(axis=0)
+    """``x`` less its mean; a column that is constant (to round-off: a play operator the
+    recording never moves) becomes exactly zero, not round-off that standardising would
+    blow up."""
+    centred = x - x.mean(axis=0)
+    if centred.ndim == 2 and len(centred):
+        span = np.ptp(x, axis=0)
+        centred[:, span <= 1e-12 * np.max(np.abs(x), axis=0)] = 0.0
+    return centred
 
 
 def _lagged_rows(x: np.ndarray, keep: np.ndarray, lags: Sequence[int]) -> np.ndarray:
@@ -129,19 +147,26 @@ def _prepare(
     max_points: int,
     lags: Sequence[int],
     held: bool = False,
+    model_output: np.ndarray | None = None,
 ) -> _Prepared:
     """``held``: the input is constant, so the baseline has nothing to regress on and gets no
-    columns (de-meaned, they would be round-off, which standardising would blow up)."""
-    e = np.asarray(residual, dtype=float)[:, 0]  # one output's (see `_one_output_each`)
-    keep = np.flatnonzero(np.isfinite(e))
+    columns (de-meaned, they would be round-off, which standardising would blow up).
+    ``model_output``: the model's free run, which joins the baseline of output-side effects
+    (a gain or level error of the model's output is no overflow)."""
+    e_all = np.asarray(residual, dtype=float)[:, 0]  # one output's (see `_one_output_each`)
+    keep = np.flatnonzero(np.isfinite(e_all))
     keep = keep[:: max(1, len(keep) // max_points)]
-    e = _centre(e[keep])
+    e = _centre(e_all[keep])
     weight = 1.0 / (float(np.sqrt(e @ e)) or 1.0)
     if held:
         return _Prepared(e * weight, np.empty((len(keep), 0)), keep, weight)
     base = [recording.u] + [get_effect(name).features(recording.u, context) for name in declared]
     design = _centre(_lagged_rows(np.column_stack(base), keep, lags))
-    return _Prepared(e * weight, design * weight, keep, weight)
+    output = None
+    if model_output is not None:
+        y_model = np.nan_to_num(np.asarray(model_output, dtype=float).reshape(len(e_all), -1))
+        output = _centre(_lagged_rows(y_model, keep, lags)) * weight
+    return _Prepared(e * weight, design * weight, keep, weight, output)
 
 
 def evidence_lags(nb: int) -> tuple[int, ...]:
@@ -323,18 +348,46 @@ def _holds_input(recording: Recording, context: FeatureContext) -> bool:
     return bool(np.all(span <= HELD_SPAN * np.maximum(context.u_amplitude, 1e-12)))
 
 
-def _not_tested(name: str, description: str, predictable: bool) -> EffectScore:
-    """The entry of an effect no recording can show."""
-    if predictable:
-        why = "no test recording moves the input"
-    else:
+def _not_tested(
+    name: str, description: str, predictable: bool, why: str | None = None
+) -> EffectScore:
+    """The entry of an effect no recording can show (``why``: the reason, if not the input)."""
+    if why is None and predictable:
+        why = "no recording diagnosed moves the input"
+    elif why is None:
         why = (
-            "no test recording holds the input constant; on a moving input a trend cannot be "
-            "told from slow input-driven error. Fix: add a recording with the input held (on "
-            "the simulator: data.splits.test_hold_s=10)"
+            "no recording diagnosed holds the input constant; on a moving input a trend cannot be "
+            "told from slow input-driven error. Fix: diagnose a recording with the input held "
+            "(data.diagnose=[...]; on the simulator: data.splits.test_hold_s=10 "
+            "data.diagnose=[hold_10s])"
         )
     evidence = f"{description}: not tested: {why}"
     return EffectScore(name, 0.0, 1.0, False, evidence, predictable, tested=False)
+
+
+def _has_state_evidence(effect: Effect) -> bool:
+    """Whether the effect also acts inside the dynamics (`Effect.state_evidence`)."""
+    return type(effect).state_evidence is not Effect.state_evidence
+
+
+def _output_evidence(
+    effect: Effect, model_outputs: Sequence[np.ndarray], outputs: Sequence[int],
+    state: bool = False,
+) -> list[np.ndarray]:
+    """An output-side effect's signals per recording from the model's free-run output
+    (``state``: its state-side ones); the span its levels are set in is that output's over
+    all the recordings (one law)."""
+    spans = {}
+    for j in set(outputs):
+        pooled = np.concatenate([
+            np.asarray(y, dtype=float).reshape(-1)
+            for y, o in zip(model_outputs, outputs, strict=True) if o == j
+        ])
+        pooled = pooled[np.isfinite(pooled)]
+        spans[j] = (float(pooled.min()), float(pooled.max())) if len(pooled) else (0.0, 1.0)
+    read = effect.state_evidence if state else effect.output_evidence
+    return [read(np.asarray(y, dtype=float).reshape(-1), spans[o])
+            for y, o in zip(model_outputs, outputs, strict=True)]
 
 
 def diagnose(
@@ -349,10 +402,14 @@ def diagnose(
     max_points: int = 20_000,
     lags: Sequence[int] = (0,),
     test: str = "pooled",
+    predictions: list[np.ndarray] | None = None,
 ) -> list[EffectScore]:
     """Score every candidate effect not yet declared; best first. ``lags``: delays (samples)
     with which the baseline and the input-dependent candidates enter (see `evidence_lags`);
-    ``test``: how significance is tested, one of `TESTS` (see the module docstring)."""
+    ``test``: how significance is tested, one of `TESTS` (see the module docstring);
+    ``predictions``: the model's free-run output per recording (``residuals`` is the
+    measurement minus it), the evidence of output-side effects (without it they are
+    reported as not tested)."""
     if not lags or min(lags) < 0:
         raise ValueError(f"lags must be non-negative sample delays, got {list(lags)}.")
     if test not in TESTS:
@@ -360,13 +417,17 @@ def diagnose(
     if test == "per_recording":
         folds = max(folds, BLOCKS_PER_RECORDING)
     names = [n for n in (candidates or available_effects()) if n not in declared]
+    model_outputs = (
+        _one_output_each(recordings, predictions)[1] if predictions is not None else None
+    )
     recordings, residuals, outputs = _one_output_each(recordings, residuals)
     held = [_holds_input(rec, context) for rec in recordings]
     prepared = [
-        _prepare(rec, res, context, declared, max_points, lags, hold)
-        for rec, res, hold in zip(recordings, residuals, held, strict=True)
+        _prepare(rec, res, context, declared, max_points, lags, hold,
+                 None if model_outputs is None else model_outputs[i])
+        for i, (rec, res, hold) in enumerate(zip(recordings, residuals, held, strict=True))
     ]
-    baselines: dict[tuple[int, ...], tuple[list[np.ndarray], list[_Block]]] = {}
+    baselines: dict[tuple, tuple[list[np.ndarray], list[_Block]]] = {}
     results = []
     for name in names:
         effect = get_effect(name)
@@ -377,18 +438,34 @@ def diagnose(
             continue
         shown = [prepared[i] for i in tested]
         shown_names = [recordings[i].name for i in tested]
-        if tested not in baselines:
-            base = _standardised(_in_groups([p.base for p in shown], [outputs[i] for i in tested]))
-            baselines[tested] = base, _blocks(shown, base, folds)
-            if test == "per_recording":
-                _warn_too_short(baselines[tested][1], shown_names, alpha)
-        base, base_blocks = baselines[tested]
+        key = (tested, effect.block == "output")
+        if key not in baselines:
+            columns = [p.base if not key[1] or p.model_output is None
+                       else np.column_stack([p.base, p.model_output]) for p in shown]
+            base = _standardised(_in_groups(columns, [outputs[i] for i in tested]))
+            baselines[key] = base, _blocks(shown, base, folds)
+            if test == "per_recording" and not key[1]:
+                _warn_too_short(baselines[key][1], shown_names, alpha)
+        base, base_blocks = baselines[key]
         # an input-independent trend gains nothing from delayed copies of itself
         own_lags = lags if effect.predictable else (0,)
+        if effect.block == "output":
+            if model_outputs is None:
+                results.append(_not_tested(name, effect.description, True, why=(
+                    "acts on the model's output: no free-run prediction was given to read it from"
+                )))
+                continue
+            raw = _output_evidence(effect, [model_outputs[i] for i in tested],
+                                   [outputs[i] for i in tested])
+        else:
+            raw = [effect.evidence(recordings[i].u, context) for i in tested]
+            if model_outputs is not None and _has_state_evidence(effect):
+                state = _output_evidence(effect, [model_outputs[i] for i in tested],
+                                         [outputs[i] for i in tested], state=True)
+                raw = [np.column_stack([r, x]) for r, x in zip(raw, state, strict=True)]
         evidence_signals = [
-            _centre(_lagged_rows(effect.evidence(recordings[i].u, context), p.keep, own_lags))
-            * p.weight
-            for i, p in zip(tested, shown, strict=True)
+            _centre(_lagged_rows(signal, p.keep, own_lags)) * p.weight
+            for signal, p in zip(raw, shown, strict=True)
         ]
         groups = [outputs[i] for i in tested] if effect.predictable else list(range(len(tested)))
         signals = _standardised(_in_groups(evidence_signals, groups))

@@ -30,14 +30,17 @@ import numpy as np
 from hysteresis_lab import fit_record
 from hysteresis_lab.analysis.diagnosis import TESTS, EffectScore, diagnose, evidence_lags
 from hysteresis_lab.analysis.excitation import operator_excitation
+from hysteresis_lab.analysis.loop_data import LoopData, Stretch, loop_data
 from hysteresis_lab.analysis.report import diagnostics_figure, residual_analysis
+from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.splits import DatasetSplits
-from hysteresis_lab.effects.augment import feature_context
+from hysteresis_lab.effects.augment import feature_context, for_model
 from hysteresis_lab.effects.base import FeatureContext
 from hysteresis_lab.effects.registry import get_effect
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.evaluation.evaluate import scoring_start
 from hysteresis_lab.evaluation.plots import loops_figure, save_figure
+from hysteresis_lab.evaluation.predict import free_run
 from hysteresis_lab.evaluation.report import write_json
 from hysteresis_lab.models.base import NarxModule
 from hysteresis_lab.models.registry import get_model_class
@@ -45,6 +48,7 @@ from hysteresis_lab.pipeline import (
     REJECTED_REFIT_METRICS,
     REJECTED_REFIT_MODEL,
     RunResult,
+    evaluation_device,
     train_and_evaluate,
 )
 
@@ -55,6 +59,10 @@ NETWORK_ONLY = ("effect_path", "refit_lr", "objective", "horizon", "simulation_e
                 "simulation_lr", "patience")
 
 REFITS = ("new_inputs", "full")
+
+#: a free run that leaves the measured output's range by more than this many times its
+#: span (or is not finite) diverges: such a model is never the loop's result
+DIVERGED_SPANS = 10.0
 
 
 @dataclass
@@ -78,8 +86,16 @@ class LoopSettings:
     #: run again in the folder of a stopped loop (``hydra.run.dir``), each fit that finished
     #: there with the same settings, data and start is reused, not trained again
     resume: bool = True
+    #: share at the end of every training recording held out to validate on and diagnose
+    #: from, when the data set has no validation recordings (`hysteresis_lab.analysis.loop_data`)
+    holdout: float = 0.25
 
     def __post_init__(self) -> None:
+        if not 0.0 < self.holdout < 1.0:
+            raise ConfigError(
+                f"loop.holdout={self.holdout} must lie in (0, 1): it is the share of every "
+                "training recording held out. Fix: e.g. loop.holdout=0.25."
+            )
         self.refit_lr_factors = tuple(float(f) for f in self.refit_lr_factors)
         if not self.refit_lr_factors or min(self.refit_lr_factors) <= 0:
             raise ConfigError(
@@ -114,6 +130,23 @@ class LoopSettings:
             raise ConfigError(f"loop.max_rounds={self.max_rounds} must be >= 0.")
 
 
+@dataclass
+class HeldOut:
+    """A round's model on the loop's held-out data (`hysteresis_lab.analysis.loop_data`)."""
+
+    #: mean over the validation stretches (and outputs) of the free-run MSE over the
+    #: variance of the measured output there: unit-free, each stretch weighing the same
+    loss: float
+    rmse: dict[str, float]  # free-run RMSE per validation stretch
+    #: every recording (validation, diagnosis, test) on which the free run diverges
+    diverging: list[str]
+    #: the free run of each diagnosis stretch (whole recording)
+    diagnosis_predictions: list[np.ndarray]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"loss": self.loss, "rmse": self.rmse, "diverging": self.diverging}
+
+
 def run_loop(
     model_cfg: Mapping[str, Any],
     data_cfg: Mapping[str, Any],
@@ -127,9 +160,14 @@ def run_loop(
     """Run the loop; write ``loop_report.json``, ``loop_report.md`` and figures."""
     model_cfg = _without_network_only_settings(model_cfg)
     effects = list(model_cfg.get("effects") or [])
-    context = feature_context(splits.train)
+    start = {"model": str(model_cfg.get("name")), "effects": list(effects)}
+    log.info("loop start: %s", start_label(start))
+    data = loop_data(splits, data_cfg, settings.holdout)
+    log.info("loop data roles: %s", data.roles())
+    context = feature_context(data.fit.train)
+    device = evaluation_device(trainer_cfg)
     rounds: list[dict[str, Any]] = []
-    kept: list[RunResult] = []  # the rounds whose model stands
+    kept: list[tuple[RunResult, HeldOut]] = []  # the rounds whose model stands
     diagnosis: list[EffectScore] = []
     tried: set[str] = set()  # effects tried on the current model
     trying: str | None = None
@@ -138,17 +176,19 @@ def run_loop(
         data_cfg=data_cfg,
         trainer_cfg=trainer_cfg,
         seed=seed,
-        splits=splits,
+        splits=data.fit,
         use_tensorboard=use_tensorboard,
         min_refit_gain=settings.min_refit_gain,
         reuse=settings.resume,
     )
+    judge = functools.partial(held_out, data=data, device=device)
     for number in itertools.count():
         round_effects = effects + ([trying] if trying else [])
         log.info("=== loop round %d: effects %s ===", number, round_effects or "none")
-        warm_start = _previous_network(kept) if settings.warm_start else None
-        result, round_dir, refit_lr, losses = _fit_round(
+        warm_start = _previous_network([k[0] for k in kept]) if settings.warm_start else None
+        result, round_dir, refit_lr, losses, check = _fit_round(
             fit_model,
+            judge,
             {**model_cfg, "effects": round_effects},
             output_dir / f"round_{number}",
             _refit_rates(model_cfg, settings) if warm_start is not None else [None],
@@ -156,25 +196,39 @@ def run_loop(
             refit=_refit_mode(settings.refit, trying),
         )
         if trying is not None and warm_start is None:
-            result = judge_cold_refit(result, kept[-1], settings.min_refit_gain)
+            result = judge_cold_refit(result, kept[-1][0], settings.min_refit_gain)
             if not result.improved:
                 _set_aside_rejected_files(result.rejected_refit)
+        if trying is not None and result.improved:
+            result, check = _judge_held_out(result, check, kept[-1], settings.min_refit_gain)
         entry = _round_entry(round_effects, result)
+        entry["held_out"] = check.to_dict()
         if refit_lr is not None:
             entry["refit_lr"] = refit_lr
             entry["refit_candidates"] = losses
         rounds.append(entry)
         if trying is not None and not result.improved:
             entry["rejected"] = trying
+            where = "the held-out validation data" if "held_out" in (
+                result.rejected_refit or {}) else "validation"
             entry["note"] = (
-                f"the refit with '{trying}' did not beat the last model on validation: "
+                f"the refit with '{trying}' did not beat the last model on {where}: "
                 f"'{trying}' dropped, the last model stands"
             )
+        elif check.diverging:
+            entry["note"] = (
+                f"the start model's free run diverges on {check.diverging}: it is no result, "
+                "and nothing is diagnosed from it. Fix: another start (model=linear is stable "
+                "by construction) or other training settings"
+            )
+            log.error("%s", entry["note"])
+            break
         else:
             effects, tried = round_effects, set()
-            kept.append(result)
+            kept.append((result, check))
             diagnosis = _diagnose_round(
-                result, splits, context, effects, settings, round_dir, use_tensorboard, number
+                result, check, data, context, effects, settings, round_dir, use_tensorboard,
+                number,
             )
             entry["diagnosis"] = [d.to_dict() for d in diagnosis]
         uncarried = _not_carried(model_cfg, diagnosis, tried)
@@ -196,38 +250,125 @@ def run_loop(
             break
         entry["added"] = trying = top.effect
         tried.add(top.effect)
+        if get_effect(top.effect).block == "output":  # no input operators to compare
+            log.info("'%s' added (it acts on the model's output)", top.effect)
+            continue
         excitation = operator_excitation(
-            top.effect, [*splits.train, *splits.val], splits.test, context
+            top.effect, [*data.fit.train, *data.fit.val], data.fit.test, context
         )
         entry["added_excitation"] = excitation.to_dict()
         log.info("'%s' added: %s", top.effect, excitation.reading())
     report = {
-        "units": {"y": splits.test[0].y_units},
+        "units": {"y": data.fit.test[0].y_units},
         "data": splits.name,
         "model": str(model_cfg.get("name")),
+        "start": start,
+        "roles": data.roles(),
+        "result": _result_round(rounds, kept),
         "rounds": rounds,
     }
     write_json(report, output_dir / "loop_report.json")
     (output_dir / "loop_report.md").write_text(loop_markdown(report))
-    before, after = kept[0], kept[-1]
+    if kept:
+        _before_after_figure(data.fit, kept[0][0], kept[-1][0], rounds, effects, output_dir)
+    log.info("\n%s", loop_markdown(report))
+    return report
+
+
+def _result_round(
+    rounds: list[dict[str, Any]], kept: list[tuple[RunResult, HeldOut]]
+) -> int | None:
+    """The round whose model is the loop's result: the last one kept (None: none stands)."""
+    if not kept:
+        return None
+    standing = [i for i, r in enumerate(rounds) if not r.get("rejected")
+                and not r["held_out"]["diverging"]]
+    return standing[-1] if standing else None
+
+
+def _before_after_figure(
+    fit: DatasetSplits, before: RunResult, after: RunResult, rounds: list[dict[str, Any]],
+    effects: list[str], output_dir: Path,
+) -> None:
+    """The test recordings' free run before (the start) and after (the result)."""
     predictions = {
         rec.name: {
             "before": before.evaluation.predictions[rec.name]["free_run"],
             "after": after.evaluation.predictions[rec.name]["free_run"],
         }
-        for rec in splits.test
+        for rec in fit.test
     }
     save_figure(
         loops_figure(
-            splits.test,
+            fit.test,
             predictions,
             title=f"free run before ({rounds[0]['effects'] or 'no effects'}) and "
             f"after ({effects})",
         ),
         output_dir / "loops_before_after.png",
     )
-    log.info("\n%s", loop_markdown(report))
-    return report
+
+
+def held_out(result: RunResult, data: LoopData, device: str) -> HeldOut:
+    """``result``'s model on the loop's validation and diagnosis stretches (each recording
+    simulated end to end, scored from its stretch's start), and where its free run diverges
+    (those recordings and the test recordings)."""
+    stretches = list(data.validation) + [s for s in data.diagnosis if s not in data.validation]
+    recordings = [s.recording for s in stretches]
+    predictions = free_run(result.model, for_model(result.model, recordings), result.window,
+                           device=device)
+    n_skip = scoring_start(result.window, data.fit.n_init)
+    by_stretch = dict(zip(map(id, stretches), predictions, strict=True))
+    losses, rmse = [], {}
+    for stretch in data.validation:
+        first = max(stretch.start, n_skip)
+        y = stretch.recording.y[first:]
+        error = y - by_stretch[id(stretch)][first:]
+        mse = np.mean(error**2, axis=0)
+        losses.append(float(np.mean(mse / np.maximum(np.var(y, axis=0), 1e-300))))
+        rmse[stretch.describe()] = float(np.sqrt(np.mean(mse)))
+    runs = [(s.name, s.recording.y, p) for s, p in zip(stretches, predictions, strict=True)]
+    runs += [(rec.name, rec.y, result.evaluation.predictions[rec.name]["free_run"])
+             for rec in data.fit.test]
+    diverging = sorted({name for name, y, p in runs if _diverges(y, p)})
+    loss = float(np.mean(losses)) if not diverging else float("inf")
+    return HeldOut(loss, rmse, diverging, [by_stretch[id(s)] for s in data.diagnosis])
+
+
+def _diverges(y: np.ndarray, prediction: np.ndarray) -> bool:
+    """Whether a free run is not finite or leaves the measured output's range by more than
+    `DIVERGED_SPANS` times its span."""
+    prediction = np.asarray(prediction, dtype=float)
+    if not np.all(np.isfinite(prediction)):
+        return True
+    low, high = np.min(y, axis=0), np.max(y, axis=0)
+    margin = DIVERGED_SPANS * np.maximum(high - low, 1e-12)
+    return bool(np.any(prediction < low - margin) or np.any(prediction > high + margin))
+
+
+def _judge_held_out(
+    refit: RunResult, check: HeldOut, last: tuple[RunResult, HeldOut], min_gain: float
+) -> tuple[RunResult, HeldOut]:
+    """Keep a refit only when its free run on the held-out validation data is stable and
+    beats the last kept model's by more than the share ``min_gain``; otherwise the last
+    model stands, the refit's scores kept as what it would have done."""
+    last_result, last_check = last
+    if not check.diverging and check.loss < (1.0 - min_gain) * last_check.loss:
+        return refit, check
+    why = f"diverges on {check.diverging}" if check.diverging else (
+        f"held-out validation loss {check.loss:.4g} against the last model's {last_check.loss:.4g}")
+    log.info("refit rejected on the held-out validation data: %s", why)
+    document = {**refit.document, "held_out": check.to_dict()}
+    _set_aside_rejected_files(document)
+    return dataclasses.replace(
+        last_result, improved=False, refit_validation=refit.refit_validation,
+        rejected_refit=document,
+    ), last_check
+
+
+def start_label(start: Mapping[str, Any]) -> str:
+    """The loop's start as the overrides that give it, e.g. ``model=linear effects=[]``."""
+    return f"model={start['model']} effects=[{','.join(start['effects'])}]"
 
 
 def next_effect(
@@ -245,13 +386,16 @@ def _not_carried(
     model_cfg: Mapping[str, Any], diagnosis: Sequence[EffectScore], tried: set[str]
 ) -> list[str]:
     """Significant, input-driven effects the start model's class cannot take (a grey-box
-    carries only the effects it has physical blocks for)."""
+    carries only the effects it has physical blocks for; a network every effect that reaches
+    it through its inputs, none that acts on its output)."""
     carried = getattr(get_model_class(str(model_cfg.get("name"))), "carried_effects", None)
-    if carried is None:
-        return []
+
+    def carries(effect: str) -> bool:
+        return effect in carried if carried is not None else get_effect(effect).block != "output"
+
     return [d.effect for d in diagnosis
             if d.significant and d.predictable and d.effect not in tried
-            and d.effect not in carried]
+            and not carries(d.effect)]
 
 
 def judge_cold_refit(refit: RunResult, last: RunResult, min_gain: float) -> RunResult:
@@ -304,6 +448,8 @@ def _round_entry(effects: list[str], result: RunResult) -> dict[str, Any]:
         entry["refit_validation_loss"] = result.refit_validation
     if result.rejected_refit is not None:
         entry["rejected_refit"] = _scores(result.rejected_refit)
+        if "held_out" in result.rejected_refit:
+            entry["rejected_refit"]["held_out"] = result.rejected_refit["held_out"]
     return entry
 
 
@@ -322,7 +468,8 @@ def _scores(document: Mapping[str, Any]) -> dict[str, Any]:
 
 def _diagnose_round(
     result: RunResult,
-    splits: DatasetSplits,
+    check: HeldOut,
+    data: LoopData,
     context: FeatureContext,
     effects: list[str],
     settings: LoopSettings,
@@ -330,15 +477,21 @@ def _diagnose_round(
     use_tensorboard: bool,
     number: int,
 ) -> list[EffectScore]:
-    """Residual analysis (JSON, figure, TensorBoard) and the ranked diagnosis of a round."""
-    n_skip = scoring_start(result.window, splits.n_init)
-    residuals = []
-    for rec in splits.test:
-        e = rec.y - result.evaluation.predictions[rec.name]["free_run"]
-        e[:n_skip] = np.nan
+    """Residual analysis (JSON, figure, TensorBoard) and the ranked diagnosis of a round, on
+    the diagnosis recordings (never the test recordings: `hysteresis_lab.analysis.loop_data`)."""
+    n_skip = scoring_start(result.window, data.fit.n_init)
+    recordings, residuals, shown, predictions = [], [], [], {}
+    for stretch, prediction in zip(data.diagnosis, check.diagnosis_predictions, strict=True):
+        first = max(stretch.start, n_skip)
+        e = stretch.recording.y - prediction
+        e[:first] = np.nan
+        recordings.append(stretch.recording)
         residuals.append(e)
+        part = _from(stretch, first)
+        shown.append(part)
+        predictions[part.name] = {"free_run": prediction[first:]}
     diagnosis = diagnose(
-        splits.test,
+        recordings,
         residuals,
         context,
         declared=effects,
@@ -346,41 +499,50 @@ def _diagnose_round(
         alpha=settings.alpha,
         lags=evidence_lags(result.window.nb),
         test=settings.significance,
+        predictions=list(check.diagnosis_predictions),
     )
-    write_json(
-        residual_analysis(splits.test, result.evaluation.predictions, n_skip),
-        round_dir / "residual_analysis.json",
-    )
-    figure = diagnostics_figure(splits.test, result.evaluation.predictions, n_skip)
+    write_json(residual_analysis(shown, predictions, 0), round_dir / "residual_analysis.json")
+    figure = diagnostics_figure(shown, predictions, 0)
     save_figure(figure, round_dir / "residual_diagnostics.png")
     if use_tensorboard:
         _log_round_to_tensorboard(round_dir / "tensorboard", figure, diagnosis, number)
     return diagnosis
 
 
+def _from(stretch: Stretch, first: int) -> Recording:
+    """The scored part of a diagnosis stretch, named as the report names it."""
+    rec = stretch.recording
+    if first == 0:
+        return rec
+    return dataclasses.replace(rec, u=rec.u[first:], y=rec.y[first:], name=stretch.describe())
+
+
 def _fit_round(
     fit_model: Callable[..., RunResult],
+    judge: Callable[[RunResult], HeldOut],
     model_cfg: dict[str, Any],
     round_dir: Path,
     rates: list[float] | list[None],
     **fit_options: Any,
-) -> tuple[RunResult, Path, float | None, list[dict[str, float]]]:
+) -> tuple[RunResult, Path, float | None, list[dict[str, float]], HeldOut]:
     """Fit a round's model with ``fit_model`` (`train_and_evaluate` bound to the loop's data
     and settings) once per refit learning rate in ``rates`` (``[None]``: no refit, one fit),
-    each in its own folder when there are several; the one with the lowest validation loss
-    is returned with its folder, its rate and every rate's loss (the test recordings play no
-    part in the choice)."""
+    each in its own folder when there are several, and score each on the held-out data with
+    ``judge``; the one with the lowest held-out validation loss (then training validation
+    loss) is returned with its folder, its rate, every rate's losses and its held-out scores
+    (the test recordings play no part in the choice)."""
     runs = []
     for rate in rates:
         run_dir = refit_dir(round_dir, rate, several=len(rates) > 1)
         refit_lr = {"refit_lr": rate} if rate is not None else {}
         result = fit_model(model_cfg={**model_cfg, **refit_lr}, output_dir=run_dir, **fit_options)
-        runs.append((result, run_dir, rate))
-    result, run_dir, rate = min(runs, key=lambda run: _refit_loss(run[0]))
+        runs.append((result, run_dir, rate, judge(result)))
+    result, run_dir, rate, check = min(runs, key=lambda run: (run[3].loss, _refit_loss(run[0])))
     losses = [
-        {"refit_lr": r, "validation_loss": _refit_loss(res)} for res, _, r in runs if r is not None
+        {"refit_lr": r, "validation_loss": _refit_loss(res), "held_out_loss": c.loss}
+        for res, _, r, c in runs if r is not None
     ]
-    return result, run_dir, rate, losses
+    return result, run_dir, rate, losses, check
 
 
 def refit_dir(round_dir: Path, rate: float | None, several: bool) -> Path:
@@ -405,10 +567,12 @@ def _refit_loss(result: RunResult) -> float:
 
 
 def _refit_mode(refit: str, added: str | None) -> str:
-    """``refit``, except for an effect that enters through the input block: it changes what
-    the fitted network sees (the corrected input), so the network refits with it."""
-    if refit == "new_inputs" and added is not None and get_effect(added).block == "input":
-        log.info("'%s' corrects the network's input: the whole network refits", added)
+    """``refit``, except for an effect that enters through the input block (it changes what
+    the fitted network sees, the corrected input) or acts on the output (the gain a fit
+    lowered to meet a clipped output comes back under the clip): the model refits whole."""
+    block = get_effect(added).block if added is not None else None
+    if refit == "new_inputs" and block in ("input", "output"):
+        log.info("'%s' acts on the model's %s: the whole model refits", added, block)
         return "full"
     return refit
 
@@ -441,6 +605,10 @@ def loop_markdown(report: dict[str, Any]) -> str:
     lines = [
         f"# Residual loop: {report['model']} on {report['data']}",
         "",
+        f"Start: `{start_label(report['start'])}`.",
+        "",
+        *_roles_lines(report["roles"]),
+        "",
         f"Free-run RMSE [{unit}] per test recording and round (effects declared):",
         "",
     ]
@@ -456,14 +624,18 @@ def loop_markdown(report: dict[str, Any]) -> str:
         first, last = rounds[0]["mean_rmse_free_run"], rounds[-1]["mean_rmse_free_run"]
         change = _change(first, last)
         lines += ["", f"Mean free-run RMSE {first:.4g} -> {last:.4g} {unit} ({change})."]
+    if report.get("result") is None:
+        lines += ["", "**No result**: the start model's free run diverges (see round 0)."]
     for i, r in enumerate(rounds):
         if r.get("rejected"):
             lines += ["", f"## Round {i}: {r['rejected']} rejected", "", f"- {r['note']}"]
-            lines += _refit_rate_lines(r) + _rejected_refit_lines(r, unit)
+            lines += _refit_rate_lines(r) + _held_out_lines(r, unit)
+            lines += _rejected_refit_lines(r, unit)
             lines.append(f"- next: {r['added']}" if r["added"] else "- nothing else to try")
             lines += _excitation_lines(r)
             continue
         lines += ["", f"## Round {i}: diagnosis", ""] + _refit_rate_lines(r)
+        lines += _held_out_lines(r, unit)
         lines += [_diagnosis_line(d) for d in r["diagnosis"]]
         if r.get("reported"):
             lines.append(
@@ -473,6 +645,35 @@ def loop_markdown(report: dict[str, Any]) -> str:
         lines.append(f"- added: {r['added']}" + (f" ({r['note']})" if r.get("note") else ""))
         lines += _excitation_lines(r)
     return "\n".join(lines) + "\n"
+
+
+def _roles_lines(roles: Mapping[str, list[str]]) -> list[str]:
+    """Which recordings (``name[a:b]``: samples a to b) played which role."""
+    what = {
+        "train": "trained on",
+        "validation": "validation (judges every refit)",
+        "diagnosis": "diagnosis (its residual chooses the effect)",
+        "test": "test (the before/after numbers)",
+    }
+    return ["Data roles:", ""] + [
+        f"- {what[role]}: {', '.join(names) or 'none'}" for role, names in roles.items()
+    ]
+
+
+def _held_out_lines(entry: Mapping[str, Any], unit: str) -> list[str]:
+    """The standing model (and a rejected refit) on the held-out validation data."""
+    lines = []
+    for label, check in (("held-out validation", entry.get("held_out")),
+                         ("the rejected refit's held-out validation",
+                          (entry.get("rejected_refit") or {}).get("held_out"))):
+        if not check:
+            continue
+        rmse = ", ".join(f"{name} {value:.4g}" for name, value in check["rmse"].items())
+        lines.append(f"- {label}: loss {check['loss']:.4g} (MSE / variance), free-run RMSE "
+                     f"[{unit}] {rmse}")
+        if check["diverging"]:
+            lines.append(f"  - free run diverges on {', '.join(check['diverging'])}")
+    return lines
 
 
 def _excitation_lines(entry: Mapping[str, Any]) -> list[str]:

@@ -22,22 +22,32 @@ def feature_context(recordings: Sequence[Recording]) -> FeatureContext:
         fs=recordings[0].fs,
         u_amplitude=np.where(u_amplitude > 0, u_amplitude, 1.0),
         duration_s=max(r.duration for r in recordings),
+        y_low=np.min([np.min(r.y, axis=0) for r in recordings], axis=0),
+        y_high=np.max([np.max(r.y, axis=0) for r in recordings], axis=0),
     )
 
 
 def context_to_dict(ctx: FeatureContext) -> dict[str, Any]:
-    return {
+    values = {
         "fs": ctx.fs,
         "u_amplitude": np.asarray(ctx.u_amplitude).tolist(),
         "duration_s": ctx.duration_s,
     }
+    if ctx.y_low is not None and ctx.y_high is not None:
+        values.update(y_low=np.asarray(ctx.y_low).tolist(), y_high=np.asarray(ctx.y_high).tolist())
+    return values
 
 
 def context_from_dict(values: dict[str, Any]) -> FeatureContext:
+    def optional(key: str) -> np.ndarray | None:
+        return np.asarray(values[key], dtype=float) if values.get(key) is not None else None
+
     return FeatureContext(
         float(values["fs"]),
         np.asarray(values["u_amplitude"], dtype=float),
         float(values["duration_s"]),
+        optional("y_low"),
+        optional("y_high"),
     )
 
 

@@ -15,6 +15,10 @@ class FeatureContext:
     fs: float
     u_amplitude: np.ndarray  # (nu,) max |u| of the training input, sets operator thresholds
     duration_s: float  # of the training recording, bounds the slowest time constant
+    #: (ny,) lowest and highest measured output of the training recordings (output-side
+    #: blocks start their levels there); None in contexts saved before they were kept
+    y_low: np.ndarray | None = None
+    y_high: np.ndarray | None = None
 
 
 class Effect:
@@ -27,7 +31,10 @@ class Effect:
     ``block`` is where a network takes the operators in: ``"network"`` (extra inputs, or the
     linear effect path with ``model.effect_path=linear``) or ``"input"`` (a static
     nonlinearity ahead of the dynamics: each measured input becomes ``u + W @ operators``,
-    one weight per operator, and the network sees the corrected input).
+    one weight per operator, and the network sees the corrected input) or ``"output"`` (it
+    acts after the dynamics, on the model's own output: overflow, output clipping; it has no
+    input operators, only models with an output block carry it, and the diagnosis reads its
+    evidence from the model's free-run output, `output_evidence`).
     """
 
     name: ClassVar[str] = ""
@@ -40,3 +47,15 @@ class Effect:
 
     def evidence(self, u: np.ndarray, ctx: FeatureContext) -> np.ndarray:
         return self.features(u, ctx)
+
+    def state_evidence(self, y_model: np.ndarray, span: tuple[float, float]) -> np.ndarray | None:
+        """Candidate signals of the effect acting inside the dynamics, from the model's own
+        free-run output (a hysteretic restoring force depends on the displacement's
+        history); None: the effect has none. They join `evidence` in the diagnosis."""
+        return None
+
+    def output_evidence(self, y_model: np.ndarray, span: tuple[float, float]) -> np.ndarray:
+        """An output-side effect's candidate signals from the model's own free-run output
+        ``y_model`` (N,), ``span`` its (lowest, highest) value over the recordings diagnosed
+        together (one law for all of them)."""
+        raise NotImplementedError(f"effect '{self.name}' does not act on the output")

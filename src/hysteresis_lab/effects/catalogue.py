@@ -19,7 +19,9 @@ def _per_input(u: np.ndarray, make) -> np.ndarray:
 
 
 class Hysteresis(Effect):
-    """Rate-independent hysteresis memory: Prandtl–Ishlinskii play operators (8 thresholds)."""
+    """Rate-independent hysteresis memory: Prandtl–Ishlinskii play operators (8 thresholds)
+    of the input, and of the model's own output as state evidence (in the dynamics'
+    feedback)."""
 
     name = "hysteresis"
     description = "hysteresis memory (Prandtl-Ishlinskii play operators)"
@@ -32,6 +34,13 @@ class Hysteresis(Effect):
                 np.ascontiguousarray(x), self.fractions * ctx.u_amplitude[i]
             ),
         )
+
+    def state_evidence(self, y_model: np.ndarray, span: tuple[float, float]) -> np.ndarray:
+        """Play operators of the model's output (thresholds 2-40 % of its span): hysteresis
+        in the feedback of the dynamics, such as a Bouc–Wen restoring force."""
+        width = max(span[1] - span[0], 1e-12)
+        y = np.ascontiguousarray(np.nan_to_num(np.asarray(y_model, dtype=float).reshape(-1)))
+        return play_operators(y, np.array([0.02, 0.05, 0.1, 0.2, 0.4]) * width)
 
 
 class Creep(Effect):
@@ -148,3 +157,30 @@ class Backlash(Effect):
                 np.ascontiguousarray(x), self.fractions * ctx.u_amplitude[i]
             ),
         )
+
+
+class Overflow(Effect):
+    """Output saturation / overflow: the output cannot pass a level (a tank overflows, a
+    sensor or an amplifier stage clips), after the dynamics.
+
+    It has no input operators: a model carries it as an output block (``model=linear``:
+    ``y - w_hi relu(y - c_hi) + w_lo relu(c_lo - y)``). Its evidence is the model's own
+    free-run output beyond 70-95 % of its range on either side: a model that does not clip
+    overshoots where the system clips, so its residual follows those excesses.
+    """
+
+    name = "overflow"
+    description = "output saturation / overflow (the model's own output clipped near its extremes)"
+    block = "output"
+    fractions = np.array([0.7, 0.8, 0.9, 0.95])
+
+    def features(self, u: np.ndarray, ctx: FeatureContext) -> np.ndarray:
+        return np.zeros((len(u), 0))
+
+    def output_evidence(self, y_model: np.ndarray, span: tuple[float, float]) -> np.ndarray:
+        low, high = span
+        y = np.asarray(y_model, dtype=float).reshape(-1)
+        width = max(high - low, 1e-12)
+        upper = [np.maximum(y - (low + f * width), 0.0) for f in self.fractions]
+        lower = [np.minimum(y - (high - f * width), 0.0) for f in self.fractions]
+        return np.nan_to_num(np.column_stack(upper + lower))

@@ -2,7 +2,7 @@
 by the effect catalogue.
 
     u_j -> [saturation] -> [dead zone] -> [backlash] -> [hysteresis] -> [creep] -> x_j
-    y_o = sum_j dynamics_oj(x_j) (+ [resonance_oj](x_j) in parallel) + offset_o
+    y_o = [overflow_o](sum_j dynamics_oj(x_j) (+ [resonance_oj](x_j) in parallel) + offset_o)
 
 Every input channel ``j`` has its own input blocks, every output ``o`` is a sum over the
 inputs of stable linear dynamics (one transfer function per input and output, so MIMO data
@@ -17,9 +17,14 @@ refit that adds an effect starts exactly from the model it grows:
 
 * ``saturation``: ``v - w (v - clip(v, ±c))``, amplifier clipping ahead of the actuator;
 * ``dead_zone``: ``v - w clip(v, ±c)``; ``backlash``: ``v + w (play_c(v) - v)``;
-* ``hysteresis``: ``v - w h(v)``, ``h`` the Bouc–Wen state (the grey-box's cell);
+* ``hysteresis``: ``v - w h(v)``, ``h`` the Bouc–Wen state (the grey-box's cell), and
+  inside the dynamics' feedback to first order: play operators of the linear response,
+  weighted from zero, subtracted from the dynamics' input (a hysteretic restoring force);
 * ``creep``: a first-order filter bank (the grey-box's block), weights from zero;
-* ``resonance``: a second-order section in parallel with the dynamics, numerator from zero.
+* ``resonance``: a second-order section in parallel with the dynamics, numerator from zero;
+* ``overflow``: ``y - w_hi relu(y - c_hi) + w_lo relu(c_lo - y)`` on each output, after the
+  dynamics (a tank that overflows, a sensor that clips), levels from the training output's
+  extremes.
 """
 
 from __future__ import annotations
@@ -43,7 +48,10 @@ from hysteresis_lab.models.physical_chain import PhysicalChainModule
 log = logging.getLogger(__name__)
 
 #: catalogue effects the linear model carries as blocks, in physical order
-LINEAR_EFFECTS = ("saturation", "dead_zone", "backlash", "hysteresis", "creep", "resonance")
+LINEAR_EFFECTS = ("saturation", "dead_zone", "backlash", "hysteresis", "creep", "resonance",
+                  "overflow")
+#: thresholds of the feedback hysteresis's play operators, as fractions of the output's range
+STATE_HYSTERESIS_FRACTIONS = (0.02, 0.05, 0.1, 0.2, 0.4)
 
 
 class _Level(nn.Module):
@@ -122,6 +130,51 @@ class HysteresisCell(nn.Module):
         return v - weight * (d * v - self.bouc_wen.step(v, state))
 
 
+class Overflow(nn.Module):
+    """Output saturation after the dynamics: ``y - w_hi relu(y - c_hi) + w_lo relu(c_lo - y)``
+    (``w = 1``: a hard clip at ``c``), the weights from zero, the levels from ``low`` and
+    ``high`` (the output over its scale)."""
+
+    def __init__(self, low: float, high: float) -> None:
+        super().__init__()
+        self.weights = nn.Parameter(torch.zeros(2, dtype=torch.float64))  # (low, high)
+        self.levels = nn.Parameter(torch.tensor([low, high], dtype=torch.float64))
+
+    def forward(self, y: torch.Tensor) -> torch.Tensor:
+        return self.apply_with(y, self.weights, self.levels)
+
+    def step(self, y: torch.Tensor, state: StepState) -> torch.Tensor:
+        """One sample (B,) -> (B,); a static block has no state."""
+        return self.apply_with(y, *frozen(self.weights, self.levels))
+
+    @staticmethod
+    def apply_with(y: torch.Tensor, weights: torch.Tensor, levels: torch.Tensor) -> torch.Tensor:
+        return y - weights[1] * torch.relu(y - levels[1]) + weights[0] * torch.relu(levels[0] - y)
+
+
+class StateHysteresis(nn.Module):
+    """Hysteresis in the dynamics' feedback (a hysteretic restoring force, as in the
+    Bouc–Wen oscillator), to first order: play operators of the linear response ``y`` at
+    ``thresholds`` (the output over its scale), weighted from zero, are subtracted from the
+    dynamics' input: ``x - w @ play(y)``."""
+
+    def __init__(self, thresholds: Sequence[float]) -> None:
+        super().__init__()
+        self.register_buffer("thresholds", torch.as_tensor(thresholds, dtype=torch.float64))
+        self.weights = nn.Parameter(torch.zeros(len(thresholds), dtype=torch.float64))
+
+    def forward(self, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+        return x - play(y, self.thresholds) @ self.weights
+
+    def state_names(self) -> list[str]:
+        return [f"play{i}" for i in range(self.thresholds.shape[0])]
+
+    def step(self, x: torch.Tensor, y: torch.Tensor, state: StepState) -> torch.Tensor:
+        """One sample: ``x, y`` (B,) -> (B,); state: the play operators' outputs."""
+        thresholds, weights = frozen(self.thresholds, self.weights)
+        return x - play_step(y, thresholds, state) @ weights
+
+
 def _pairs(n_out: int, n_in: int, make: Any) -> nn.ModuleList:
     """``[output][input]`` blocks from ``make()``."""
     return nn.ModuleList(nn.ModuleList(make() for _ in range(n_in)) for _ in range(n_out))
@@ -174,6 +227,27 @@ class LinearModel(PhysicalChainModule):
         if "resonance" in effects:
             self.resonance = _pairs(ny, n_in, self._resonance_section)
         self.offset = nn.Parameter(torch.zeros(ny, dtype=torch.float64))
+        extremes = [self._output_extremes(o) for o in range(ny)]
+        self.overflow: nn.ModuleList | None = None
+        if "overflow" in effects:
+            self.overflow = nn.ModuleList(Overflow(low, high) for low, high in extremes)
+        self.state_hysteresis: nn.ModuleList | None = None
+        if "hysteresis" in effects:
+            self.state_hysteresis = nn.ModuleList(
+                nn.ModuleList(StateHysteresis([f * (high - low)
+                                               for f in STATE_HYSTERESIS_FRACTIONS])
+                              for _ in range(n_in))
+                for low, high in extremes)
+
+    def _output_extremes(self, channel: int) -> tuple[float, float]:
+        """An output's lowest and highest training value over its scale (the overflow
+        block's starting levels; the scaled output's ±3 without a record of them)."""
+        context = self.hparams.get("feature_context")
+        ctx = context_from_dict(context) if context is not None else None
+        scale, offset = float(self.y_scale[channel]), float(self.y_offset[channel])
+        if ctx is None or ctx.y_low is None or ctx.y_high is None or scale <= 0:
+            return (offset - 3.0 * scale) / scale, (offset + 3.0 * scale) / scale
+        return float(ctx.y_low[channel]) / scale, float(ctx.y_high[channel]) / scale
 
     @staticmethod
     def _input_blocks(effects: Sequence[str], amplitude: float) -> nn.ModuleDict:
@@ -217,18 +291,18 @@ class LinearModel(PhysicalChainModule):
 
     def chain(self, v: torch.Tensor) -> torch.Tensor:
         xs = [self._input_path(v[..., j], j) for j in range(self.n_base_inputs)]
-        return torch.stack([self._output(o, xs, lambda block, x: block(x))
-                            for o in range(self.ny)], dim=-1)
-
-    def _output(self, o: int, xs: list[torch.Tensor], run: Any) -> torch.Tensor:
-        """Output ``o``: the sum over inputs of the dynamics (and resonance) of ``xs``;
-        ``run(block, x)`` applies a block (a whole pass or one step)."""
-        y = 0.0
-        for j, x in enumerate(xs):
-            y = y + run(self.dynamics[o][j], x)
+        outputs = []
+        for o in range(self.ny):
+            y = sum(self.dynamics[o][j](x) for j, x in enumerate(xs))
+            if self.state_hysteresis is not None:  # the linear response's hysteresis fed back
+                y = sum(self.dynamics[o][j](self.state_hysteresis[o][j](x, y))
+                        for j, x in enumerate(xs))
             if self.resonance is not None:
-                y = y + run(self.resonance[o][j], x)
-        return y
+                y = y + sum(self.resonance[o][j](x) for j, x in enumerate(xs))
+            if self.overflow is not None:  # on the output itself, offset included
+                y = self.overflow[o](y + self.offset[o]) - self.offset[o]
+            outputs.append(y)
+        return torch.stack(outputs, dim=-1)
 
     def state_names(self) -> list[str]:
         """Per input: its blocks' states (backlash: the play output; hysteresis: previous
@@ -241,11 +315,17 @@ class LinearModel(PhysicalChainModule):
             if self.creep is not None:
                 names += [f"input{j}.creep.{part}" for part in self.creep[j].state_names()]
         for o in range(self.ny):
-            for j in range(self.n_base_inputs):
-                names += [f"dynamics{o}{j}.{part}" for part in self.dynamics[o][j].state_names()]
-                if self.resonance is not None:
-                    names += [f"resonance{o}{j}.{part}"
-                              for part in self.resonance[o][j].state_names()]
+            n_in = self.n_base_inputs
+            names += [f"dynamics{o}{j}.{part}" for j in range(n_in)
+                      for part in self.dynamics[o][j].state_names()]
+            if self.state_hysteresis is not None:
+                names += [f"state_hysteresis{o}{j}.{part}" for j in range(n_in)
+                          for part in self.state_hysteresis[o][j].state_names()]
+                names += [f"dynamics{o}{j}.feedback.{part}" for j in range(n_in)
+                          for part in self.dynamics[o][j].state_names()]
+            if self.resonance is not None:
+                names += [f"resonance{o}{j}.{part}" for j in range(n_in)
+                          for part in self.resonance[o][j].state_names()]
         return names
 
     def chain_step(self, v: torch.Tensor, state: StepState) -> torch.Tensor:
@@ -257,8 +337,20 @@ class LinearModel(PhysicalChainModule):
             if self.creep is not None:
                 x = self.creep[j].step(x, state)
             xs.append(x)
-        return torch.stack([self._output(o, xs, lambda block, x: block.step(x, state))
-                            for o in range(self.ny)], dim=-1)
+        outputs = []
+        for o in range(self.ny):  # the blocks in the order of `state_names`
+            y = sum(self.dynamics[o][j].step(x, state) for j, x in enumerate(xs))
+            if self.state_hysteresis is not None:
+                corrected = [self.state_hysteresis[o][j].step(x, y, state)
+                             for j, x in enumerate(xs)]
+                y = sum(self.dynamics[o][j].step(x, state) for j, x in enumerate(corrected))
+            if self.resonance is not None:
+                y = y + sum(self.resonance[o][j].step(x, state) for j, x in enumerate(xs))
+            if self.overflow is not None:
+                offset = frozen(self.offset)[0][o]
+                y = self.overflow[o].step(y + offset, state) - offset
+            outputs.append(y)
+        return torch.stack(outputs, dim=-1)
 
     # ------------------------------------------------------------------ initial values
     def initialise_from_data(self, u: np.ndarray, y: np.ndarray, fs: float) -> None:
@@ -271,25 +363,56 @@ class LinearModel(PhysicalChainModule):
     ) -> None:
         """The dynamics from a least-squares ARX fit per output (``order`` poles, one
         denominator for all inputs, ``delay``) on the training recordings (physical units,
-        (T, channels) or 1-D; only the measured inputs are read), and the output offsets."""
+        (T, channels) or 1-D; only the measured inputs are read), and the output offsets.
+
+        ``order`` starts unless its free run from rest is further from the recordings than
+        their mean; then every order from 1 up is fitted and the one that simulates best
+        starts: on data that excite few frequencies (a single sine) a high-order ARX is not
+        identified and its free run can be far off."""
         n_in = self.n_base_inputs
         vs = [np.asarray(u, float).reshape(len(u), -1)[:, :n_in] / self.u_scale[:n_in].numpy()
               for u in us]
         ys_s = [np.asarray(y, float).reshape(len(y), -1) / self.y_scale.numpy() for y in ys]
-        order, delay = self.hparams.order, self.hparams.delay
-        nb = max(1, order - max(delay, 1) + 1)
-        radius = 0.0
+        radius, orders = 0.0, []
         for o in range(self.ny):
-            b, a = arx_least_squares(vs, [y[:, o] for y in ys_s], na=order, nb=nb, nk=delay)
-            for j in range(n_in):
-                self.dynamics[o][j].set_transfer_function(b[j], a)
-            radius = max(radius, float(np.max(np.abs(np.roots(a)))))
+            order, a = self._start_output(o, vs, [y[:, o] for y in ys_s])
+            orders.append(order)
+            radius = max(radius, float(np.max(np.abs(np.roots(a)))) if len(a) > 1 else 0.0)
         with torch.no_grad():
             residuals = [y - self.chain(torch.as_tensor(v[None]))[0].numpy()
                          for v, y in zip(vs, ys_s, strict=True)]
             self.offset.copy_(torch.as_tensor(np.concatenate(residuals).mean(axis=0)))
-        log.info("linear start: ARX(%d, %d, %d) per output by least squares on %d recording(s), "
-                 "poles |p| <= %.4f", order, nb, delay, len(vs), radius)
+        log.info("linear start: ARX per output by least squares on %d recording(s), orders %s "
+                 "(model.order=%d), delay %d, poles |p| <= %.4f", len(vs), orders,
+                 self.hparams.order, self.hparams.delay, radius)
+
+    def _start_output(
+        self, o: int, vs: Sequence[np.ndarray], ys: Sequence[np.ndarray]
+    ) -> tuple[int, np.ndarray]:
+        """Set output ``o``'s dynamics from the ARX fit described in
+        `initialise_from_recordings`; returns the order and the denominator chosen."""
+        delay = self.hparams.delay
+        spread = float(np.var(np.concatenate(ys)))
+
+        def fit(order: int) -> tuple[float, int, np.ndarray]:
+            nb = max(1, order - max(delay, 1) + 1)
+            b, a = arx_least_squares(vs, ys, na=order, nb=nb, nk=delay)
+            for j in range(self.n_base_inputs):
+                self.dynamics[o][j].set_transfer_function(b[j], a)
+            with torch.no_grad():
+                errors = np.concatenate([
+                    y - self.chain(torch.as_tensor(v[None]))[0, :, o].numpy()
+                    for v, y in zip(vs, ys, strict=True)])
+            error = float(np.var(errors))  # the offset comes after
+            return (error if np.isfinite(error) else np.inf), order, a
+
+        full = fit(self.hparams.order)
+        if full[0] < spread:
+            return full[1], full[2]
+        candidates = [fit(order) for order in range(1, self.hparams.order)] + [full]
+        _, order, _ = min(candidates, key=lambda c: c[0])
+        _, order, a = fit(order)  # set it again: the last fit tried is in place
+        return order, a
 
     def load_state_dict(self, state_dict: Any, strict: bool = True, assign: bool = False) -> Any:
         """Also reads a one-input, one-output model saved before the MIMO layout."""
@@ -310,17 +433,26 @@ class LinearModel(PhysicalChainModule):
                 out["creep"] = [block.export() for block in self.creep]
             if self.resonance is not None:
                 out["resonance"] = [[block.export() for block in row] for row in self.resonance]
+            if self.state_hysteresis is not None:
+                out["state_hysteresis"] = [[block.weights.cpu().numpy().tolist() for block in row]
+                                           for row in self.state_hysteresis]
+            if self.overflow is not None:
+                out["overflow"] = [{k: v.detach().cpu().numpy().tolist()
+                                    for k, v in block.named_parameters()}
+                                   for block in self.overflow]
         return out
 
 
 def _mimo_keys(state_dict: Any) -> dict[str, Any]:
     """A state dict of the one-input, one-output layout (``input_blocks.<name>``,
-    ``creep.weights``, ``dynamics.<parameter>``, a scalar ``offset``) in the MIMO one."""
+    ``creep.weights``, ``dynamics.<parameter>``, ``overflow.<parameter>``, a scalar
+    ``offset``) in the MIMO one."""
     out = {}
     for key, value in state_dict.items():
         new = re.sub(r"^input_blocks\.(?!\d)", "input_blocks.0.", key)
         new = re.sub(r"^creep\.(?!\d)", "creep.0.", new)
-        new = re.sub(r"^(dynamics|resonance)\.(?!\d)", r"\1.0.0.", new)
+        new = re.sub(r"^(dynamics|resonance|state_hysteresis)\.(?!\d)", r"\1.0.0.", new)
+        new = re.sub(r"^overflow\.(?!\d)", "overflow.0.", new)
         if new == "offset" and value.dim() == 0:
             value = value.reshape(1)
         out[new] = value

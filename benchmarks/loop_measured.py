@@ -1,0 +1,149 @@
+"""The loop on measured data, before and after: one default command per data set.
+
+Runs ``hysteresis-lab-loop data=<name>`` (start ``model=linear effects=[]``, default
+settings; only the progress bar and TensorBoard are off, which change no number) for each
+data set, times it, reads its ``loop_report.json`` and writes the table to
+``docs/results/loop_measured.md`` with the command, the commit and the date.
+
+    python benchmarks/loop_measured.py                       # cascaded_tanks, bouc_wen
+    python benchmarks/loop_measured.py --data cascaded_tanks bouc_wen p885
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import logging
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+OUT = REPO / "docs" / "results" / "loop_measured.md"
+#: the issue's targets: the effect the loop should name and the free-run RMSE it should reach
+TARGETS = {
+    "cascaded_tanks": ("overflow", "free-run RMSE <= 0.25 V"),
+    "bouc_wen": ("hysteresis", "free-run RMSE cut >= 50 %"),
+    "p885": (None, "what the loop finds"),
+    "fsm": (None, "what the loop finds"),
+}
+QUIET = ["trainer.enable_progress_bar=false", "logger=none"]
+
+log = logging.getLogger("loop_measured")
+
+
+def run_one(name: str, folder: Path) -> dict:
+    """Run the loop on data set ``name`` into ``folder``; its report and wall time."""
+    if folder.exists():  # a fresh run: the loop would reuse the fits it finds there
+        shutil.rmtree(folder)
+    command = ["hysteresis-lab-loop", f"data={name}", *QUIET, f"hydra.run.dir={folder}"]
+    start = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-m", "hysteresis_lab.cli.loop", *command[1:]],
+                          cwd=REPO, capture_output=True, text=True)
+    seconds = time.perf_counter() - start
+    if proc.returncode != 0:
+        raise SystemExit(f"{' '.join(command)} failed:\n{proc.stderr[-3000:]}")
+    report = json.loads((folder / "loop_report.json").read_text())
+    round_0 = json.loads((folder / "round_0" / "metrics.json").read_text())
+    return {"command": " ".join(command[:2 + len(QUIET)]), "report": report,
+            "seconds": seconds, "round_0_train_s": round_0.get("train_seconds")}
+
+
+def row(name: str, run: dict) -> str:
+    """One table line: start and result RMSE, the cut, what each round did, the time."""
+    report = run["report"]
+    rounds, unit = report["rounds"], report["units"]["y"]
+    result = report["result"] if report["result"] is not None else 0
+    before, after = rounds[0]["mean_rmse_free_run"], rounds[result]["mean_rmse_free_run"]
+    steps = []
+    for entry in rounds:
+        if entry.get("rejected"):
+            steps.append(f"{entry['rejected']} rejected")
+        if entry.get("added"):
+            steps.append(f"{entry['added']} named")
+    kept = rounds[result]["effects"]
+    named, target = TARGETS.get(name, (None, ""))
+    return (f"| {name} | {before:.4g} {unit} | {after:.4g} {unit} | "
+            f"{100 * (after - before) / before:+.1f} % | {'; '.join(steps) or 'nothing named'} | "
+            f"[{', '.join(kept)}] | {target}"
+            + (f" (named: {'yes' if named in _named(rounds) else 'no'})" if named else "")
+            + f" | {run['round_0_train_s']:.0f} s / {run['seconds']:.0f} s |")
+
+
+def _named(rounds: list[dict]) -> set[str]:
+    return {entry["added"] for entry in rounds if entry.get("added")}
+
+
+def roles_lines(name: str, run: dict) -> list[str]:
+    roles = run["report"]["roles"]
+    return [f"- **{name}**: trained on {', '.join(roles['train'])}; diagnosis and validation "
+            f"{', '.join(roles['diagnosis'])} / {', '.join(roles['validation'])}; test "
+            f"{', '.join(roles['test'])}"]
+
+
+def diagnosis_lines(name: str, run: dict) -> list[str]:
+    """Round 0's three best-scored effects, the evidence behind the first choice."""
+    lines = []
+    for i, entry in enumerate(run["report"]["rounds"]):
+        if not entry["diagnosis"]:
+            continue
+        best = [f"{d['effect']} {100 * d['score']:.1f} % (p {d['p_value']:.2g}"
+                f"{', significant' if d['significant'] else ''})"
+                for d in entry["diagnosis"][:3] if d["tested"]]
+        held = entry["held_out"]
+        lines.append(f"- {name} round {i} {entry['effects']}: held-out loss "
+                     f"{held['loss']:.4g}; best scores {', '.join(best)}")
+    return lines
+
+
+def commit() -> str:
+    out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True,
+                         text=True)
+    dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=REPO,
+                           capture_output=True, text=True).stdout.strip()
+    return out.stdout.strip() + (" (with uncommitted changes)" if dirty else "")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", nargs="+", default=["cascaded_tanks", "bouc_wen"])
+    parser.add_argument("--runs", type=Path, default=REPO / "outputs" / "loop_measured")
+    args = parser.parse_args()
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    runs = {}
+    for name in args.data:
+        log.info("running the loop on %s ...", name)
+        runs[name] = run_one(name, args.runs / name)
+        log.info("%s done in %.0f s", name, runs[name]["seconds"])
+    lines = [
+        "# The loop on measured data, before and after",
+        "",
+        f"Written by `python benchmarks/loop_measured.py --data {' '.join(args.data)}` on "
+        f"{datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC, commit {commit()}, "
+        "on a shared 2-core CPU (OMP_NUM_THREADS=1). One command per data set, default "
+        "settings: the start is `model=linear effects=[]`.",
+        "",
+        "| data | start (round 0) free-run RMSE | result | change | rounds | result's effects "
+        "| target | round 0 train / whole command |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    lines += [row(name, run) for name, run in runs.items()]
+    lines += ["", "Commands:", ""]
+    lines += [f"- `{run['command']}`" for run in runs.values()]
+    lines += ["", "Which recordings played which role:", ""]
+    for name, run in runs.items():
+        lines += roles_lines(name, run)
+    lines += ["", "Diagnosis per round (held-out residual; score = share of its variance "
+              "explained beyond the input and the declared effects):", ""]
+    for name, run in runs.items():
+        lines += diagnosis_lines(name, run)
+    OUT.parent.mkdir(parents=True, exist_ok=True)
+    OUT.write_text("\n".join(lines) + "\n")
+    log.info("wrote %s", OUT)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,172 @@
+"""The loop restated: a linear start, output-side effects, and choosing and judging on data
+that the before/after numbers do not use."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+from scipy import signal
+
+from helpers import data_overrides, run_app, small_dataset
+from hysteresis_lab.analysis.diagnosis import diagnose
+from hysteresis_lab.analysis.loop import (
+    HeldOut,
+    LoopSettings,
+    _diverges,
+    _judge_held_out,
+    run_loop,
+)
+from hysteresis_lab.analysis.loop_data import loop_data
+from hysteresis_lab.data.recording import Recording
+from hysteresis_lab.data.splits import DatasetSplits
+from hysteresis_lab.effects.augment import feature_context
+from hysteresis_lab.errors import ConfigError, DataError
+from hysteresis_lab.pipeline import RunResult
+from hysteresis_lab.signals import multisine
+
+FS = 100.0
+CLIP = 0.6
+TRAINER = {"max_epochs": 20, "accelerator": "cpu", "devices": 1, "enable_progress_bar": False,
+           "enable_model_summary": False}
+
+
+def clipped(n: int, seed: int, name: str) -> tuple[Recording, np.ndarray]:
+    """A second-order low-pass whose output clips at `CLIP` (an overflowing tank), and its
+    unclipped output."""
+    u = multisine(n, fs=FS, n_components=20, f_max=2.0, seed=seed)
+    u = 2.0 * u / np.max(np.abs(u))
+    b, a = signal.butter(2, 1.0, fs=FS)
+    x = signal.lfilter(b, a, u)
+    noise = 0.01 * np.random.default_rng(seed).standard_normal(n)
+    return Recording(u=u, y=np.minimum(x, CLIP) + noise, fs=FS, name=name), x
+
+
+def clipped_splits(val: bool = True) -> DatasetSplits:
+    train, _ = clipped(1500, 1, "train")
+    test, _ = clipped(800, 3, "test")
+    validation = [clipped(1500, 2, "val")[0]] if val else []
+    return DatasetSplits("clip", train=[train], val=validation, test=[test])
+
+
+def test_overflow_is_scored_from_the_models_own_output():
+    """A linear model's free run overshoots where the system clips: the residual follows the
+    excess of the model's output over a level, and only the overflow effect reads that."""
+    recordings, residuals, outputs = [], [], []
+    for seed in (1, 2):
+        rec, unclipped = clipped(3000, seed, f"r{seed}")
+        recordings.append(rec)
+        residuals.append(rec.y - unclipped[:, None])
+        outputs.append(unclipped[:, None])
+    ctx = feature_context(recordings)
+    ranked = diagnose(recordings, residuals, ctx, declared=[], lags=(0, 2, 5),
+                      predictions=outputs)
+    assert ranked[0].effect == "overflow" and ranked[0].significant
+    assert ranked[0].score > 0.5
+    blind = diagnose(recordings, residuals, ctx, declared=[], lags=(0, 2, 5))
+    overflow = next(d for d in blind if d.effect == "overflow")
+    assert not overflow.tested and "no free-run prediction" in overflow.evidence
+
+
+@pytest.mark.slow
+def test_the_loop_names_overflow_and_its_refit_cuts_the_free_run_error(tmp_path):
+    """From model=linear effects=[] on a system whose output clips: the held-out residual
+    names overflow, the refit carries it as an output block after the dynamics, and the
+    test's free-run error falls."""
+    model = {"name": "linear", "order": 2, "effects": [], "lr": 0.01}
+    report = run_loop(model, {"name": "clip", "scaling": {"mode": "standard"}}, TRAINER,
+                      clipped_splits(), tmp_path, LoopSettings(max_rounds=1,
+                                                               refit_lr_factors=(1.0,)),
+                      use_tensorboard=False)
+    first, refit = report["rounds"][:2]
+    significant = [d["effect"] for d in first["diagnosis"] if d["significant"]]
+    assert significant[0] == "overflow" and first["added"] == "overflow"
+    assert refit["effects"] == ["overflow"] and "rejected" not in refit
+    assert refit["held_out"]["loss"] < first["held_out"]["loss"]
+    assert refit["mean_rmse_free_run"] < 0.85 * first["mean_rmse_free_run"]
+    assert report["result"] == 1
+    assert report["roles"] == {"train": ["train"],
+                               "validation": ["val"], "diagnosis": ["val"], "test": ["test"]}
+
+
+def test_without_validation_recordings_a_stretch_is_held_out_and_named():
+    splits = clipped_splits(val=False)
+    data = loop_data(splits, {}, holdout=0.2)
+    assert data.fit.train[0].n_samples == 1200
+    assert [s.start for s in data.validation] == [1200]
+    assert data.validation[0].recording.n_samples == 1500  # simulated end to end
+    assert data.diagnosis == data.validation
+    assert data.roles() == {"train": ["train[0:1200]"], "validation": ["train[1200:1500]"],
+                            "diagnosis": ["train[1200:1500]"], "test": ["test"]}
+    with pytest.raises(DataError, match="loop.holdout=0.99"):
+        loop_data(splits, {}, holdout=0.99)
+
+
+def test_data_diagnose_names_the_recordings_that_choose(tmp_path):
+    splits = clipped_splits()
+    extra = clipped(800, 4, "extra")[0]
+    splits = dataclasses.replace(splits, test=[*splits.test, extra])
+    data = loop_data(splits, {"diagnose": ["extra"]}, holdout=0.25)
+    assert [s.name for s in data.diagnosis] == ["extra"]
+    assert [r.name for r in data.fit.test] == ["test"]  # it left the before/after set
+    assert [s.name for s in data.validation] == ["val"]
+    with pytest.raises(ConfigError, match="a training recording"):
+        loop_data(splits, {"diagnose": ["train"]}, holdout=0.25)
+    with pytest.raises(ConfigError, match="no recording of data 'clip'"):
+        loop_data(splits, {"diagnose": ["nothing"]}, holdout=0.25)
+    with pytest.raises(ConfigError, match="every test recording"):
+        loop_data(splits, {"diagnose": ["test", "extra"]}, holdout=0.25)
+
+
+def _result(tmp_path, name: str) -> RunResult:
+    folder = tmp_path / name
+    folder.mkdir()
+    (folder / "model.ckpt").write_text("weights")
+    (folder / "metrics.json").write_text("{}")
+    document = {"model_path": str(folder / "model.ckpt"), "tests": {}, "mean": {}}
+    return RunResult(document, 1.0, None, None, None)
+
+
+def test_a_refit_is_kept_only_when_stable_and_better_on_held_out_data(tmp_path):
+    last = (_result(tmp_path, "last"), HeldOut(0.5, {"val": 1.0}, [], []))
+    better = _result(tmp_path, "better")
+    kept, check = _judge_held_out(better, HeldOut(0.4, {"val": 0.9}, [], []), last, 0.0)
+    assert kept is better and check.loss == 0.4
+    worse = _result(tmp_path, "worse")
+    kept, check = _judge_held_out(worse, HeldOut(0.6, {"val": 1.1}, [], []), last, 0.0)
+    assert kept.document is last[0].document and not kept.improved and check.loss == 0.5
+    assert (tmp_path / "worse" / "rejected_refit_model.ckpt").is_file()  # set aside
+    assert not (tmp_path / "worse" / "model.ckpt").exists()
+    diverging = _result(tmp_path, "diverging")
+    kept, _ = _judge_held_out(diverging, HeldOut(0.1, {"val": 0.1}, ["test"], []), last, 0.0)
+    assert not kept.improved and kept.rejected_refit["held_out"]["diverging"] == ["test"]
+
+
+def test_a_free_run_that_leaves_the_output_range_diverges():
+    y = np.sin(np.linspace(0, 10, 200))[:, None]
+    assert not _diverges(y, 1.5 * y)
+    assert _diverges(y, y + 30.0)
+    assert _diverges(y, np.where(np.arange(200)[:, None] == 5, np.nan, y))
+
+
+@pytest.mark.slow
+def test_the_default_loop_starts_linear_and_names_its_start(tmp_path):
+    """`hysteresis-lab-loop` with no model starts from model=linear effects=[]; the report
+    names the start and which recordings played which role."""
+    train, tests = small_dataset(tmp_path)
+    run = tmp_path / "loop"
+    proc = run_app("loop", *data_overrides(train, tests), "loop.max_rounds=0",
+                   "trainer.max_epochs=2", "trainer.enable_progress_bar=false", "logger=none",
+                   f"hydra.run.dir={run}")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    report = json.loads((run / "loop_report.json").read_text())
+    assert report["model"] == "linear"
+    assert report["start"] == {"model": "linear", "effects": []}
+    assert report["roles"] == {"train": ["train[0:2250]"], "validation": ["train[2250:3000]"],
+                               "diagnosis": ["train[2250:3000]"],
+                               "test": ["sine_5", "sine_20"]}
+    markdown = (run / "loop_report.md").read_text()
+    assert "Start: `model=linear effects=[]`." in markdown
+    assert "- diagnosis (its residual chooses the effect): train[2250:3000]" in markdown
