@@ -21,6 +21,8 @@ import sys
 import time
 from pathlib import Path
 
+from hysteresis_lab.run_folder import LoopFolder, RunFolder
+
 REPO = Path(__file__).resolve().parents[1]
 OUT = REPO / "docs" / "results" / "loop_measured.md"
 #: the issue's targets: the effect the loop should name and the free-run RMSE it should reach
@@ -46,8 +48,9 @@ def run_one(name: str, folder: Path) -> dict:
     seconds = time.perf_counter() - start
     if proc.returncode != 0:
         raise SystemExit(f"{' '.join(command)} failed:\n{proc.stderr[-3000:]}")
-    report = json.loads((folder / "loop_report.json").read_text())
-    round_0 = json.loads((folder / "round_0" / "metrics.json").read_text())
+    loop_folder = LoopFolder(folder)
+    report = json.loads(loop_folder.report_json.read_text())
+    round_0 = RunFolder(loop_folder.round_dir(0)).read_metrics()
     return {"command": " ".join(command[:2 + len(QUIET)]), "report": report,
             "seconds": seconds, "round_0_train_s": round_0.get("train_seconds")}
 

@@ -12,20 +12,20 @@ from scipy import signal
 
 from helpers import data_overrides, run_app, small_dataset
 from hysteresis_lab.analysis.diagnosis import diagnose
-from hysteresis_lab.analysis.loop import (
+from hysteresis_lab.data.recording import Recording
+from hysteresis_lab.data.splits import DatasetSplits
+from hysteresis_lab.effects.augment import feature_context
+from hysteresis_lab.errors import ConfigError, DataError
+from hysteresis_lab.signals import multisine
+from hysteresis_lab.workflows.loop import (
     HeldOut,
     LoopSettings,
     _diverges,
     _judge_held_out,
     run_loop,
 )
-from hysteresis_lab.analysis.loop_data import loop_data
-from hysteresis_lab.data.recording import Recording
-from hysteresis_lab.data.splits import DatasetSplits
-from hysteresis_lab.effects.augment import feature_context
-from hysteresis_lab.errors import ConfigError, DataError
-from hysteresis_lab.pipeline import RunResult
-from hysteresis_lab.signals import multisine
+from hysteresis_lab.workflows.loop_data import loop_data
+from hysteresis_lab.workflows.pipeline import RunResult
 
 FS = 100.0
 CLIP = 0.6

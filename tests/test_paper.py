@@ -4,9 +4,9 @@ import os
 
 import pytest
 
-from hysteresis_lab import paper
 from hysteresis_lab.errors import ConfigError
-from hysteresis_lab.paper import available_cores, plan_workers
+from hysteresis_lab.workflows import paper
+from hysteresis_lab.workflows.paper import available_cores, plan_workers
 
 CPU = {"accelerator": "cpu"}
 

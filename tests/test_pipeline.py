@@ -5,8 +5,8 @@ from __future__ import annotations
 import json
 
 from hysteresis_lab import fit_record
-from hysteresis_lab.pipeline import RunConfig, RunSettings, run_model, train_and_evaluate
 from hysteresis_lab.run_folder import RunFolder
+from hysteresis_lab.workflows.pipeline import RunConfig, RunSettings, run_model, train_and_evaluate
 from narx import CONFIGS, TRAINER, narx_data
 
 DATA = {"window": {"na": 2, "nb": 2, "nk": 1}, "scaling": {"mode": "standard"}}
@@ -26,7 +26,7 @@ def test_a_run_scores_writes_its_folder_and_is_reused_with_the_same_settings(tmp
     assert (tmp_path / "run" / fit_record.FIT_RECORD).is_file() and folder.fit_record.is_file()
     # the keyword form is the same run: its finished fit is found and scored again
     saved = (tmp_path / "run" / "model.ckpt").stat().st_mtime_ns
-    caplog.set_level("INFO", logger="hysteresis_lab.pipeline")
+    caplog.set_level("INFO", logger="hysteresis_lab.workflows.pipeline")
     again = train_and_evaluate(
         dict(CONFIGS["ffnn"]), DATA, {**TRAINER, "max_epochs": 2}, tmp_path / "run", seed=3,
         splits=splits, use_tensorboard=False, plots=False, reuse=True,

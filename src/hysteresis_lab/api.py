@@ -30,7 +30,7 @@ if TYPE_CHECKING:
     from hysteresis_lab.data.recording import Recording
     from hysteresis_lab.data.splits import DatasetSplits
     from hysteresis_lab.evaluation.evaluate import Evaluation
-    from hysteresis_lab.pipeline import RunResult
+    from hysteresis_lab.workflows.pipeline import RunResult
 
 #: the packaged Hydra configs (``src/hysteresis_lab/conf``)
 CONFIG_MODULE = "hysteresis_lab.conf"
@@ -67,7 +67,7 @@ def train(
     ``hysteresis-lab-train`` does; its run folder (``model.ckpt`` or ``model.skops``,
     ``metrics.json``, figures, TensorBoard logs unless ``logger=none``) goes to
     ``output_dir``. ``splits``: data already loaded with `load_data` (else loaded here)."""
-    from hysteresis_lab.pipeline import train_and_evaluate
+    from hysteresis_lab.workflows.pipeline import train_and_evaluate
 
     if cfg.get("task", "train") != "train":
         raise ConfigError(

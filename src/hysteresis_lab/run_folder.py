@@ -109,3 +109,41 @@ def _first_existing(stem: Path, suffixes: tuple[str, ...]) -> Path | None:
         if path.is_file():
             return path
     return None
+
+
+@dataclass(frozen=True)
+class LoopFolder:
+    """The folder of one ``hysteresis-lab-loop`` run::
+
+        <loop folder>/
+          loop_report.json, loop_report.md, loops_before_after.png
+          round_<n>/                     a `RunFolder` (the round's fit), with the round's
+                                         residual_analysis.json and residual_diagnostics.png
+            refit_lr_<rate>/             a `RunFolder` per refit rate, when a round tried several
+    """
+
+    path: Path
+
+    REPORT_JSON: ClassVar[str] = "loop_report.json"
+    REPORT_MD: ClassVar[str] = "loop_report.md"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "path", Path(self.path))
+
+    @property
+    def report_json(self) -> Path:
+        return self.path / self.REPORT_JSON
+
+    @property
+    def report_md(self) -> Path:
+        return self.path / self.REPORT_MD
+
+    def round_dir(self, number: int) -> Path:
+        """Round ``number``'s folder (round 0: the start model)."""
+        return self.path / f"round_{number}"
+
+    @staticmethod
+    def refit_dir(round_dir: Path, rate: float | None, several: bool) -> Path:
+        """Where a round's fit at ``rate`` lands: its own ``refit_lr_<rate>`` folder when the
+        round tried ``several`` rates, else the round's folder."""
+        return Path(round_dir) / f"refit_lr_{rate:.3g}" if several else Path(round_dir)

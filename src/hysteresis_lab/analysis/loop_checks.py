@@ -20,7 +20,6 @@ from typing import Any
 import numpy as np
 from omegaconf import OmegaConf
 
-from hysteresis_lab.analysis.loop import refit_dir
 from hysteresis_lab.data.factory import build_splits
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.splits import DatasetSplits
@@ -30,7 +29,7 @@ from hysteresis_lab.evaluation.evaluate import scoring_start
 from hysteresis_lab.evaluation.metrics import rmse
 from hysteresis_lab.evaluation.predict import free_run
 from hysteresis_lab.models.io import load_model
-from hysteresis_lab.pipeline import REJECTED_REFIT_MODEL
+from hysteresis_lab.run_folder import LoopFolder, RunFolder
 
 log = logging.getLogger(__name__)
 
@@ -55,7 +54,7 @@ def run_data_config(run: Path) -> dict[str, Any]:
 
 def loop_rounds(run: Path) -> list[dict[str, Any]]:
     """The rounds of a finished loop run's ``loop_report.json``."""
-    report = Path(run) / "loop_report.json"
+    report = LoopFolder(run).report_json
     if not report.is_file():
         raise DataError("no loop_report.json: the loop did not finish", source=str(run),
                         fix="rerun the loop in this folder.")
@@ -65,17 +64,18 @@ def loop_rounds(run: Path) -> list[dict[str, Any]]:
 def round_model(run: Path, number: int) -> Path:
     """The model a loop round kept: ``round_N/model.ckpt``, or the refit whose rate the loop
     chose (named in ``loop_report.json``)."""
-    folder = Path(run) / f"round_{number}"
-    if (folder / "model.ckpt").exists():
-        return folder / "model.ckpt"
+    folder = LoopFolder(run).round_dir(number)
+    kept = RunFolder(folder).model_file()
+    if kept is not None:
+        return kept
     rounds = loop_rounds(run)
     if not 0 <= number < len(rounds):
         raise ConfigError(f"{run} has rounds 0-{len(rounds) - 1}; round {number} is not one.")
     entry = rounds[number]
     several = len(entry.get("refit_candidates") or []) > 1
-    path = refit_dir(folder, entry.get("refit_lr"), several) / "model.ckpt"
-    if not path.exists():
-        raise DataError(f"no model.ckpt for round {number}", source=str(folder))
+    path = RunFolder(LoopFolder.refit_dir(folder, entry.get("refit_lr"), several)).model_file()
+    if path is None:
+        raise DataError(f"no saved model for round {number}", source=str(folder))
     return path
 
 
@@ -191,21 +191,22 @@ def round_candidates(run: Path, number: int, entry: dict[str, Any]) -> list[dict
         )
     losses = {c["refit_lr"]: c["validation_loss"] for c in entry["refit_candidates"]}
     start_loss = entry["refit_validation_loss"]["start"]
-    folder = Path(run) / f"round_{number}"
+    folder = LoopFolder(run).round_dir(number)
     candidates = []
     for rate, loss in losses.items():
-        rate_folder = refit_dir(folder, rate, several=len(losses) > 1)
-        rejected = rate_folder / f"{REJECTED_REFIT_MODEL}.ckpt"
-        if not rejected.exists() and not loss < start_loss:
+        rate_folder = RunFolder(LoopFolder.refit_dir(folder, rate, several=len(losses) > 1))
+        rejected = rate_folder.rejected_refit_model_file()
+        if rejected is None and not loss < start_loss:
             raise DataError(
                 f"the refit at lr {rate:g} lost to its start and its weights were not saved "
-                "(a run from before they were)", source=str(rate_folder), fix="rerun the loop.",
+                "(a run from before they were)", source=str(rate_folder.path),
+                fix="rerun the loop.",
             )
         candidates.append({
             "refit_lr": rate,
             "validation_loss": loss,
             "kept": rate == entry["refit_lr"] and not entry.get("rejected"),
-            "model": rejected if rejected.exists() else rate_folder / "model.ckpt",
+            "model": rejected if rejected is not None else rate_folder.model_file(),
         })
     return candidates
 
@@ -225,7 +226,7 @@ def refit_choices(run: Path, frequencies: list[float]) -> list[dict[str, Any]]:
     data_cfg = run_data_config(run)  # says plainly when the folder is no loop run at all
     rounds = loop_rounds(run)
     check = check_splits(data_cfg, frequencies)
-    standing = run / "round_0" / "model.ckpt"
+    standing = RunFolder(LoopFolder(run).round_dir(0)).model_file()
     results = []
     for number, entry in enumerate(rounds[1:], start=1):
         candidates = round_candidates(run, number, entry)

@@ -1,4 +1,4 @@
-"""``hysteresis-lab-loop``: the closed residual loop (see `hysteresis_lab.analysis.loop`).
+"""``hysteresis-lab-loop``: the closed residual loop (see `hysteresis_lab.workflows.loop`).
 
 Example::
 
@@ -22,9 +22,9 @@ log = logging.getLogger(__name__)
 @report_errors
 def run(cfg: DictConfig) -> dict:
     """Build the data, run the loop, return the report."""
-    from hysteresis_lab.analysis.loop import LoopSettings, run_loop
     from hysteresis_lab.data.factory import build_splits
     from hysteresis_lab.errors import ConfigError
+    from hysteresis_lab.workflows.loop import LoopSettings, run_loop
 
     settings = OmegaConf.to_container(cfg.loop, resolve=True)
     unknown = set(settings) - set(LoopSettings.__dataclass_fields__)

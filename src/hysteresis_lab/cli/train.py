@@ -29,9 +29,9 @@ log = logging.getLogger(__name__)
 @report_errors
 def run(cfg: DictConfig) -> float | None:
     """Run the task the composed config describes; return the sweep objective."""
-    from hysteresis_lab.paper import run_paper
-    from hysteresis_lab.pipeline import train_and_evaluate
     from hysteresis_lab.tuning.pruning import trial_callback
+    from hysteresis_lab.workflows.paper import run_paper
+    from hysteresis_lab.workflows.pipeline import train_and_evaluate
 
     output_dir = Path(HydraConfig.get().runtime.output_dir)
     use_tensorboard = bool(cfg.logger.get("enabled", True))

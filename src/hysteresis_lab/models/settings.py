@@ -98,7 +98,7 @@ class EffectSettings:
         if self.effects and self.feature_context is None:
             raise ConfigError(
                 "a model with effects needs the feature_context of its training data. Fix: "
-                "build it through hysteresis_lab.pipeline (hysteresis-lab-train), which "
+                "build it through hysteresis_lab.workflows.pipeline (hysteresis-lab-train), which "
                 "supplies it."
             )
         if self.effect_path not in EFFECT_PATHS:

@@ -1,4 +1,4 @@
-"""Train-and-evaluate runs of one model (the study's four: `hysteresis_lab.paper`).
+"""Train-and-evaluate runs of one model (the study's four: `hysteresis_lab.workflows.paper`).
 
 `train_and_evaluate` (or `run_model` with a `RunConfig`) prepares the data, reuses a finished
 fit or trains one, scores it and writes the run folder; each step is its own function below.

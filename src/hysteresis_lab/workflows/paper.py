@@ -31,8 +31,8 @@ from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.evaluation.plots import loops_figure, save_figure
 from hysteresis_lab.evaluation.report import write_json, write_table2
-from hysteresis_lab.pipeline import evaluation_device, plain_dict, train_and_evaluate
 from hysteresis_lab.training import check_trainer_settings, is_network, model_layout
+from hysteresis_lab.workflows.pipeline import evaluation_device, plain_dict, train_and_evaluate
 
 log = logging.getLogger(__name__)
 
@@ -139,7 +139,8 @@ class _QueueLogHandler(logging.Handler):
         self.key, self.queue = key, queue
 
     def filter(self, record: logging.LogRecord) -> bool:
-        return record.levelno >= logging.WARNING or record.name == "hysteresis_lab.pipeline"
+        return (record.levelno >= logging.WARNING
+                or record.name == "hysteresis_lab.workflows.pipeline")
 
     def emit(self, record: logging.LogRecord) -> None:
         level = "" if record.levelno < logging.WARNING else f"{record.levelname}: "

@@ -30,7 +30,6 @@ import numpy as np
 from hysteresis_lab import fit_record
 from hysteresis_lab.analysis.diagnosis import TESTS, EffectScore, diagnose, evidence_lags
 from hysteresis_lab.analysis.excitation import operator_excitation
-from hysteresis_lab.analysis.loop_data import LoopData, Stretch, loop_data
 from hysteresis_lab.analysis.report import diagnostics_figure, residual_analysis
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.splits import DatasetSplits
@@ -44,13 +43,9 @@ from hysteresis_lab.evaluation.predict import free_run
 from hysteresis_lab.evaluation.report import write_json
 from hysteresis_lab.models.base import NarxModule
 from hysteresis_lab.models.registry import get_model_class
-from hysteresis_lab.pipeline import (
-    REJECTED_REFIT_METRICS,
-    REJECTED_REFIT_MODEL,
-    RunResult,
-    evaluation_device,
-    train_and_evaluate,
-)
+from hysteresis_lab.run_folder import LoopFolder, RunFolder
+from hysteresis_lab.workflows.loop_data import LoopData, Stretch, loop_data
+from hysteresis_lab.workflows.pipeline import RunResult, evaluation_device, train_and_evaluate
 
 log = logging.getLogger(__name__)
 
@@ -87,7 +82,7 @@ class LoopSettings:
     #: there with the same settings, data and start is reused, not trained again
     resume: bool = True
     #: share at the end of every training recording held out to validate on and diagnose
-    #: from, when the data set has no validation recordings (`hysteresis_lab.analysis.loop_data`)
+    #: from, when the data set has no validation recordings (`hysteresis_lab.workflows.loop_data`)
     holdout: float = 0.25
 
     def __post_init__(self) -> None:
@@ -132,7 +127,7 @@ class LoopSettings:
 
 @dataclass
 class HeldOut:
-    """A round's model on the loop's held-out data (`hysteresis_lab.analysis.loop_data`)."""
+    """A round's model on the loop's held-out data (`hysteresis_lab.workflows.loop_data`)."""
 
     #: mean over the validation stretches (and outputs) of the free-run MSE over the
     #: variance of the measured output there: unit-free, each stretch weighing the same
@@ -190,7 +185,7 @@ def run_loop(
             fit_model,
             judge,
             {**model_cfg, "effects": round_effects},
-            output_dir / f"round_{number}",
+            LoopFolder(output_dir).round_dir(number),
             _refit_rates(model_cfg, settings) if warm_start is not None else [None],
             warm_start=warm_start,
             refit=_refit_mode(settings.refit, trying),
@@ -267,8 +262,9 @@ def run_loop(
         "result": _result_round(rounds, kept),
         "rounds": rounds,
     }
-    write_json(report, output_dir / "loop_report.json")
-    (output_dir / "loop_report.md").write_text(loop_markdown(report))
+    folder = LoopFolder(output_dir)
+    write_json(report, folder.report_json)
+    folder.report_md.write_text(loop_markdown(report))
     if kept:
         _before_after_figure(data.fit, kept[0][0], kept[-1][0], rounds, effects, output_dir)
     log.info("\n%s", loop_markdown(report))
@@ -422,9 +418,7 @@ def _set_aside_rejected_files(document: dict[str, Any]) -> None:
     stands (the one it lost to is the last kept round's)."""
     model_path = Path(document["model_path"])
     fit_record.forget(model_path.parent)  # its files move: a resumed loop refits it
-    aside = model_path.with_name(REJECTED_REFIT_MODEL + model_path.suffix)
-    model_path.replace(aside)
-    (model_path.parent / "metrics.json").replace(model_path.parent / REJECTED_REFIT_METRICS)
+    aside = RunFolder(model_path.parent).set_model_aside_as_rejected(model_path)
     document["model_path"] = str(aside)
 
 
@@ -478,7 +472,7 @@ def _diagnose_round(
     number: int,
 ) -> list[EffectScore]:
     """Residual analysis (JSON, figure, TensorBoard) and the ranked diagnosis of a round, on
-    the diagnosis recordings (never the test recordings: `hysteresis_lab.analysis.loop_data`)."""
+    the diagnosis recordings (never the test recordings: `hysteresis_lab.workflows.loop_data`)."""
     n_skip = scoring_start(result.window, data.fit.n_init)
     recordings, residuals, shown, predictions = [], [], [], {}
     for stretch, prediction in zip(data.diagnosis, check.diagnosis_predictions, strict=True):
@@ -545,10 +539,8 @@ def _fit_round(
     return result, run_dir, rate, losses, check
 
 
-def refit_dir(round_dir: Path, rate: float | None, several: bool) -> Path:
-    """Where a round's fit at ``rate`` lands: its own ``refit_lr_<rate>`` folder when the round
-    tried ``several`` rates, else the round's folder."""
-    return round_dir / f"refit_lr_{rate:.3g}" if several else round_dir
+#: where a round's fit at a rate lands (`hysteresis_lab.run_folder.LoopFolder.refit_dir`)
+refit_dir = LoopFolder.refit_dir
 
 
 def _refit_rates(model_cfg: Mapping[str, Any], settings: LoopSettings) -> list[float]:
