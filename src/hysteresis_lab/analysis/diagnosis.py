@@ -390,6 +390,39 @@ def _output_evidence(
             for y, o in zip(model_outputs, outputs, strict=True)]
 
 
+@dataclass(frozen=True)
+class DiagnosisSettings:
+    """How `diagnose` tests: the significance rule (``min_score``, ``alpha``, ``test``, one
+    of `TESTS`), the held-out blocks (``folds``), the subsampling (``max_points``) and the
+    sample delays of the distributed-lag regression (``lags``, see `evidence_lags`)."""
+
+    min_score: float = 0.05
+    alpha: float = 0.01
+    folds: int = 5
+    max_points: int = 20_000
+    lags: tuple[int, ...] = (0,)
+    test: str = "pooled"
+
+    def __post_init__(self) -> None:
+        if not self.lags or min(self.lags) < 0:
+            raise ValueError(f"lags must be non-negative sample delays, got {list(self.lags)}.")
+        if self.test not in TESTS:
+            raise ValueError(f"unknown test '{self.test}': one of {list(TESTS)}.")
+
+
+@dataclass
+class _Evidence:
+    """The diagnosed recordings, one output each, prepared once for every candidate."""
+
+    recordings: list[Recording]
+    outputs: list[int]  # which output of its recording each one is
+    prepared: list[_Prepared]
+    held: list[bool]  # whether each holds the input constant
+    model_outputs: list[np.ndarray] | None
+    #: baseline designs and blocks per (tested recordings, output-side), built on first use
+    baselines: dict[tuple, tuple[list[np.ndarray], list[_Block]]]
+
+
 def diagnose(
     recordings: list[Recording],
     residuals: list[np.ndarray],
@@ -410,80 +443,112 @@ def diagnose(
     ``predictions``: the model's free-run output per recording (``residuals`` is the
     measurement minus it), the evidence of output-side effects (without it they are
     reported as not tested)."""
-    if not lags or min(lags) < 0:
-        raise ValueError(f"lags must be non-negative sample delays, got {list(lags)}.")
-    if test not in TESTS:
-        raise ValueError(f"unknown test '{test}': one of {list(TESTS)}.")
-    if test == "per_recording":
-        folds = max(folds, BLOCKS_PER_RECORDING)
+    settings = DiagnosisSettings(min_score, alpha, folds, max_points, tuple(lags), test)
+    if settings.test == "per_recording":
+        settings = replace(settings, folds=max(settings.folds, BLOCKS_PER_RECORDING))
     names = [n for n in (candidates or available_effects()) if n not in declared]
+    evidence = _prepare_evidence(recordings, residuals, context, declared, predictions, settings)
+    results = [_score_effect(get_effect(name), name, evidence, context, settings)
+               for name in names]
+    results.sort(key=lambda r: (-r.significant, -r.score))
+    return results
+
+
+def _prepare_evidence(
+    recordings: list[Recording],
+    residuals: list[np.ndarray],
+    context: FeatureContext,
+    declared: list[str],
+    predictions: list[np.ndarray] | None,
+    settings: DiagnosisSettings,
+) -> _Evidence:
+    """Split recordings into one output each and prepare their residuals and baselines."""
     model_outputs = (
         _one_output_each(recordings, predictions)[1] if predictions is not None else None
     )
     recordings, residuals, outputs = _one_output_each(recordings, residuals)
     held = [_holds_input(rec, context) for rec in recordings]
     prepared = [
-        _prepare(rec, res, context, declared, max_points, lags, hold,
+        _prepare(rec, res, context, declared, settings.max_points, settings.lags, hold,
                  None if model_outputs is None else model_outputs[i])
         for i, (rec, res, hold) in enumerate(zip(recordings, residuals, held, strict=True))
     ]
-    baselines: dict[tuple, tuple[list[np.ndarray], list[_Block]]] = {}
-    results = []
-    for name in names:
-        effect = get_effect(name)
-        # input-dependent: where the input moves; input-independent: where it is held
-        tested = tuple(i for i, h in enumerate(held) if h != effect.predictable)
-        if not tested:
-            results.append(_not_tested(name, effect.description, effect.predictable))
-            continue
-        shown = [prepared[i] for i in tested]
-        shown_names = [recordings[i].name for i in tested]
-        key = (tested, effect.block == "output")
-        if key not in baselines:
-            columns = [p.base if not key[1] or p.model_output is None
-                       else np.column_stack([p.base, p.model_output]) for p in shown]
-            base = _standardised(_in_groups(columns, [outputs[i] for i in tested]))
-            baselines[key] = base, _blocks(shown, base, folds)
-            if test == "per_recording" and not key[1]:
-                _warn_too_short(baselines[key][1], shown_names, alpha)
-        base, base_blocks = baselines[key]
-        # an input-independent trend gains nothing from delayed copies of itself
-        own_lags = lags if effect.predictable else (0,)
-        if effect.block == "output":
-            if model_outputs is None:
-                results.append(_not_tested(name, effect.description, True, why=(
-                    "acts on the model's output: no free-run prediction was given to read it from"
-                )))
-                continue
-            raw = _output_evidence(effect, [model_outputs[i] for i in tested],
-                                   [outputs[i] for i in tested])
-        else:
-            raw = [effect.evidence(recordings[i].u, context) for i in tested]
-            if model_outputs is not None and _has_state_evidence(effect):
-                state = _output_evidence(effect, [model_outputs[i] for i in tested],
-                                         [outputs[i] for i in tested], state=True)
-                raw = [np.column_stack([r, x]) for r, x in zip(raw, state, strict=True)]
-        evidence_signals = [
-            _centre(_lagged_rows(signal, p.keep, own_lags)) * p.weight
-            for signal, p in zip(raw, shown, strict=True)
-        ]
-        groups = [outputs[i] for i in tested] if effect.predictable else list(range(len(tested)))
-        signals = _standardised(_in_groups(evidence_signals, groups))
-        full = [np.column_stack([b, s]) for b, s in zip(base, signals, strict=True)]
-        gains = _gains(base_blocks, _blocks(shown, full, folds))
-        significant, p_value, how = _verdict(gains, test, min_score, alpha, shown_names)
-        where = "" if len(tested) == len(recordings) else (
-            f" on the {len(tested)} of {len(recordings)} recordings that "
-            + ("move the input" if effect.predictable else "hold the input constant")
-        )
-        evidence = (
-            f"{effect.description}: explains {100 * gains.score:.1f} % of the residual variance "
-            f"of held-out blocks beyond the input and the declared effects{where} "
-            f"({how}; {len(base_blocks)} blocks: p = {p_value:.2g})"
-        )
-        results.append(
-            EffectScore(name, gains.score, p_value, bool(significant), evidence, effect.predictable)
-        )
-        log.info("%s", evidence)
-    results.sort(key=lambda r: (-r.significant, -r.score))
-    return results
+    return _Evidence(recordings, outputs, prepared, held, model_outputs, {})
+
+
+def _baseline(
+    evidence: _Evidence, tested: tuple[int, ...], output_side: bool, settings: DiagnosisSettings
+) -> tuple[list[np.ndarray], list[_Block]]:
+    """The baseline design (the input and the declared effects; for an output-side effect
+    also the model's output) of the ``tested`` recordings and its held-out blocks."""
+    key = (tested, output_side)
+    if key not in evidence.baselines:
+        shown = [evidence.prepared[i] for i in tested]
+        columns = [p.base if not output_side or p.model_output is None
+                   else np.column_stack([p.base, p.model_output]) for p in shown]
+        base = _standardised(_in_groups(columns, [evidence.outputs[i] for i in tested]))
+        evidence.baselines[key] = base, _blocks(shown, base, settings.folds)
+        if settings.test == "per_recording" and not output_side:
+            _warn_too_short(evidence.baselines[key][1],
+                            [evidence.recordings[i].name for i in tested], settings.alpha)
+    return evidence.baselines[key]
+
+
+def _raw_signals(
+    effect: Effect, evidence: _Evidence, tested: tuple[int, ...], context: FeatureContext
+) -> list[np.ndarray]:
+    """The effect's candidate signals on each tested recording: from its input, or for an
+    output-side effect from the model's output (plus the state-side ones from it)."""
+    outputs = [evidence.outputs[i] for i in tested]
+    if effect.block == "output":
+        assert evidence.model_outputs is not None
+        return _output_evidence(effect, [evidence.model_outputs[i] for i in tested], outputs)
+    raw = [effect.evidence(evidence.recordings[i].u, context) for i in tested]
+    if evidence.model_outputs is not None and _has_state_evidence(effect):
+        state = _output_evidence(effect, [evidence.model_outputs[i] for i in tested], outputs,
+                                 state=True)
+        raw = [np.column_stack([r, x]) for r, x in zip(raw, state, strict=True)]
+    return raw
+
+
+def _score_effect(
+    effect: Effect, name: str, evidence: _Evidence, context: FeatureContext,
+    settings: DiagnosisSettings,
+) -> EffectScore:
+    """One candidate's held-out gain over the baseline, its significance and its evidence."""
+    # input-dependent: where the input moves; input-independent: where it is held
+    tested = tuple(i for i, h in enumerate(evidence.held) if h != effect.predictable)
+    if not tested:
+        return _not_tested(name, effect.description, effect.predictable)
+    if effect.block == "output" and evidence.model_outputs is None:
+        return _not_tested(name, effect.description, True, why=(
+            "acts on the model's output: no free-run prediction was given to read it from"
+        ))
+    shown = [evidence.prepared[i] for i in tested]
+    shown_names = [evidence.recordings[i].name for i in tested]
+    base, base_blocks = _baseline(evidence, tested, effect.block == "output", settings)
+    # an input-independent trend gains nothing from delayed copies of itself
+    own_lags = settings.lags if effect.predictable else (0,)
+    evidence_signals = [
+        _centre(_lagged_rows(signal, p.keep, own_lags)) * p.weight
+        for signal, p in zip(_raw_signals(effect, evidence, tested, context), shown, strict=True)
+    ]
+    groups = ([evidence.outputs[i] for i in tested] if effect.predictable
+              else list(range(len(tested))))
+    signals = _standardised(_in_groups(evidence_signals, groups))
+    full = [np.column_stack([b, s]) for b, s in zip(base, signals, strict=True)]
+    gains = _gains(base_blocks, _blocks(shown, full, settings.folds))
+    significant, p_value, how = _verdict(gains, settings.test, settings.min_score,
+                                         settings.alpha, shown_names)
+    n_all = len(evidence.recordings)
+    where = "" if len(tested) == n_all else (
+        f" on the {len(tested)} of {n_all} recordings that "
+        + ("move the input" if effect.predictable else "hold the input constant")
+    )
+    text = (
+        f"{effect.description}: explains {100 * gains.score:.1f} % of the residual variance "
+        f"of held-out blocks beyond the input and the declared effects{where} "
+        f"({how}; {len(base_blocks)} blocks: p = {p_value:.2g})"
+    )
+    log.info("%s", text)
+    return EffectScore(name, gains.score, p_value, bool(significant), text, effect.predictable)

@@ -142,6 +142,38 @@ class HeldOut:
         return {"loss": self.loss, "rmse": self.rmse, "diverging": self.diverging}
 
 
+@dataclass(frozen=True)
+class _LoopRun:
+    """What every round of one loop run shares."""
+
+    model_cfg: dict[str, Any]
+    settings: LoopSettings
+    data: LoopData
+    context: FeatureContext
+    #: `train_and_evaluate` with the run's data, trainer and bookkeeping settings bound
+    fit_model: Callable[..., RunResult]
+    #: `held_out` with the run's data and device bound
+    judge: Callable[[RunResult], HeldOut]
+    folder: LoopFolder
+    use_tensorboard: bool
+
+
+@dataclass
+class _LoopState:
+    """What the loop carries from round to round."""
+
+    #: the effects the standing model declares
+    effects: list[str]
+    rounds: list[dict[str, Any]] = dataclasses.field(default_factory=list)
+    #: the rounds whose model stands, with their held-out scores
+    kept: list[tuple[RunResult, HeldOut]] = dataclasses.field(default_factory=list)
+    diagnosis: list[EffectScore] = dataclasses.field(default_factory=list)
+    #: effects tried on the standing model
+    tried: set[str] = dataclasses.field(default_factory=set)
+    #: the effect the next round adds
+    trying: str | None = None
+
+
 def run_loop(
     model_cfg: Mapping[str, Any],
     data_cfg: Mapping[str, Any],
@@ -154,121 +186,146 @@ def run_loop(
 ) -> dict[str, Any]:
     """Run the loop; write ``loop_report.json``, ``loop_report.md`` and figures."""
     model_cfg = _without_network_only_settings(model_cfg)
-    effects = list(model_cfg.get("effects") or [])
-    start = {"model": str(model_cfg.get("name")), "effects": list(effects)}
+    start = {"model": str(model_cfg.get("name")), "effects": list(model_cfg.get("effects") or [])}
     log.info("loop start: %s", start_label(start))
     data = loop_data(splits, data_cfg, settings.holdout)
     log.info("loop data roles: %s", data.roles())
-    context = feature_context(data.fit.train)
-    device = evaluation_device(trainer_cfg)
-    rounds: list[dict[str, Any]] = []
-    kept: list[tuple[RunResult, HeldOut]] = []  # the rounds whose model stands
-    diagnosis: list[EffectScore] = []
-    tried: set[str] = set()  # effects tried on the current model
-    trying: str | None = None
-    fit_model = functools.partial(
-        train_and_evaluate,
-        data_cfg=data_cfg,
-        trainer_cfg=trainer_cfg,
-        seed=seed,
-        splits=data.fit,
+    run = _LoopRun(
+        model_cfg=model_cfg,
+        settings=settings,
+        data=data,
+        context=feature_context(data.fit.train),
+        fit_model=functools.partial(
+            train_and_evaluate,
+            data_cfg=data_cfg,
+            trainer_cfg=trainer_cfg,
+            seed=seed,
+            splits=data.fit,
+            use_tensorboard=use_tensorboard,
+            min_refit_gain=settings.min_refit_gain,
+            reuse=settings.resume,
+        ),
+        judge=functools.partial(held_out, data=data, device=evaluation_device(trainer_cfg)),
+        folder=LoopFolder(output_dir),
         use_tensorboard=use_tensorboard,
-        min_refit_gain=settings.min_refit_gain,
-        reuse=settings.resume,
     )
-    judge = functools.partial(held_out, data=data, device=device)
+    state = _LoopState(effects=list(start["effects"]))
     for number in itertools.count():
-        round_effects = effects + ([trying] if trying else [])
-        log.info("=== loop round %d: effects %s ===", number, round_effects or "none")
-        warm_start = _previous_network([k[0] for k in kept]) if settings.warm_start else None
-        result, round_dir, refit_lr, losses, check = _fit_round(
-            fit_model,
-            judge,
-            {**model_cfg, "effects": round_effects},
-            LoopFolder(output_dir).round_dir(number),
-            _refit_rates(model_cfg, settings) if warm_start is not None else [None],
-            warm_start=warm_start,
-            refit=_refit_mode(settings.refit, trying),
-        )
-        if trying is not None and warm_start is None:
-            result = judge_cold_refit(result, kept[-1][0], settings.min_refit_gain)
-            if not result.improved:
-                _set_aside_rejected_files(result.rejected_refit)
-        if trying is not None and result.improved:
-            result, check = _judge_held_out(result, check, kept[-1], settings.min_refit_gain)
-        entry = _round_entry(round_effects, result)
-        entry["held_out"] = check.to_dict()
-        if refit_lr is not None:
-            entry["refit_lr"] = refit_lr
-            entry["refit_candidates"] = losses
-        rounds.append(entry)
-        if trying is not None and not result.improved:
-            entry["rejected"] = trying
-            where = "the held-out validation data" if "held_out" in (
-                result.rejected_refit or {}) else "validation"
-            entry["note"] = (
-                f"the refit with '{trying}' did not beat the last model on {where}: "
-                f"'{trying}' dropped, the last model stands"
-            )
-        elif check.diverging:
-            entry["note"] = (
-                f"the start model's free run diverges on {check.diverging}: it is no result, "
-                "and nothing is diagnosed from it. Fix: another start (model=linear is stable "
-                "by construction) or other training settings"
-            )
-            log.error("%s", entry["note"])
+        entry, goes_on = _fit_round_and_decide(run, state, number)
+        if not (goes_on and _choose_next_effect(run, state, entry)):
             break
-        else:
-            effects, tried = round_effects, set()
-            kept.append((result, check))
-            diagnosis = _diagnose_round(
-                result, check, data, context, effects, settings, round_dir, use_tensorboard,
-                number,
-            )
-            entry["diagnosis"] = [d.to_dict() for d in diagnosis]
-        uncarried = _not_carried(model_cfg, diagnosis, tried)
-        if uncarried:
-            entry["not_carried"] = uncarried
-            log.info("model '%s' has no block for the significant effect(s) %s: not added",
-                     model_cfg.get("name"), uncarried)
-        top, reported = next_effect(diagnosis, tried | set(uncarried))
-        if reported:
-            entry["reported"] = reported
-        if top is None:
-            entry.setdefault("note", "no significant missing effect" + (
-                " that depends on the input" if reported else ""))
-            break
-        if len(kept) > settings.max_rounds:
-            entry.setdefault(
-                "note", f"loop.max_rounds={settings.max_rounds} reached; next: {top.effect}"
-            )
-            break
-        entry["added"] = trying = top.effect
-        tried.add(top.effect)
-        if get_effect(top.effect).block == "output":  # no input operators to compare
-            log.info("'%s' added (it acts on the model's output)", top.effect)
-            continue
-        excitation = operator_excitation(
-            top.effect, [*data.fit.train, *data.fit.val], data.fit.test, context
-        )
-        entry["added_excitation"] = excitation.to_dict()
-        log.info("'%s' added: %s", top.effect, excitation.reading())
     report = {
         "units": {"y": data.fit.test[0].y_units},
         "data": splits.name,
         "model": str(model_cfg.get("name")),
         "start": start,
         "roles": data.roles(),
-        "result": _result_round(rounds, kept),
-        "rounds": rounds,
+        "result": _result_round(state.rounds, state.kept),
+        "rounds": state.rounds,
     }
-    folder = LoopFolder(output_dir)
-    write_json(report, folder.report_json)
-    folder.report_md.write_text(loop_markdown(report))
-    if kept:
-        _before_after_figure(data.fit, kept[0][0], kept[-1][0], rounds, effects, output_dir)
-    log.info("\n%s", loop_markdown(report))
+    _write_report(run, state, report)
     return report
+
+
+def _fit_round_and_decide(
+    run: _LoopRun, state: _LoopState, number: int
+) -> tuple[dict[str, Any], bool]:
+    """Round ``number``: fit (a refit when an effect is being tried), judge it on held-out
+    data, keep or reject it, and diagnose a kept model's residual. Returns the round's
+    report entry and False when the loop cannot go on (the start diverges)."""
+    settings, trying = run.settings, state.trying
+    round_effects = state.effects + ([trying] if trying else [])
+    log.info("=== loop round %d: effects %s ===", number, round_effects or "none")
+    warm_start = (_previous_network([k[0] for k in state.kept])
+                  if settings.warm_start else None)
+    result, round_dir, refit_lr, losses, check = _fit_round(
+        run.fit_model,
+        run.judge,
+        {**run.model_cfg, "effects": round_effects},
+        run.folder.round_dir(number),
+        _refit_rates(run.model_cfg, settings) if warm_start is not None else [None],
+        warm_start=warm_start,
+        refit=_refit_mode(settings.refit, trying),
+    )
+    if trying is not None and warm_start is None:
+        result = judge_cold_refit(result, state.kept[-1][0], settings.min_refit_gain)
+        if not result.improved:
+            _set_aside_rejected_files(result.rejected_refit)
+    if trying is not None and result.improved:
+        result, check = _judge_held_out(result, check, state.kept[-1], settings.min_refit_gain)
+    entry = _round_entry(round_effects, result)
+    entry["held_out"] = check.to_dict()
+    if refit_lr is not None:
+        entry["refit_lr"] = refit_lr
+        entry["refit_candidates"] = losses
+    state.rounds.append(entry)
+    if trying is not None and not result.improved:
+        entry["rejected"] = trying
+        where = "the held-out validation data" if "held_out" in (
+            result.rejected_refit or {}) else "validation"
+        entry["note"] = (
+            f"the refit with '{trying}' did not beat the last model on {where}: "
+            f"'{trying}' dropped, the last model stands"
+        )
+    elif check.diverging:
+        entry["note"] = (
+            f"the start model's free run diverges on {check.diverging}: it is no result, "
+            "and nothing is diagnosed from it. Fix: another start (model=linear is stable "
+            "by construction) or other training settings"
+        )
+        log.error("%s", entry["note"])
+        return entry, False
+    else:
+        state.effects, state.tried = round_effects, set()
+        state.kept.append((result, check))
+        state.diagnosis = _diagnose_round(
+            result, check, run.data, run.context, state.effects, settings, round_dir,
+            run.use_tensorboard, number,
+        )
+        entry["diagnosis"] = [d.to_dict() for d in state.diagnosis]
+    return entry, True
+
+
+def _choose_next_effect(run: _LoopRun, state: _LoopState, entry: dict[str, Any]) -> bool:
+    """Pick the effect the next round adds from the standing diagnosis (recorded in
+    ``entry``); False when the loop ends here (nothing significant, or enough rounds)."""
+    uncarried = _not_carried(run.model_cfg, state.diagnosis, state.tried)
+    if uncarried:
+        entry["not_carried"] = uncarried
+        log.info("model '%s' has no block for the significant effect(s) %s: not added",
+                 run.model_cfg.get("name"), uncarried)
+    top, reported = next_effect(state.diagnosis, state.tried | set(uncarried))
+    if reported:
+        entry["reported"] = reported
+    if top is None:
+        entry.setdefault("note", "no significant missing effect" + (
+            " that depends on the input" if reported else ""))
+        return False
+    if len(state.kept) > run.settings.max_rounds:
+        entry.setdefault(
+            "note", f"loop.max_rounds={run.settings.max_rounds} reached; next: {top.effect}"
+        )
+        return False
+    entry["added"] = state.trying = top.effect
+    state.tried.add(top.effect)
+    if get_effect(top.effect).block == "output":  # no input operators to compare
+        log.info("'%s' added (it acts on the model's output)", top.effect)
+        return True
+    fit = run.data.fit
+    excitation = operator_excitation(top.effect, [*fit.train, *fit.val], fit.test, run.context)
+    entry["added_excitation"] = excitation.to_dict()
+    log.info("'%s' added: %s", top.effect, excitation.reading())
+    return True
+
+
+def _write_report(run: _LoopRun, state: _LoopState, report: dict[str, Any]) -> None:
+    """``loop_report.json`` / ``.md``, the before/after figure, and the report in the log."""
+    write_json(report, run.folder.report_json)
+    run.folder.report_md.write_text(loop_markdown(report))
+    if state.kept:
+        _before_after_figure(run.data.fit, state.kept[0][0], state.kept[-1][0], state.rounds,
+                             state.effects, run.folder.path)
+    log.info("\n%s", loop_markdown(report))
 
 
 def _result_round(
