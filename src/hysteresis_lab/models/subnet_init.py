@@ -21,8 +21,11 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
+
+from hysteresis_lab.models.jit_ops import JIT
 
 log = logging.getLogger(__name__)
 
@@ -30,6 +33,9 @@ log = logging.getLogger(__name__)
 MAX_RADIUS = 0.999
 #: the Markov parameters ERA reads: at most this many lags
 MAX_LAGS = 400
+#: the ARX fit uses at most this many equations (rows) and parameters per output
+ARX_ROWS = 60_000
+ARX_PARAMETERS = 200
 
 
 @dataclass
@@ -44,13 +50,20 @@ class LinearStart:
 
     def simulate(self, v: np.ndarray, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """States (T, nx) and outputs (T, ny) of the input ``v`` (T, nu) from ``x0``."""
-        x = np.empty((len(v), len(x0)))
-        state = np.asarray(x0, dtype=float)
-        drive = v @ self.B.T
-        for t in range(len(v)):
-            x[t] = state
-            state = self.A @ state + drive[t]
+        x = _states(self.A, np.ascontiguousarray(v @ self.B.T),
+                    np.asarray(x0, dtype=np.float64))
         return x, x @ self.C.T + self.c0
+
+
+@numba.njit(**JIT)
+def _states(a: np.ndarray, drive: np.ndarray, x0: np.ndarray) -> np.ndarray:
+    """``x[t+1] = a x[t] + drive[t]`` from ``x[0] = x0``: (T, nx)."""
+    x = np.empty((drive.shape[0], x0.shape[0]))
+    state = x0.copy()
+    for t in range(drive.shape[0]):
+        x[t] = state
+        state = a @ state + drive[t]
+    return x
 
 
 def arx_markov(
@@ -72,7 +85,11 @@ def arx_markov(
         targets.append(y[t])
     if not rows:
         raise ValueError(f"no recording is longer than the ARX order {order} + 1")
-    theta, *_ = np.linalg.lstsq(np.vstack(rows), np.vstack(targets), rcond=None)
+    x, target = np.vstack(rows), np.vstack(targets)
+    if len(x) > ARX_ROWS:  # the rows are independent equations: a random share suffices
+        keep = np.random.default_rng(0).choice(len(x), ARX_ROWS, replace=False)
+        x, target = x[keep], target[keep]
+    theta, *_ = np.linalg.lstsq(x, target, rcond=None)
     phi = [theta[i * ny : (i + 1) * ny].T for i in range(order)]
     gamma = [theta[order * ny + i * nu : order * ny + (i + 1) * nu].T for i in range(order)]
     markov = np.zeros((lags, ny, nu))
@@ -120,18 +137,21 @@ def stabilise(a: np.ndarray, max_radius: float = MAX_RADIUS) -> np.ndarray:
     return stable
 
 
+@numba.njit(**JIT)
 def _regressors(a: np.ndarray, c: np.ndarray, v: np.ndarray) -> np.ndarray:
     """(T, ny, nx*nu + nx): the output's derivative by ``B`` (columns ``B[:, i]`` for input
     i in turn) and by the initial state, for ``x[t+1] = A x[t] + B v[t]``."""
     nx, nu = a.shape[0], v.shape[1]
     g = np.zeros((nx, nx * (nu + 1)))
-    g[:, nx * nu :] = np.eye(nx)
-    out = np.empty((len(v), c.shape[0], g.shape[1]))
-    eye = np.eye(nx)
-    for t in range(len(v)):
+    for j in range(nx):
+        g[j, nx * nu + j] = 1.0
+    out = np.empty((v.shape[0], c.shape[0], g.shape[1]))
+    for t in range(v.shape[0]):
         out[t] = c @ g
         g = a @ g
-        g[:, : nx * nu] += np.kron(v[t], eye)
+        for i in range(nu):
+            for j in range(nx):
+                g[j, i * nx + j] += v[t, i]
     return out
 
 
@@ -147,18 +167,20 @@ def refit_output_error(
     rhs = np.zeros(n_theta)
     parts = []
     for v, y in zip(vs, ys, strict=True):
-        reg = _regressors(a, c, v)
+        reg = _regressors(a, c, np.ascontiguousarray(v, dtype=np.float64))
         shared = np.concatenate([reg[:, :, : nx * nu],
                                  np.broadcast_to(np.eye(ny), (len(v), ny, ny))], axis=2)
         shared = shared.reshape(-1, n_theta)
         initial = reg[:, :, nx * nu :].reshape(-1, nx)
         target = y.reshape(-1)
-        pinv = np.linalg.pinv(initial)
-        shared_r = shared - initial @ (pinv @ shared)
-        target_r = target - initial @ (pinv @ target)
-        gram += shared_r.T @ shared_r
-        rhs += shared_r.T @ target_r
-        parts.append((pinv @ shared, pinv @ target))
+        # eliminate the initial state: project onto the complement of its columns
+        initial_gram = initial.T @ initial
+        initial_gram += 1e-12 * np.trace(initial_gram) * np.eye(nx)
+        to_initial = np.linalg.solve(initial_gram, initial.T @ np.column_stack([shared, target]))
+        cross = initial.T @ shared
+        gram += shared.T @ shared - cross.T @ to_initial[:, :-1]
+        rhs += shared.T @ target - cross.T @ to_initial[:, -1]
+        parts.append((to_initial[:, :-1], to_initial[:, -1]))
     ridge = 1e-9 * np.trace(gram) / n_theta
     theta = np.linalg.solve(gram + ridge * np.eye(n_theta), rhs)
     b = theta[: nx * nu].reshape(nu, nx).T
@@ -167,26 +189,65 @@ def refit_output_error(
 
 
 def linear_start(
-    vs: list[np.ndarray], ys: list[np.ndarray], nx: int, arx_order: int | None = None
+    vs: list[np.ndarray], ys: list[np.ndarray], nx: int, arx_orders: list[int] | None = None
 ) -> LinearStart:
     """A stable linear state-space model of order ``nx`` fitted to the scaled recordings
-    (see the module docstring); ``arx_order`` defaults to ``max(2 nx, 10)``, at most a tenth
-    of the longest recording."""
+    (see the module docstring): one per ARX order in ``arx_orders`` (default ``nx / ny``
+    rounded up, ``nx`` and ``2 nx``, each at most a tenth of the longest recording and at most
+    `ARX_PARAMETERS` per output), the one
+    with the lowest simulation error on the recordings kept."""
     longest = max(len(y) for y in ys)
-    order = arx_order or max(2 * nx, 10)
-    order = max(1, min(order, longest // 10))
+    ny = ys[0].shape[1]
+    orders = arx_orders or [-(-nx // ny), nx, 2 * nx]
+    most = min(longest // 10, ARX_PARAMETERS // (ny + vs[0].shape[1]))
+    orders = sorted({max(1, min(order, most)) for order in orders})
     lags = int(min(MAX_LAGS, max(2 * nx + 3, longest // 4)))
-    a, _, c = era(arx_markov(vs, ys, order, lags), nx)
+    best, best_error = None, np.inf
+    for order in orders:
+        try:
+            start = _start_of_order(vs, ys, nx, order, lags)
+        except (np.linalg.LinAlgError, ValueError) as exc:
+            log.info("linear start: ARX(%d) gives none (%s)", order, exc)
+            continue
+        error = simulation_rmse(start, vs, ys)
+        log.info("linear start: ARX(%d) -> ERA order %d: spectral radius %.4f, simulation "
+                 "RMSE %.4g (scaled)", order, nx, float(np.abs(np.linalg.eigvals(start.A)).max()),
+                 error)
+        if error < best_error:
+            best, best_error = start, error
+    if best is None:
+        raise ValueError("no ARX order gave a finite simulation error")
+    return best
+
+
+def _start_of_order(
+    vs: list[np.ndarray], ys: list[np.ndarray], nx: int, order: int, lags: int
+) -> LinearStart:
+    """The linear start from an ARX model of ``order`` lags; ValueError when that ARX model
+    is unstable (its impulse response grows) or the result is not finite."""
+    markov = arx_markov(vs, ys, order, lags)
+    size = np.abs(markov).max(axis=(1, 2))
+    growing = size[-max(1, lags // 4) :].max() > 2.0 * size[: max(1, lags // 2)].max()
+    if not np.all(np.isfinite(size)) or growing:
+        raise ValueError("the ARX model is unstable")
+    a, _, c = era(markov, nx)
     a = stabilise(a)
     if a.shape[0] < nx:  # a realisation of lower order: pad with states at rest
         pad = nx - a.shape[0]
-        a = np.block([[a, np.zeros((a.shape[0], pad))], [np.zeros((pad, a.shape[0])),
-                                                         np.zeros((pad, pad))]])
+        a = np.block([[a, np.zeros((a.shape[0], pad))],
+                      [np.zeros((pad, a.shape[0])), np.zeros((pad, pad))]])
         c = np.concatenate([c, np.zeros((c.shape[0], pad))], axis=1)
     start = refit_output_error(a, c, vs, ys)
-    log.info("linear start: ARX(%d) -> ERA order %d, spectral radius %.4f", order, nx,
-             float(np.abs(np.linalg.eigvals(start.A)).max()))
+    if not all(np.all(np.isfinite(m)) for m in (start.A, start.B, start.C, start.c0)):
+        raise ValueError("the realisation is not finite")
     return start
+
+
+def simulation_rmse(start: LinearStart, vs: list[np.ndarray], ys: list[np.ndarray]) -> float:
+    """RMSE of the free runs of ``start`` (each from its recording's initial state)."""
+    squares = [np.sum((start.simulate(v, x0)[1] - y) ** 2)
+               for v, y, x0 in zip(vs, ys, start.x0, strict=True)]
+    return float(np.sqrt(np.sum(squares) / sum(y.size for y in ys)))
 
 
 def state_targets(
