@@ -246,8 +246,8 @@ def _initialise_from_data(model: L.LightningModule, datamodule: WindowDataModule
     """Starting values read off the training data, for models that take them: all training
     recordings (``initialise_from_recordings``, e.g. SUBNET's linear start) or the longest
     one's first channels (``initialise_from_data``, e.g. the grey-box's mode); not for a
-    warm-started refit."""
-    if getattr(model, "_new_entries", None):
+    warm-started refit (``_new_entries`` set, even empty: the warm start's weights stay)."""
+    if getattr(model, "_new_entries", None) is not None:
         return
     from_recordings = getattr(model, "initialise_from_recordings", None)
     if from_recordings is not None:

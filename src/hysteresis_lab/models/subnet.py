@@ -112,9 +112,6 @@ class SUBNET(StateSpaceModule):
         except (np.linalg.LinAlgError, ValueError) as exc:
             log.warning("SUBNET keeps its random start: no linear start (%s)", exc)
             return
-        if not all(np.all(np.isfinite(m)) for m in (start.A, start.B, start.C, start.c0)):
-            log.warning("SUBNET keeps its random start: the linear start is not finite")
-            return
         encoder = self._fit_linear_encoder(start, recordings, vs, ys)
         self._set_linear_start(start, *encoder)
 
