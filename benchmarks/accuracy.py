@@ -57,8 +57,8 @@ NETWORK_DEFAULTS = ["model.objective=simulation", "model.horizon=200",
 RECOMMENDED: dict[str, dict[str, list[str]]] = {
     "default": {
         "subnet": ["model.effects=[hysteresis]", "data.window.na=20", "data.window.nb=20",
-                   "model.horizon=200", "model.lr=3e-3", "data.batch_size=32",
-                   "trainer.max_epochs=120"],
+                   "model.horizon=200", "model.lr=1e-4", "data.batch_size=32",
+                   "trainer.max_epochs=40"],
         "greybox": ["model.effects=[creep]"],
     },
     "fsm": {
