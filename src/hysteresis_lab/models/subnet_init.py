@@ -11,6 +11,8 @@ scaled training recordings (``v[t]`` the input the state update reads, ``y[t]`` 
 3. given ``A`` and ``C``, the output is linear in ``B``, the output offset ``c0`` and each
    recording's initial state, so these are refitted on the *simulation* error by least
    squares (`refit_output_error`);
+   Steps 1-3 run for a few ARX orders (`linear_start`); unstable ARX models are skipped
+   and the start with the lowest simulation error on the recordings is kept;
 4. the state each time step should start from (`state_targets`) is the simulated state
    corrected by the least-squares state that explains the next ``J`` output errors; the
    encoder is fitted to it (in `hysteresis_lab.models.subnet`).
