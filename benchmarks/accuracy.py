@@ -64,7 +64,7 @@ RECOMMENDED: dict[str, dict[str, list[str]]] = {
     "fsm": {
         "subnet": ["model.nx=28", "data.window.na=50", "data.window.nb=50",
                    "model.horizon=300", "model.lr=1e-3", "data.batch_size=64",
-                   "trainer.max_epochs=60"],
+                   "trainer.max_epochs=40"],
     },
     "p885": {
         "subnet": ["model.horizon=200", "model.lr=3e-3", "data.batch_size=16",
