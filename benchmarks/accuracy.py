@@ -67,7 +67,7 @@ RECOMMENDED: dict[str, dict[str, list[str]]] = {
                    "trainer.max_epochs=40"],
     },
     "p885": {
-        "subnet": ["model.horizon=200", "model.lr=3e-3", "data.batch_size=16",
+        "subnet": ["model.horizon=200", "model.lr=1e-3", "data.batch_size=16",
                    "trainer.max_epochs=300"],
         "greybox": [],
     },
