@@ -54,19 +54,19 @@ NETWORK_DEFAULTS = ["model.objective=simulation", "model.horizon=200",
 RECOMMENDED: dict[str, dict[str, list[str]]] = {
     "default": {
         "subnet": ["model.effects=[hysteresis]", "data.window.na=20", "data.window.nb=20",
-                   "model.horizon=200", "model.lr=3e-3", "data.batch_size=32",
-                   "trainer.max_epochs=120"],
+                   "model.horizon=200", "model.lr=1e-4", "data.batch_size=32",
+                   "trainer.max_epochs=40"],
         "greybox": ["model.effects=[creep]"],
     },
     "fsm": {
-        "subnet": ["model.nx=16", "data.window.na=50", "data.window.nb=50",
-                   "model.horizon=300", "model.lr=3e-3", "data.batch_size=64",
-                   "trainer.max_epochs=60"],
+        "subnet": ["model.nx=28", "data.window.na=50", "data.window.nb=50",
+                   "model.horizon=300", "model.lr=1e-3", "data.batch_size=64",
+                   "trainer.max_epochs=40"],
         # 28 poles (the published BLA's order) per output and input, a Bouc–Wen cell per input
         "linear": ["model.order=28", "model.effects=[hysteresis]", "trainer.max_epochs=18"],
     },
     "p885": {
-        "subnet": ["model.horizon=200", "model.lr=3e-3", "data.batch_size=16",
+        "subnet": ["model.horizon=200", "model.lr=1e-3", "data.batch_size=16",
                    "trainer.max_epochs=300"],
         "greybox": [],
     },

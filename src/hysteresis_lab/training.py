@@ -232,16 +232,19 @@ def _fit(
 
 
 def _initialise_from_data(model: L.LightningModule, datamodule: WindowDataModule) -> None:
-    """Starting values read off the longest training recording, for models that take them
-    (``initialise_from_data``, e.g. the grey-box's mode), or off all of them
-    (``initialise_from_recordings``); not for a warm-started refit."""
-    initialise = getattr(model, "initialise_from_data", None)
-    if initialise is None or getattr(model, "_new_entries", None):
+    """Starting values read off the training data, for models that take them: all training
+    recordings (``initialise_from_recordings``, e.g. SUBNET's linear start or the linear
+    model's ARX fit) or the longest one's first channels (``initialise_from_data``, e.g. the
+    grey-box's mode); not for a warm-started refit (``_new_entries`` set, even empty: the
+    warm start's weights stay)."""
+    if getattr(model, "_new_entries", None) is not None:
         return
-    from_all = getattr(model, "initialise_from_recordings", None)
-    if from_all is not None:  # e.g. the linear model's ARX fit on every recording
-        train = datamodule.splits.train
-        from_all([rec.u for rec in train], [rec.y for rec in train])
+    from_recordings = getattr(model, "initialise_from_recordings", None)
+    if from_recordings is not None:
+        from_recordings(datamodule.splits.train)
+        return
+    initialise = getattr(model, "initialise_from_data", None)
+    if initialise is None:
         return
     longest = max(datamodule.splits.train, key=lambda rec: rec.n_samples)
     initialise(longest.u[:, 0], longest.y[:, 0], longest.fs)

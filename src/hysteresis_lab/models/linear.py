@@ -41,6 +41,7 @@ from torch import nn
 from hysteresis_lab.blocks import BoucWen, CreepBank, bouc_wen_scaled_params, play
 from hysteresis_lab.blocks.sections import StableSections, arx_least_squares
 from hysteresis_lab.blocks.step import StepState, frozen, play_step
+from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.effects.augment import context_from_dict
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.physical_chain import PhysicalChainModule
@@ -354,21 +355,25 @@ class LinearModel(PhysicalChainModule):
 
     # ------------------------------------------------------------------ initial values
     def initialise_from_data(self, u: np.ndarray, y: np.ndarray, fs: float) -> None:
-        """`initialise_from_recordings` on one training recording (physical units;
+        """`initialise_from_recordings` on one training recording's arrays (physical units;
         1-D for one channel, else (T, channels))."""
-        self.initialise_from_recordings([u], [y])
+        self._initialise_from_arrays([u], [y])
 
-    def initialise_from_recordings(
-        self, us: Sequence[np.ndarray], ys: Sequence[np.ndarray]
-    ) -> None:
+    def initialise_from_recordings(self, recordings: Sequence[Recording]) -> None:
         """The dynamics from a least-squares ARX fit per output (``order`` poles, one
-        denominator for all inputs, ``delay``) on the training recordings (physical units,
-        (T, channels) or 1-D; only the measured inputs are read), and the output offsets.
+        denominator for all inputs, ``delay``) on the training ``recordings`` (only their
+        measured inputs are read), and the output offsets.
 
         ``order`` starts unless its free run from rest is further from the recordings than
         their mean; then every order from 1 up is fitted and the one that simulates best
         starts: on data that excite few frequencies (a single sine) a high-order ARX is not
         identified and its free run can be far off."""
+        self._initialise_from_arrays([rec.u for rec in recordings], [rec.y for rec in recordings])
+
+    def _initialise_from_arrays(
+        self, us: Sequence[np.ndarray], ys: Sequence[np.ndarray]
+    ) -> None:
+        """`initialise_from_recordings` on arrays (physical units, (T, channels) or 1-D)."""
         n_in = self.n_base_inputs
         vs = [np.asarray(u, float).reshape(len(u), -1)[:, :n_in] / self.u_scale[:n_in].numpy()
               for u in us]
