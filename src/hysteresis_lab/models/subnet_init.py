@@ -27,7 +27,7 @@ import numba
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
-from hysteresis_lab.models.jit_ops import JIT
+from hysteresis_lab.kernels.jit_ops import JIT
 
 log = logging.getLogger(__name__)
 
