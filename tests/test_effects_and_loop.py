@@ -294,14 +294,17 @@ def test_model_with_effects_trains_saves_and_evaluates(model, tmp_path):
 
 
 def test_loop_gives_network_settings_only_to_networks():
+    from hysteresis_lab.models.spec import ModelSpec
     from hysteresis_lab.workflows.loop import _without_network_only_settings
 
     settings = {"objective": "simulation", "horizon": 200, "simulation_epochs": 5,
                 "effect_path": "linear", "refit_lr": 1e-4}
-    assert _without_network_only_settings({"name": "svm", "C": 1.0, **settings}) == {
-        "name": "svm", "C": 1.0}
-    assert _without_network_only_settings({"name": "lstm", **settings}) == {
-        "name": "lstm", **settings}
+
+    def kept(config: dict) -> dict:
+        return _without_network_only_settings(ModelSpec.from_config(config)).to_config()
+
+    assert kept({"name": "svm", "C": 1.0, **settings}) == {"name": "svm", "C": 1.0}
+    assert kept({"name": "lstm", **settings}) == {"name": "lstm", **settings}
 
 
 @pytest.mark.slow

@@ -22,8 +22,8 @@ from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.data.segments import simulation_data
 from hysteresis_lab.errors import ConfigError, DivergedError
 from hysteresis_lab.models.interface import SystemModel
-from hysteresis_lab.models.registry import get_model_class
 from hysteresis_lab.models.settings import Stage, TrainingSettings
+from hysteresis_lab.models.spec import ModelSpec
 from hysteresis_lab.run_folder import RunFolder
 from hysteresis_lab.trainer import TrainerSettings, build_trainer
 
@@ -46,22 +46,22 @@ class TrainResult:
     rejected_state: dict[str, torch.Tensor] | None = None
 
 
-def model_layout(model_cfg: Mapping[str, Any]) -> str:
-    """The regressor layout ("flat" or "sequence") of the model named in ``model_cfg``."""
-    return get_model_class(_model_name(model_cfg)).layout
+def model_layout(model: Mapping[str, Any] | ModelSpec) -> str:
+    """The regressor layout ("flat" or "sequence") of a model config or spec."""
+    return ModelSpec.from_config(model).layout
 
 
 def build_model(
-    model_cfg: Mapping[str, Any], datamodule: WindowDataModule, **extra: Any
+    model: Mapping[str, Any] | ModelSpec, datamodule: WindowDataModule, **extra: Any
 ) -> SystemModel:
-    """Instantiate the registered model ``model_cfg['name']`` for the DataModule's data.
+    """Instantiate the registered model of a ``model`` config (or `ModelSpec`) for the
+    DataModule's data.
 
     ``extra`` passes values the pipeline derives (e.g. the effects' ``feature_context``);
     those the model does not take (``n_base_inputs`` for the SVM) are left out.
     """
-    name = _model_name(model_cfg)
-    cls = get_model_class(name)
-    params = {k: v for k, v in model_cfg.items() if k != "name"}
+    spec = ModelSpec.from_config(model)
+    name, cls, params = spec.name, spec.cls, dict(spec.settings)
     extra = {k: v for k, v in extra.items() if k in _init_parameters(cls)}
     accepted = _init_parameters(cls) - DERIVED_PARAMETERS
     unknown = sorted(set(params) - accepted)
@@ -275,9 +275,9 @@ def _fit_one_step(
     return best, val_mse
 
 
-def is_network(model_cfg: Mapping[str, Any]) -> bool:
-    """Does the model named in ``model_cfg`` train with Lightning (and the ``trainer`` config)?"""
-    return issubclass(get_model_class(_model_name(model_cfg)), L.LightningModule)
+def is_network(model: Mapping[str, Any] | ModelSpec) -> bool:
+    """Does the model of a config or spec train with Lightning (and the ``trainer`` config)?"""
+    return ModelSpec.from_config(model).is_network
 
 
 def check_trainer_settings(trainer_cfg: Mapping[str, Any] | TrainerSettings) -> None:
@@ -454,13 +454,6 @@ def _fit_free_run(
         "whole recordings" if getattr(model, "whole_recordings", False) else f"{steps} steps",
     )
     return best, True, val_free_run
-
-
-def _model_name(model_cfg: Mapping[str, Any]) -> str:
-    name = model_cfg.get("name")
-    if not name:
-        raise ConfigError("the model config has no 'name'. Fix: choose one with model=<name>.")
-    return str(name)
 
 
 #: model parameters that come from the data, never from the config

@@ -42,7 +42,7 @@ from hysteresis_lab.evaluation.plots import loops_figure, save_figure
 from hysteresis_lab.evaluation.predict import free_run
 from hysteresis_lab.evaluation.report import write_json
 from hysteresis_lab.models.base import NarxModule
-from hysteresis_lab.models.registry import get_model_class
+from hysteresis_lab.models.spec import ModelSpec
 from hysteresis_lab.run_folder import LoopFolder, RunFolder
 from hysteresis_lab.workflows.loop_data import LoopData, Stretch, loop_data
 from hysteresis_lab.workflows.pipeline import RunResult, evaluation_device, train_and_evaluate
@@ -146,7 +146,7 @@ class HeldOut:
 class _LoopRun:
     """What every round of one loop run shares."""
 
-    model_cfg: dict[str, Any]
+    model: ModelSpec
     settings: LoopSettings
     data: LoopData
     context: FeatureContext
@@ -185,13 +185,13 @@ def run_loop(
     use_tensorboard: bool = True,
 ) -> dict[str, Any]:
     """Run the loop; write ``loop_report.json``, ``loop_report.md`` and figures."""
-    model_cfg = _without_network_only_settings(model_cfg)
-    start = {"model": str(model_cfg.get("name")), "effects": list(model_cfg.get("effects") or [])}
+    model = _without_network_only_settings(ModelSpec.from_config(model_cfg))
+    start = {"model": model.name, "effects": model.effects}
     log.info("loop start: %s", start_label(start))
     data = loop_data(splits, data_cfg, settings.holdout)
     log.info("loop data roles: %s", data.roles())
     run = _LoopRun(
-        model_cfg=model_cfg,
+        model=model,
         settings=settings,
         data=data,
         context=feature_context(data.fit.train),
@@ -217,7 +217,7 @@ def run_loop(
     report = {
         "units": {"y": data.fit.test[0].y_units},
         "data": splits.name,
-        "model": str(model_cfg.get("name")),
+        "model": model.name,
         "start": start,
         "roles": data.roles(),
         "result": _result_round(state.rounds, state.kept),
@@ -241,9 +241,9 @@ def _fit_round_and_decide(
     result, round_dir, refit_lr, losses, check = _fit_round(
         run.fit_model,
         run.judge,
-        {**run.model_cfg, "effects": round_effects},
+        {**run.model.to_config(), "effects": round_effects},
         run.folder.round_dir(number),
-        _refit_rates(run.model_cfg, settings) if warm_start is not None else [None],
+        _refit_rates(run.model.settings, settings) if warm_start is not None else [None],
         warm_start=warm_start,
         refit=_refit_mode(settings.refit, trying),
     )
@@ -289,11 +289,11 @@ def _fit_round_and_decide(
 def _choose_next_effect(run: _LoopRun, state: _LoopState, entry: dict[str, Any]) -> bool:
     """Pick the effect the next round adds from the standing diagnosis (recorded in
     ``entry``); False when the loop ends here (nothing significant, or enough rounds)."""
-    uncarried = _not_carried(run.model_cfg, state.diagnosis, state.tried)
+    uncarried = _not_carried(run.model, state.diagnosis, state.tried)
     if uncarried:
         entry["not_carried"] = uncarried
         log.info("model '%s' has no block for the significant effect(s) %s: not added",
-                 run.model_cfg.get("name"), uncarried)
+                 run.model.name, uncarried)
     top, reported = next_effect(state.diagnosis, state.tried | set(uncarried))
     if reported:
         entry["reported"] = reported
@@ -436,12 +436,12 @@ def next_effect(
 
 
 def _not_carried(
-    model_cfg: Mapping[str, Any], diagnosis: Sequence[EffectScore], tried: set[str]
+    model: ModelSpec, diagnosis: Sequence[EffectScore], tried: set[str]
 ) -> list[str]:
     """Significant, input-driven effects the start model's class cannot take (a grey-box
     carries only the effects it has physical blocks for; a network every effect that reaches
     it through its inputs, none that acts on its output)."""
-    carried = getattr(get_model_class(str(model_cfg.get("name"))), "carried_effects", None)
+    carried = getattr(model.cls, "carried_effects", None)
 
     def carries(effect: str) -> bool:
         return effect in carried if carried is not None else get_effect(effect).block != "output"
@@ -479,15 +479,15 @@ def _set_aside_rejected_files(document: dict[str, Any]) -> None:
     document["model_path"] = str(aside)
 
 
-def _without_network_only_settings(model_cfg: Mapping[str, Any]) -> dict[str, Any]:
+def _without_network_only_settings(model: ModelSpec) -> ModelSpec:
     """Free-run fine-tuning (on by default in the loop), ``effect_path`` and ``refit_lr`` are
     network settings; a model that is no network (the SVM) skips them."""
-    cfg = dict(model_cfg)
-    network_only = [k for k in cfg if k in NETWORK_ONLY]
-    if network_only and not issubclass(get_model_class(str(cfg.get("name"))), NarxModule):
-        log.info("model '%s' is no network: %s ignored", cfg.get("name"), network_only)
-        cfg = {k: v for k, v in cfg.items() if k not in network_only}
-    return cfg
+    network_only = [k for k in model.settings if k in NETWORK_ONLY]
+    if network_only and not issubclass(model.cls, NarxModule):
+        log.info("model '%s' is no network: %s ignored", model.name, network_only)
+        settings = {k: v for k, v in model.settings.items() if k not in network_only}
+        return dataclasses.replace(model, settings=settings)
+    return model
 
 
 def _round_entry(effects: list[str], result: RunResult) -> dict[str, Any]:

@@ -36,6 +36,7 @@ from hysteresis_lab.evaluation.predict import check_n_step
 from hysteresis_lab.evaluation.report import metrics_document
 from hysteresis_lab.models.interface import SystemModel
 from hysteresis_lab.models.io import load_model, model_window, save_model
+from hysteresis_lab.models.spec import ModelSpec
 from hysteresis_lab.run_folder import RunFolder
 from hysteresis_lab.trainer import TrainerSettings
 from hysteresis_lab.training import (
@@ -43,8 +44,6 @@ from hysteresis_lab.training import (
     build_model,
     check_trainer_settings,
     fit,
-    is_network,
-    model_layout,
 )
 
 log = logging.getLogger(__name__)
@@ -109,18 +108,22 @@ class RunSettings:
 
 @dataclass(frozen=True)
 class RunConfig:
-    """One run: the resolved ``model``, ``data`` and ``trainer`` configs, where it writes,
+    """One run: the ``model`` (a `ModelSpec`; a config mapping is turned into one), the
+    resolved ``data`` and ``trainer`` configs, where it writes,
     and its `RunSettings`."""
 
-    model: dict[str, Any]
+    model: ModelSpec
     data: dict[str, Any]
     trainer: dict[str, Any]
     output_dir: Path
     settings: RunSettings = RunSettings()
 
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "model", ModelSpec.from_config(self.model))
+
     @property
     def model_name(self) -> str:
-        return str(self.model["name"])
+        return self.model.name
 
 
 def train_and_evaluate(
@@ -165,7 +168,7 @@ def run_model(
     train, then score and write the run folder."""
     settings = config.settings
     _prepare_run(config)
-    effects = list(config.model.get("effects") or [])
+    effects = config.model.effects
     splits, data, context = _run_data(config, effects, splits)
     record_key = _fit_record_key(config, splits, warm_start)
     if record_key is not None:
@@ -191,7 +194,7 @@ def run_model(
 
 def _prepare_run(config: RunConfig) -> None:
     """Check the trainer settings (networks), make the output folder, seed every generator."""
-    if is_network(config.model):
+    if config.model.is_network:
         check_trainer_settings(config.trainer)
     config.output_dir.mkdir(parents=True, exist_ok=True)
     L.seed_everything(config.settings.seed, workers=True, verbose=False)
@@ -218,7 +221,7 @@ def _fit_record_key(
     if not (settings.reuse and settings.evaluate):
         return None
     fingerprinted = {
-        "model": config.model, "data": config.data, "trainer": config.trainer,
+        "model": config.model.to_config(), "data": config.data, "trainer": config.trainer,
         "seed": settings.seed, "n_steps": settings.n_steps,
         "refit": settings.refit if warm_start is not None else None,
         "min_refit_gain": settings.min_refit_gain,
@@ -244,7 +247,7 @@ def _build(
 ) -> tuple[WindowDataModule, SystemModel]:
     """The DataModule and the untrained model (started from ``warm_start`` when given)."""
     datamodule = build_datamodule(
-        config.data, model_layout(config.model), seed=config.settings.seed, splits=data
+        config.data, config.model.layout, seed=config.settings.seed, splits=data
     )
     extra = (
         {"feature_context": context_to_dict(context),
@@ -379,7 +382,7 @@ def _log_summary(
     val_mse: float,
 ) -> None:
     """The run's settings and final scores as TensorBoard hparams."""
-    hparams = {f"model/{k}": v for k, v in config.model.items() if _scalar(v)}
+    hparams = {f"model/{k}": v for k, v in config.model.to_config().items() if _scalar(v)}
     hparams.update({"data": data_name, "seed": config.settings.seed})
     final = {f"test_mean/{k}": v for k, v in document["mean"].items()}
     final["val_mse_scaled"] = val_mse
