@@ -67,24 +67,14 @@ def train(
     ``hysteresis-lab-train`` does; its run folder (``model.ckpt`` or ``model.skops``,
     ``metrics.json``, figures, TensorBoard logs unless ``logger=none``) goes to
     ``output_dir``. ``splits``: data already loaded with `load_data` (else loaded here)."""
-    from hysteresis_lab.workflows.pipeline import train_and_evaluate
+    from hysteresis_lab.workflows.pipeline import train_from_config
 
     if cfg.get("task", "train") != "train":
         raise ConfigError(
             f"train() runs task=train, not task={cfg.task}. Fix: compose without "
             "experiment=paper, or run hysteresis-lab-train experiment=paper."
         )
-    return train_and_evaluate(
-        cfg.model,
-        cfg.data,
-        cfg.trainer,
-        Path(output_dir),
-        seed=cfg.seed,
-        splits=splits,
-        use_tensorboard=bool(cfg.logger.get("enabled", True)),
-        n_steps=cfg.get("n_step"),
-        plots=cfg.plots,
-    )
+    return train_from_config(cfg, Path(output_dir), splits=splits)
 
 
 def simulate(model: Any, recordings: Sequence[Recording]) -> list[np.ndarray]:

@@ -11,7 +11,7 @@ on disk, named in one place.
       rejected_refit_metrics.json       ... and its scores (``model.*`` holds its start)
       hysteresis_loops.png, residuals.png
       tensorboard/                      TensorBoard logs (``logger=none``: absent)
-      checkpoints/                      Lightning's best-epoch checkpoints of each stage
+      checkpoints/, checkpoints_free_run/   Lightning's best-epoch checkpoints of each stage
 
 `pipeline` writes it, the loop sets a losing refit aside in it, `hysteresis-lab-evaluate` and
 the benchmark scripts read it: all through `RunFolder`.
@@ -42,6 +42,8 @@ class RunFolder:
     REJECTED_REFIT_METRICS: ClassVar[str] = "rejected_refit_metrics.json"
     TENSORBOARD: ClassVar[str] = "tensorboard"
     CHECKPOINTS: ClassVar[str] = "checkpoints"
+    #: the free-run fine-tuning stage's (after a one-step stage)
+    FREE_RUN_CHECKPOINTS: ClassVar[str] = "checkpoints_free_run"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "path", Path(self.path))

@@ -22,7 +22,7 @@ from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.data.segments import simulation_data
 from hysteresis_lab.errors import ConfigError, DivergedError
 from hysteresis_lab.models.interface import SystemModel
-from hysteresis_lab.models.settings import Stage, TrainingSettings
+from hysteresis_lab.models.settings import Stage
 from hysteresis_lab.models.spec import ModelSpec
 from hysteresis_lab.run_folder import RunFolder
 from hysteresis_lab.trainer import TrainerSettings, build_trainer
@@ -167,8 +167,8 @@ def stage_lr(model: L.LightningModule, stage: Stage) -> float:
     """The learning rate of a training ``stage`` of ``model``: its `TrainingSettings` decide
     (`TrainingSettings.stage_lr`); a warm-started refit (``_new_entries`` set by
     ``warm_start_from``) counts as a refit."""
-    settings = TrainingSettings.from_hparams(model.hparams)
-    return settings.stage_lr(stage, refit=bool(getattr(model, "_new_entries", None)))
+    refit = bool(getattr(model, "_new_entries", None))
+    return model.training_settings.stage_lr(stage, refit=refit)
 
 
 def _fit(
@@ -190,7 +190,7 @@ def _fit(
         return TrainResult(model, val_mse, time.perf_counter() - start)
 
     steps = model.simulation_horizon
-    fine_tune_epochs = TrainingSettings.from_hparams(model.hparams).simulation_epochs
+    fine_tune_epochs = model.training_settings.simulation_epochs
     stages = (model, datamodule, settings, output_dir, logger)
     _initialise_from_data(model, datamodule)
     if steps > 0 and fine_tune_epochs is not None and model.simulation_trained:
@@ -200,7 +200,7 @@ def _fit(
     if steps > 0 and fine_tune_epochs is None:  # the free-run error is the only objective
         model.stage_lr = stage_lr(model, "simulation")
         best, _, val_mse = _fit_free_run(
-            *stages, steps, int(settings.max_epochs), callbacks, "checkpoints",
+            *stages, steps, int(settings.max_epochs), callbacks, RunFolder.CHECKPOINTS,
             starting_checkpoint=None, keep_start=True, finite_start=True,
         )
         model.stage_lr = None
@@ -210,7 +210,7 @@ def _fit(
     if not one_step and steps > 0:
         model.stage_lr = stage_lr(model, "fine_tune")
         best, improved, val_mse = _fit_free_run(
-            *stages, steps, int(fine_tune_epochs), None, "checkpoints_free_run",
+            *stages, steps, int(fine_tune_epochs), None, RunFolder.FREE_RUN_CHECKPOINTS,
             starting_checkpoint=None, keep_start=True,
         )
         if not improved:  # the new inputs were not learned: refit from the warm start
@@ -222,7 +222,7 @@ def _fit(
         if steps > 0:
             model.stage_lr = stage_lr(model, "fine_tune")
             best, _, val_mse = _fit_free_run(
-                *stages, steps, int(fine_tune_epochs), None, "checkpoints_free_run",
+                *stages, steps, int(fine_tune_epochs), None, RunFolder.FREE_RUN_CHECKPOINTS,
                 starting_checkpoint=best, keep_start=True,
             )
     model.stage_lr = None
@@ -400,7 +400,7 @@ def _fit_free_run(
     segments = simulation_data(datamodule, model, steps)
     checkpoint = _best_checkpoint(output_dir / folder)
     all_callbacks: list[Any] = [checkpoint, *(callbacks or [])]
-    patience = TrainingSettings.from_hparams(model.hparams).patience
+    patience = model.training_settings.patience
     if patience:
         all_callbacks.append(EarlyStopping(monitor="val_loss", mode="min", patience=patience))
     # feedback through many steps: keep updates bounded
@@ -409,7 +409,7 @@ def _fit_free_run(
     starting_weights = {k: v.detach().clone() for k, v in model.state_dict().items()}
     model.simulation_mode = True
     try:
-        version = "" if folder == "checkpoints" else "free_run"
+        version = "" if folder == RunFolder.CHECKPOINTS else "free_run"
         stage_logger = (
             TensorBoardLogger(save_dir=logger.save_dir, name=logger.name, version=version)
             if logger is not None

@@ -31,7 +31,7 @@ def run(cfg: DictConfig) -> float | None:
     """Run the task the composed config describes; return the sweep objective."""
     from hysteresis_lab.tuning.pruning import trial_callback
     from hysteresis_lab.workflows.paper import run_paper
-    from hysteresis_lab.workflows.pipeline import train_and_evaluate
+    from hysteresis_lab.workflows.pipeline import train_from_config
 
     output_dir = Path(HydraConfig.get().runtime.output_dir)
     use_tensorboard = bool(cfg.logger.get("enabled", True))
@@ -53,18 +53,7 @@ def run(cfg: DictConfig) -> float | None:
     pruning = trial_callback(
         OmegaConf.to_container(cfg.sweep_trial) if "sweep_trial" in cfg else None
     )
-    result = train_and_evaluate(
-        cfg.model,
-        cfg.data,
-        cfg.trainer,
-        output_dir,
-        seed=cfg.seed,
-        use_tensorboard=use_tensorboard,
-        n_steps=cfg.get("n_step"),
-        plots=cfg.plots,
-        evaluate=cfg.get("evaluate", True),
-        callbacks=[pruning] if pruning else None,
-    )
+    result = train_from_config(cfg, output_dir, callbacks=[pruning] if pruning else None)
     return result.val_mse
 
 

@@ -29,6 +29,7 @@ import numpy as np
 from hysteresis_lab.data.scaling import Scaler
 from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.models.settings import TrainingSettings
 
 
 @runtime_checkable
@@ -75,6 +76,8 @@ class NetworkModel(SystemModel, Protocol):
     simulation_mode: bool
     #: the learning rate of the running training stage, set by training
     stage_lr: float | None
+    #: how it trains: optimiser, schedule, objective and each stage's learning rate
+    training_settings: TrainingSettings
 
     @property
     def simulation_horizon(self) -> int:

@@ -584,7 +584,7 @@ def _fit_round(
     (the test recordings play no part in the choice)."""
     runs = []
     for rate in rates:
-        run_dir = refit_dir(round_dir, rate, several=len(rates) > 1)
+        run_dir = LoopFolder.refit_dir(round_dir, rate, several=len(rates) > 1)
         refit_lr = {"refit_lr": rate} if rate is not None else {}
         result = fit_model(model_cfg={**model_cfg, **refit_lr}, output_dir=run_dir, **fit_options)
         runs.append((result, run_dir, rate, judge(result)))
@@ -596,8 +596,6 @@ def _fit_round(
     return result, run_dir, rate, losses, check
 
 
-#: where a round's fit at a rate lands (`hysteresis_lab.run_folder.LoopFolder.refit_dir`)
-refit_dir = LoopFolder.refit_dir
 
 
 def _refit_rates(model_cfg: Mapping[str, Any], settings: LoopSettings) -> list[float]:

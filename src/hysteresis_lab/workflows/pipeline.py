@@ -48,10 +48,6 @@ from hysteresis_lab.training import (
 
 log = logging.getLogger(__name__)
 
-#: where a loop refit that lost on validation leaves its own model, beside its metrics (a
-#: warm-started one: ``model.ckpt`` beside them holds the start it lost to); see `RunFolder`
-REJECTED_REFIT_MODEL = RunFolder.REJECTED_REFIT_MODEL_STEM
-REJECTED_REFIT_METRICS = RunFolder.REJECTED_REFIT_METRICS
 
 
 @dataclass
@@ -156,6 +152,30 @@ def train_and_evaluate(
         RunSettings(seed, use_tensorboard, n_steps, plots, evaluate, refit, min_refit_gain, reuse),
     )
     return run_model(config, splits=splits, callbacks=callbacks, warm_start=warm_start)
+
+
+def train_from_config(
+    cfg: Mapping[str, Any],
+    output_dir: Path,
+    splits: DatasetSplits | None = None,
+    callbacks: list[Any] | None = None,
+) -> RunResult:
+    """`train_and_evaluate` with the settings of a composed ``train`` config (``model``,
+    ``data``, ``trainer``, ``seed``, ``logger``, ``n_step``, ``plots``, ``evaluate``): what
+    ``hysteresis-lab-train`` and `hysteresis_lab.api.train` run."""
+    return train_and_evaluate(
+        cfg["model"],
+        cfg["data"],
+        cfg["trainer"],
+        Path(output_dir),
+        seed=cfg["seed"],
+        splits=splits,
+        use_tensorboard=bool(cfg["logger"].get("enabled", True)),
+        n_steps=cfg.get("n_step"),
+        plots=cfg["plots"],
+        evaluate=cfg.get("evaluate", True),
+        callbacks=callbacks,
+    )
 
 
 def run_model(
@@ -346,7 +366,8 @@ def _keep_rejected_refit(
     units: dict[str, str],
 ) -> dict[str, Any] | None:
     """A refit that lost to its start: score its own weights, save them and their metrics
-    beside the kept model (`REJECTED_REFIT_MODEL`, `REJECTED_REFIT_METRICS`)."""
+    beside the kept model (`RunFolder`'s rejected-refit names; a warm-started refit's
+    ``model.*`` holds the start it lost to)."""
     if trained.rejected_state is None:
         return None
     folder = RunFolder(config.output_dir)
