@@ -73,7 +73,7 @@ def test_a_plugin_model_lacking_methods_is_refused_naming_them_and_its_entry_poi
         get_model_class("half_svr")
     with pytest.raises(ConfigError, match=(
         r"model 'half_net' .*NetworkModel interface: it lacks simulation_horizon, "
-        r"train_new_inputs_only, warm_start_from\. Fix:.*NarxModule"
+        r"train_new_inputs_only, training_settings, warm_start_from\. Fix:.*NarxModule"
     )):
         get_model_class("half_net")
 

@@ -84,8 +84,8 @@ class NarxModule(L.LightningModule, NetworkModel):
     ) -> None:
         super().__init__()
         check_channels(nu, ny)
-        #: how it trains (checked here: a bad setting fails before any data is read)
-        self.training_settings = TrainingSettings(
+        # checked here, so a bad setting fails before any data is read
+        TrainingSettings(
             lr=lr, lr_schedule=lr_schedule, weight_decay=weight_decay, objective=objective,
             horizon=horizon, simulation_epochs=simulation_epochs, simulation_lr=simulation_lr,
             patience=patience, refit_lr=refit_lr,
@@ -146,6 +146,11 @@ class NarxModule(L.LightningModule, NetworkModel):
                 "input_channels", torch.nonzero(to_input).flatten(), persistent=False
             )
             self.input_weight = nn.Parameter(torch.zeros(self.n_base_inputs, int(to_input.sum())))
+
+    @property
+    def training_settings(self) -> TrainingSettings:
+        """How it trains, read from its saved settings (``hparams``: the one record of them)."""
+        return TrainingSettings.from_hparams(self.hparams)
 
     # ------------------------------------------------------------------ model
     @property

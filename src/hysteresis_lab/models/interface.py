@@ -76,8 +76,11 @@ class NetworkModel(SystemModel, Protocol):
     simulation_mode: bool
     #: the learning rate of the running training stage, set by training
     stage_lr: float | None
-    #: how it trains: optimiser, schedule, objective and each stage's learning rate
-    training_settings: TrainingSettings
+
+    @property
+    def training_settings(self) -> TrainingSettings:
+        """How it trains: optimiser, schedule, objective and each stage's learning rate."""
+        ...
 
     @property
     def simulation_horizon(self) -> int:
