@@ -21,7 +21,7 @@ from conftest import optional_dependency
 from helpers import data_overrides, popen_app, run_app, small_dataset
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.tuning.bookkeeping import DISCARDED, PID, counted, discard_stale
-from hysteresis_lab.tuning.storage import STORAGE_ENV, redact, resolve_storage_url
+from hysteresis_lab.tuning.storage import STORAGE_ENV, open_storage, redact, resolve_storage_url
 
 
 @pytest.fixture(scope="module")
@@ -286,6 +286,65 @@ def postgres_url(tmp_path_factory):
         psycopg.connect(f"postgresql://postgres:wrong@127.0.0.1:{port}/postgres").close()
     yield f"postgresql://postgres:{PG_PASSWORD}@127.0.0.1:{port}/postgres"
     pg_ctl(["-w", "stop"], pgdata=server.pgdata, user=server.system_user, timeout=30)
+
+
+def fresh_database(server_url: str, name: str) -> str:
+    """A new, empty database on the test server: Optuna has not created its schema there."""
+    import psycopg
+    from sqlalchemy.engine import make_url
+
+    url = make_url(server_url)
+    with psycopg.connect(server_url, autocommit=True) as conn:
+        conn.execute(f"CREATE DATABASE {name}")
+    return url.set(database=name).render_as_string(hide_password=False)
+
+
+def test_workers_opening_a_fresh_postgres_database_together_all_connect(postgres_url):
+    """Workers started together race to create Optuna's schema; before the fix one of them
+    lost ("relation studies already exists") in about one start in four. Staggered starts
+    over several fresh databases make that race likely; every worker must still connect."""
+    import random
+    from concurrent.futures import ThreadPoolExecutor
+
+    def connect(url: str) -> str:
+        time.sleep(random.uniform(0.0, 0.15))
+        try:
+            open_storage(url)
+            return "ok"
+        except ConfigError as exc:
+            return str(exc)
+
+    for round_ in range(4):
+        url = fresh_database(postgres_url, f"race{round_}")
+        with ThreadPoolExecutor(6) as pool:
+            results = list(pool.map(connect, [url] * 6))
+        assert results == ["ok"] * 6, results
+        assert optuna.storages.RDBStorage(url).get_all_studies() == []
+
+
+def test_schema_creation_waits_for_the_other_worker(postgres_url):
+    """While another worker holds the schema lock, opening the storage waits for it."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from hysteresis_lab.tuning.storage import _schema_lock
+
+    url = fresh_database(postgres_url, "lock_wait")
+    with ThreadPoolExecutor(1) as pool:
+        with _schema_lock(url):
+            opening = pool.submit(open_storage, url)
+            time.sleep(1.0)
+            assert not opening.done(), "the storage was created while another worker held the lock"
+        assert opening.result(timeout=60) is not None
+
+
+def test_a_wrong_password_is_not_mistaken_for_a_schema_race(postgres_url):
+    from sqlalchemy.engine import make_url
+
+    wrong = make_url(postgres_url).set(password="wrong").render_as_string(hide_password=False)
+    start = time.monotonic()
+    with pytest.raises(ConfigError, match="cannot open the Optuna storage"):
+        open_storage(wrong)
+    assert time.monotonic() - start < 5, "an unusable URL must fail at once, not after retries"
 
 
 @pytest.mark.slow

@@ -9,11 +9,14 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import optuna
+from sqlalchemy import create_engine, text
 from sqlalchemy.engine import make_url
-from sqlalchemy.exc import ArgumentError, IntegrityError
+from sqlalchemy.exc import ArgumentError, DBAPIError, IntegrityError
 
 from hysteresis_lab.errors import ConfigError
 
@@ -51,15 +54,59 @@ def _has_password(url: str) -> bool:
 
 
 def open_storage(url: str) -> optuna.storages.BaseStorage:
-    """Connect, failing with a clear error (before any training) when the URL is unusable."""
-    for attempt in range(5):
+    """Connect, failing with a clear error (before any training) when the URL is unusable.
+
+    Workers started together on a fresh database all try to create Optuna's schema: on
+    PostgreSQL they take turns under an advisory lock; on any backend, a worker that loses the
+    race (the table or type "already exists") retries, and then finds the schema made.
+    """
+    last: Exception | None = None
+    for attempt in range(_SCHEMA_RACE_RETRIES):
         try:
-            return optuna.storages.RDBStorage(url, engine_kwargs=_engine_kwargs(url))
-        except IntegrityError:  # another worker is creating the schema right now
-            time.sleep(0.5 * (attempt + 1))
+            with _schema_lock(url):
+                return optuna.storages.RDBStorage(url, engine_kwargs=_engine_kwargs(url))
         except Exception as exc:  # SQLAlchemy / driver errors have many types
-            raise _unusable(url, exc) from None
-    return optuna.storages.RDBStorage(url, engine_kwargs=_engine_kwargs(url))
+            if not _lost_schema_race(exc):
+                raise _unusable(url, exc) from None
+            last = exc
+            time.sleep(0.2 * (attempt + 1))
+    raise _unusable(url, last) from None
+
+
+_SCHEMA_RACE_RETRIES = 8
+# SQLSTATEs of "someone else created it first": unique_violation, duplicate_table,
+# duplicate_object.
+_ALREADY_EXISTS = {"23505", "42P07", "42710"}
+
+
+def _lost_schema_race(exc: Exception) -> bool:
+    if isinstance(exc, IntegrityError):
+        return True
+    if not isinstance(exc, DBAPIError):
+        return False
+    state = getattr(exc.orig, "sqlstate", None) or getattr(exc.orig, "pgcode", None)
+    return state in _ALREADY_EXISTS or "already exists" in str(exc.orig)
+
+
+@contextmanager
+def _schema_lock(url: str) -> Iterator[None]:
+    """On PostgreSQL, hold a session advisory lock while the schema is checked and created."""
+    if not url.startswith("postgresql"):
+        yield
+        return
+    engine = create_engine(url, **_engine_kwargs(url))
+    try:
+        with engine.connect() as connection:
+            connection.execute(text("SELECT pg_advisory_lock(:key)"), {"key": _LOCK_KEY})
+            try:
+                yield
+            finally:
+                connection.execute(text("SELECT pg_advisory_unlock(:key)"), {"key": _LOCK_KEY})
+    finally:
+        engine.dispose()
+
+
+_LOCK_KEY = 0x68797374  # any fixed 64-bit number; "hyst"
 
 
 def _unusable(url: str, exc: Exception) -> ConfigError:
