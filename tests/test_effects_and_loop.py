@@ -22,6 +22,7 @@ from hysteresis_lab.effects.registry import available_effects, get_effect
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.signals import sine
 from hysteresis_lab.workflows.loop import LoopSettings, next_effect
+from loop_notebook import check_loop_notebook
 
 FS = 2000.0
 CATALOGUE = {"hysteresis", "creep", "resonance", "rate", "drift", "saturation", "dead_zone",
@@ -219,7 +220,7 @@ def test_loop_writes_its_report(tmp_path):
                    "trainer.max_epochs=3", "trainer.enable_progress_bar=false",
                    f"hydra.run.dir={tmp_path}/loop")
     assert proc.returncode == 0, proc.stderr[-3000:]
-    report = json.loads((tmp_path / "loop" / "loop_report.json").read_text())
+    report = check_loop_notebook(tmp_path / "loop")  # the page is its JSON's
     assert report["units"] == {"y": "um"}
     rounds = report["rounds"]
     # on this data the FFNN leaves hysteresis in its held-out residual; the refit with it is
@@ -334,10 +335,9 @@ def test_loop_drops_an_effect_whose_refit_does_not_help(tmp_path):
         assert refit["tests"].keys() == attempt["tests"].keys()
         assert refit["tests"] != attempt["tests"]
     assert rounds[-1]["added"] is None
-    report = (tmp_path / "loop" / "loop_report.md").read_text()
-    assert "rejected" in report
+    check_loop_notebook(tmp_path / "loop")  # each dropped refit's before/after and decision
+    assert all(r["decision"]["kept"] is False for r in rounds[1:])
     refit_mean = rounds[1]["rejected_refit"]["mean_rmse_free_run"]
-    assert f"-> {refit_mean:.4g}" in report
     # the rejected refit's own weights are saved beside its start's: evaluated again, they
     # give the errors the report shows for it
     chosen = tmp_path / "loop" / "round_1" / f"refit_lr_{rounds[1]['refit_lr']:.3g}"

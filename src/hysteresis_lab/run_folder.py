@@ -119,6 +119,8 @@ class LoopFolder:
 
         <loop folder>/
           loop_report.json, loop_report.md, loops_before_after.png
+          figures/round_<n>_<name>.png   the report's figures of round n (residual, scores,
+                                         added_<effect>), linked from loop_report.md
           round_<n>/                     a `RunFolder` (the round's fit), with the round's
                                          residual_analysis.json and residual_diagnostics.png
             refit_lr_<rate>/             a `RunFolder` per refit rate, when a round tried several
@@ -128,6 +130,8 @@ class LoopFolder:
 
     REPORT_JSON: ClassVar[str] = "loop_report.json"
     REPORT_MD: ClassVar[str] = "loop_report.md"
+    FIGURES: ClassVar[str] = "figures"
+    BEFORE_AFTER: ClassVar[str] = "loops_before_after.png"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "path", Path(self.path))
@@ -139,6 +143,19 @@ class LoopFolder:
     @property
     def report_md(self) -> Path:
         return self.path / self.REPORT_MD
+
+    @property
+    def before_after_figure(self) -> Path:
+        """The test recordings' free run before (the start) and after (the result)."""
+        return self.path / self.BEFORE_AFTER
+
+    def figure(self, number: int, name: str) -> Path:
+        """Round ``number``'s report figure ``name`` (PNG)."""
+        return self.path / self.FIGURES / f"round_{number}_{name}.png"
+
+    def relative(self, path: Path) -> str:
+        """``path`` as the report links it: relative to the loop folder, with ``/``."""
+        return Path(path).relative_to(self.path).as_posix()
 
     def round_dir(self, number: int) -> Path:
         """Round ``number``'s folder (round 0: the start model)."""

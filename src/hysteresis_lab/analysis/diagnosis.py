@@ -497,18 +497,53 @@ def _baseline(
 def _raw_signals(
     effect: Effect, evidence: _Evidence, tested: tuple[int, ...], context: FeatureContext
 ) -> list[np.ndarray]:
-    """The effect's candidate signals on each tested recording: from its input, or for an
-    output-side effect from the model's output (plus the state-side ones from it)."""
-    outputs = [evidence.outputs[i] for i in tested]
+    """The effect's candidate signals on each tested recording (see `_signals_of`)."""
+    return _signals_of(
+        effect,
+        [evidence.recordings[i] for i in tested],
+        [evidence.outputs[i] for i in tested],
+        None if evidence.model_outputs is None else [evidence.model_outputs[i] for i in tested],
+        context,
+    )
+
+
+def _signals_of(
+    effect: Effect,
+    recordings: Sequence[Recording],
+    outputs: Sequence[int],
+    model_outputs: Sequence[np.ndarray] | None,
+    context: FeatureContext,
+) -> list[np.ndarray]:
+    """The effect's candidate signals on each single-output series: from its input, or for
+    an output-side effect from the model's output (plus the state-side ones from it)."""
     if effect.block == "output":
-        assert evidence.model_outputs is not None
-        return _output_evidence(effect, [evidence.model_outputs[i] for i in tested], outputs)
-    raw = [effect.evidence(evidence.recordings[i].u, context) for i in tested]
-    if evidence.model_outputs is not None and _has_state_evidence(effect):
-        state = _output_evidence(effect, [evidence.model_outputs[i] for i in tested], outputs,
-                                 state=True)
+        assert model_outputs is not None
+        return _output_evidence(effect, model_outputs, outputs)
+    raw = [effect.evidence(rec.u, context) for rec in recordings]
+    if model_outputs is not None and _has_state_evidence(effect):
+        state = _output_evidence(effect, model_outputs, outputs, state=True)
         raw = [np.column_stack([r, x]) for r, x in zip(raw, state, strict=True)]
     return raw
+
+
+def effect_signals(
+    name: str,
+    recordings: Sequence[Recording],
+    context: FeatureContext,
+    predictions: Sequence[np.ndarray] | None = None,
+) -> list[np.ndarray]:
+    """The signals `diagnose` regresses the residual on for effect ``name`` (before its lags):
+    one (N x k) array per recording and output, in the order `diagnose` takes them apart
+    (every output of a recording in turn). ``predictions``: the model's free run per
+    recording, which an output-side effect's signals are read from."""
+    effect = get_effect(name)
+    if effect.block == "output" and predictions is None:
+        raise ValueError(f"effect '{name}' acts on the model's output: pass its free run.")
+    singles, _, outputs = _one_output_each(recordings, [r.y for r in recordings])
+    model_outputs = (
+        None if predictions is None else _one_output_each(recordings, predictions)[1]
+    )
+    return _signals_of(effect, singles, outputs, model_outputs, context)
 
 
 def _score_effect(

@@ -30,6 +30,7 @@ import numpy as np
 from hysteresis_lab import fit_record
 from hysteresis_lab.analysis.diagnosis import TESTS, EffectScore, diagnose, evidence_lags
 from hysteresis_lab.analysis.excitation import operator_excitation
+from hysteresis_lab.analysis.loop_figures import ResidualEvidence
 from hysteresis_lab.analysis.report import diagnostics_figure, residual_analysis
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.splits import DatasetSplits
@@ -45,6 +46,7 @@ from hysteresis_lab.models.base import NarxModule
 from hysteresis_lab.models.spec import ModelSpec
 from hysteresis_lab.run_folder import LoopFolder, RunFolder
 from hysteresis_lab.workflows.loop_data import LoopData, Stretch, loop_data
+from hysteresis_lab.workflows.loop_report import loop_markdown, start_label, write_round_figures
 from hysteresis_lab.workflows.pipeline import RunResult, evaluation_device, train_and_evaluate
 
 log = logging.getLogger(__name__)
@@ -54,6 +56,9 @@ NETWORK_ONLY = ("effect_path", "refit_lr", "objective", "horizon", "simulation_e
                 "simulation_lr", "patience")
 
 REFITS = ("new_inputs", "full")
+
+#: the residual analysis' figure in the folder of each diagnosed round's fit
+DIAGNOSTICS_FIGURE = "residual_diagnostics.png"
 
 #: a free run that leaves the measured output's range by more than this many times its
 #: span (or is not finite) diverges: such a model is never the loop's result
@@ -172,6 +177,8 @@ class _LoopState:
     tried: set[str] = dataclasses.field(default_factory=set)
     #: the effect the next round adds
     trying: str | None = None
+    #: the standing model's free run on the diagnosis recordings (the report's figures)
+    evidence: ResidualEvidence | None = None
 
 
 def run_loop(
@@ -212,13 +219,17 @@ def run_loop(
     state = _LoopState(effects=list(start["effects"]))
     for number in itertools.count():
         entry, goes_on = _fit_round_and_decide(run, state, number)
-        if not (goes_on and _choose_next_effect(run, state, entry)):
+        goes_on = goes_on and _choose_next_effect(run, state, entry)
+        write_round_figures(run.folder, number, entry, state.evidence, run.context,
+                            settings.min_score)
+        if not goes_on:
             break
     report = {
         "units": {"y": data.fit.test[0].y_units},
         "data": splits.name,
         "model": model.name,
         "start": start,
+        "settings": dataclasses.asdict(settings),
         "roles": data.roles(),
         "result": _result_round(state.rounds, state.kept),
         "rounds": state.rounds,
@@ -258,6 +269,8 @@ def _fit_round_and_decide(
     if refit_lr is not None:
         entry["refit_lr"] = refit_lr
         entry["refit_candidates"] = losses
+    if trying is not None:
+        entry["decision"] = _decision(trying, result, entry, state, settings.min_refit_gain)
     state.rounds.append(entry)
     if trying is not None and not result.improved:
         entry["rejected"] = trying
@@ -278,11 +291,13 @@ def _fit_round_and_decide(
     else:
         state.effects, state.tried = round_effects, set()
         state.kept.append((result, check))
-        state.diagnosis = _diagnose_round(
+        state.diagnosis, state.evidence = _diagnose_round(
             result, check, run.data, run.context, state.effects, settings, round_dir,
             run.use_tensorboard, number,
         )
         entry["diagnosis"] = [d.to_dict() for d in state.diagnosis]
+        entry["figures"] = {
+            "diagnostics": run.folder.relative(round_dir / DIAGNOSTICS_FIGURE)}
     return entry, True
 
 
@@ -321,11 +336,51 @@ def _choose_next_effect(run: _LoopRun, state: _LoopState, entry: dict[str, Any])
 def _write_report(run: _LoopRun, state: _LoopState, report: dict[str, Any]) -> None:
     """``loop_report.json`` / ``.md``, the before/after figure, and the report in the log."""
     write_json(report, run.folder.report_json)
-    run.folder.report_md.write_text(loop_markdown(report))
+    markdown = loop_markdown(report)
+    run.folder.report_md.write_text(markdown)
     if state.kept:
         _before_after_figure(run.data.fit, state.kept[0][0], state.kept[-1][0], state.rounds,
-                             state.effects, run.folder.path)
-    log.info("\n%s", loop_markdown(report))
+                             state.effects, run.folder.before_after_figure)
+    log.info("\n%s", markdown)
+
+
+def _decision(
+    trying: str, result: RunResult, entry: dict[str, Any], state: _LoopState, min_gain: float
+) -> dict[str, Any]:
+    """Why round ``entry``'s refit with ``trying`` was kept or dropped: the round it was
+    judged against (the standing model's) and both held-out validation losses (the refit's
+    is None when it lost already on the training validation data)."""
+    against = max(i for i, r in enumerate(state.rounds) if not r.get("rejected"))
+    before = state.kept[-1][1].loss
+    refit = entry["held_out"] if result.improved else (
+        (result.rejected_refit or {}).get("held_out"))
+    after = None if refit is None else refit["loss"]
+    return {
+        "effect": trying,
+        "kept": bool(result.improved),
+        "against_round": against,
+        "held_out_loss": {"before": before, "after": after},
+        "reason": _decision_reason(result, entry, refit, against, before, min_gain),
+    }
+
+
+def _decision_reason(
+    result: RunResult, entry: dict[str, Any], refit: dict[str, Any] | None, against: int,
+    before: float, min_gain: float,
+) -> str:
+    """The keep-or-drop rule that decided, with its numbers."""
+    gain = f" by more than loop.min_refit_gain={min_gain:g} of it" if min_gain else ""
+    if refit is None:
+        loss = entry.get("refit_validation_loss") or {}
+        numbers = (f" (loss {loss['refit']:.4g} against {loss['start']:.4g}, scaled)"
+                   if loss else "")
+        return (f"the refit did not beat its start on the training validation data{gain}"
+                f"{numbers}, so it was not judged on the held-out data")
+    if refit["diverging"]:
+        return f"the refit's free run diverges on {', '.join(refit['diverging'])}"
+    verb = "beats" if result.improved else "does not beat"
+    return (f"the refit's held-out validation loss {refit['loss']:.4g} {verb} round "
+            f"{against}'s {before:.4g}{gain}")
 
 
 def _result_round(
@@ -341,7 +396,7 @@ def _result_round(
 
 def _before_after_figure(
     fit: DatasetSplits, before: RunResult, after: RunResult, rounds: list[dict[str, Any]],
-    effects: list[str], output_dir: Path,
+    effects: list[str], path: Path,
 ) -> None:
     """The test recordings' free run before (the start) and after (the result)."""
     predictions = {
@@ -358,7 +413,7 @@ def _before_after_figure(
             title=f"free run before ({rounds[0]['effects'] or 'no effects'}) and "
             f"after ({effects})",
         ),
-        output_dir / "loops_before_after.png",
+        path,
     )
 
 
@@ -417,11 +472,6 @@ def _judge_held_out(
         last_result, improved=False, refit_validation=refit.refit_validation,
         rejected_refit=document,
     ), last_check
-
-
-def start_label(start: Mapping[str, Any]) -> str:
-    """The loop's start as the overrides that give it, e.g. ``model=linear effects=[]``."""
-    return f"model={start['model']} effects=[{','.join(start['effects'])}]"
 
 
 def next_effect(
@@ -527,13 +577,15 @@ def _diagnose_round(
     round_dir: Path,
     use_tensorboard: bool,
     number: int,
-) -> list[EffectScore]:
+) -> tuple[list[EffectScore], ResidualEvidence]:
     """Residual analysis (JSON, figure, TensorBoard) and the ranked diagnosis of a round, on
-    the diagnosis recordings (never the test recordings: `hysteresis_lab.workflows.loop_data`)."""
+    the diagnosis recordings (never the test recordings: `hysteresis_lab.workflows.loop_data`),
+    and the free run they were read from (for the report's figures)."""
     n_skip = scoring_start(result.window, data.fit.n_init)
-    recordings, residuals, shown, predictions = [], [], [], {}
+    recordings, residuals, shown, predictions, starts = [], [], [], {}, []
     for stretch, prediction in zip(data.diagnosis, check.diagnosis_predictions, strict=True):
         first = max(stretch.start, n_skip)
+        starts.append(first)
         e = stretch.recording.y - prediction
         e[:first] = np.nan
         recordings.append(stretch.recording)
@@ -554,10 +606,12 @@ def _diagnose_round(
     )
     write_json(residual_analysis(shown, predictions, 0), round_dir / "residual_analysis.json")
     figure = diagnostics_figure(shown, predictions, 0)
-    save_figure(figure, round_dir / "residual_diagnostics.png")
+    save_figure(figure, round_dir / DIAGNOSTICS_FIGURE)
     if use_tensorboard:
         _log_round_to_tensorboard(round_dir / "tensorboard", figure, diagnosis, number)
-    return diagnosis
+    evidence = ResidualEvidence(recordings, list(check.diagnosis_predictions), starts,
+                                [part.name for part in shown])
+    return diagnosis, evidence
 
 
 def _from(stretch: Stretch, first: int) -> Recording:
@@ -642,132 +696,3 @@ def _log_round_to_tensorboard(
         writer.add_figure("loop/residual_diagnostics", figure, global_step=number, close=False)
         for d in (d for d in diagnosis if d.tested):
             writer.add_scalar(f"loop/diagnosis_score/{d.effect}", d.score, global_step=number)
-
-
-def loop_markdown(report: dict[str, Any]) -> str:
-    """Readable report: per round the effects, errors per test and the ranked diagnosis."""
-    unit = report["units"]["y"]
-    rounds = report["rounds"]
-    tests = list(rounds[0]["tests"])
-    lines = [
-        f"# Residual loop: {report['model']} on {report['data']}",
-        "",
-        f"Start: `{start_label(report['start'])}`.",
-        "",
-        *_roles_lines(report["roles"]),
-        "",
-        f"Free-run RMSE [{unit}] per test recording and round (effects declared):",
-        "",
-    ]
-    header = ["test"] + [f"round {i}: {r['effects'] or '[]'}" for i, r in enumerate(rounds)]
-    lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    for name in tests:
-        cells = [name] + [f"{r['tests'][name]['rmse_free_run']:.4g}" for r in rounds]
-        lines.append("| " + " | ".join(cells) + " |")
-    lines.append(
-        "| **mean** | " + " | ".join(f"{r['mean_rmse_free_run']:.4g}" for r in rounds) + " |"
-    )
-    if len(rounds) > 1:
-        first, last = rounds[0]["mean_rmse_free_run"], rounds[-1]["mean_rmse_free_run"]
-        change = _change(first, last)
-        lines += ["", f"Mean free-run RMSE {first:.4g} -> {last:.4g} {unit} ({change})."]
-    if report.get("result") is None:
-        lines += ["", "**No result**: the start model's free run diverges (see round 0)."]
-    for i, r in enumerate(rounds):
-        if r.get("rejected"):
-            lines += ["", f"## Round {i}: {r['rejected']} rejected", "", f"- {r['note']}"]
-            lines += _refit_rate_lines(r) + _held_out_lines(r, unit)
-            lines += _rejected_refit_lines(r, unit)
-            lines.append(f"- next: {r['added']}" if r["added"] else "- nothing else to try")
-            lines += _excitation_lines(r)
-            continue
-        lines += ["", f"## Round {i}: diagnosis", ""] + _refit_rate_lines(r)
-        lines += _held_out_lines(r, unit)
-        lines += [_diagnosis_line(d) for d in r["diagnosis"]]
-        if r.get("reported"):
-            lines.append(
-                f"- reported, not added: {', '.join(r['reported'])} (does not depend on the "
-                "input: free run cannot predict it; no gain is claimed)"
-            )
-        lines.append(f"- added: {r['added']}" + (f" ({r['note']})" if r.get("note") else ""))
-        lines += _excitation_lines(r)
-    return "\n".join(lines) + "\n"
-
-
-def _roles_lines(roles: Mapping[str, list[str]]) -> list[str]:
-    """Which recordings (``name[a:b]``: samples a to b) played which role."""
-    what = {
-        "train": "trained on",
-        "validation": "validation (judges every refit)",
-        "diagnosis": "diagnosis (its residual chooses the effect)",
-        "test": "test (the before/after numbers)",
-    }
-    return ["Data roles:", ""] + [
-        f"- {what[role]}: {', '.join(names) or 'none'}" for role, names in roles.items()
-    ]
-
-
-def _held_out_lines(entry: Mapping[str, Any], unit: str) -> list[str]:
-    """The standing model (and a rejected refit) on the held-out validation data."""
-    lines = []
-    for label, check in (("held-out validation", entry.get("held_out")),
-                         ("the rejected refit's held-out validation",
-                          (entry.get("rejected_refit") or {}).get("held_out"))):
-        if not check:
-            continue
-        rmse = ", ".join(f"{name} {value:.4g}" for name, value in check["rmse"].items())
-        lines.append(f"- {label}: loss {check['loss']:.4g} (MSE / variance), free-run RMSE "
-                     f"[{unit}] {rmse}")
-        if check["diverging"]:
-            lines.append(f"  - free run diverges on {', '.join(check['diverging'])}")
-    return lines
-
-
-def _excitation_lines(entry: Mapping[str, Any]) -> list[str]:
-    """How hard the tests drive the added effect's operators beyond the identification data."""
-    excitation = entry.get("added_excitation")
-    return [f"  - {excitation['reading']}"] if excitation else []
-
-
-def _diagnosis_line(d: Mapping[str, Any]) -> str:
-    """One effect of a round's diagnosis: its score and p-value, or why it was not tested."""
-    if not d["tested"]:
-        return f"- {d['effect']} (not tested): {d['evidence']}"
-    bold = "**" if d["significant"] else ""
-    return f"- {bold}{d['effect']}{bold}: score {d['score']:.3f}, p {d['p_value']:.3g}"
-
-
-def _refit_rate_lines(entry: Mapping[str, Any]) -> list[str]:
-    """The learning rate a refit was chosen at and every tried rate's validation loss."""
-    if entry.get("refit_lr") is None:
-        return []
-    tried = ", ".join(
-        f"{c['refit_lr']:.0e}: {c['validation_loss']:.4g}" for c in entry["refit_candidates"]
-    )
-    return [f"- refit learning rate {entry['refit_lr']:.0e} (validation loss per rate: {tried})"]
-
-
-def _rejected_refit_lines(entry: Mapping[str, Any], unit: str) -> list[str]:
-    """What a rejected refit would have done: its validation loss and free-run test errors
-    beside those of the model that stands."""
-    refit = entry.get("rejected_refit")
-    if refit is None:
-        return []
-    lines = []
-    loss = entry.get("refit_validation_loss")
-    if loss:
-        lines.append(
-            f"- validation loss (scaled): last model {loss['start']:.4g}, refit {loss['refit']:.4g}"
-        )
-    lines.append(f"- the refit's free-run RMSE [{unit}] beside the last model's (not kept):")
-    for name, stands in entry["tests"].items():
-        before, after = stands["rmse_free_run"], refit["tests"][name]["rmse_free_run"]
-        lines.append(f"  - {name}: {before:.4g} -> {after:.4g} ({_change(before, after)})")
-    before, after = entry["mean_rmse_free_run"], refit["mean_rmse_free_run"]
-    lines.append(f"  - mean: {before:.4g} -> {after:.4g} ({_change(before, after)})")
-    return lines
-
-
-def _change(before: float, after: float) -> str:
-    """Relative change as a signed percentage."""
-    return f"{100 * (after - before) / before:+.1f} %" if before else "n/a"
