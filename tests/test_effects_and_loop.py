@@ -396,6 +396,10 @@ def test_an_svm_refit_that_loses_on_validation_is_dropped(tmp_path):
     assert rounds[1]["tests"] == rounds[0]["tests"]  # the round-0 model stands
     loss = rounds[1]["refit_validation_loss"]
     assert not loss["refit"] < 0.01 * loss["start"]
+    check_loop_notebook(tmp_path / "loop")
+    decision = rounds[1]["decision"]  # lost on the training validation data: not held out
+    assert decision["held_out_loss"]["after"] is None
+    assert "did not beat its start on the training validation data" in decision["reason"]
     refit = rounds[1]["rejected_refit"]  # what the refit itself did, scored on the tests
     assert refit["tests"] != rounds[1]["tests"]
     folder = tmp_path / "loop" / "round_1"

@@ -159,11 +159,27 @@ def test_a_refit_that_lost_in_training_is_dropped_without_a_held_out_loss():
 
 def test_older_reports_without_the_new_keys_still_render():
     """A loop_report.json written before decisions and figures were recorded renders."""
+    rate = {"effect": "rate", "score": 0.01, "p_value": 0.5, "significant": False,
+            "evidence": "rate", "predictable": True, "tested": True}
     old = {"units": {"y": "um"}, "data": "toy", "model": "linear",
            "start": {"model": "linear", "effects": []}, "result": 0,
            "roles": {"train": ["t"], "validation": [], "diagnosis": [], "test": ["sine"]},
-           "rounds": [{"effects": [], **scores(1.0), "diagnosis": [], "added": None,
+           "rounds": [{"effects": [], **scores(1.0), "diagnosis": [rate], "added": None,
                        "held_out": held(0.5), "note": "no significant missing effect"}]}
     page = loop_markdown(old)
     assert "## Round 0: the start, effects []" in page
     assert "- added: None (no significant missing effect)" in page
+    assert "- rate: score 0.010, p 0.5" in page
+
+
+def test_a_start_that_diverges_has_no_result():
+    page = loop_markdown({
+        "units": {"y": "um"}, "data": "toy", "model": "ffnn", "result": None,
+        "start": {"model": "ffnn", "effects": []},
+        "roles": {"train": ["t"], "validation": ["v"], "diagnosis": ["v"], "test": ["sine"]},
+        "rounds": [{"effects": [], **scores(1.0), "diagnosis": [], "added": None,
+                    "held_out": {**held(float("inf")), "diverging": ["sine"]},
+                    "note": "the start model's free run diverges on ['sine']"}]})
+    assert "- the start model's free run diverges on ['sine']" in page
+    assert "  - free run diverges on sine" in page
+    assert "**No result**" in page and "### Effect added" not in page

@@ -109,6 +109,8 @@ def _round_section(report: Mapping[str, Any], number: int, unit: str) -> list[st
         lines += ["", "### Validation decision", "", *_decision_lines(r, unit)]
     if r.get("diagnosis"):
         lines += ["", "### Residual evidence", "", *_evidence_lines(r, report["roles"])]
+    if decision is None and not r.get("diagnosis"):
+        return lines  # a start that diverges: nothing was diagnosed
     lines += ["", "### Effect added" if decision is None or decision["kept"]
               else "### Next effect", "", *_added_lines(report, number)]
     return lines
