@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -21,7 +22,7 @@ from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.effects.base import FeatureContext
 
 #: at most this many points of a series are drawn (every n-th sample)
-MAX_POINTS = 4000
+MAX_POINTS = 2000
 DPI = 90
 
 
@@ -101,7 +102,7 @@ def residual_figure(evidence: ResidualEvidence, title: str = "") -> Figure:
 
 
 def scores_figure(
-    diagnosis: Sequence[Mapping[str, object]], min_score: float, added: str | None = None
+    diagnosis: Sequence[Mapping[str, Any]], min_score: float, added: str | None = None
 ) -> Figure:
     """Every tested effect's held-out score (share of the residual variance it explains
     beyond the input and the declared effects), significant ones filled, the added one
@@ -110,13 +111,13 @@ def scores_figure(
     fig = Figure(figsize=(6, 0.35 * max(len(tested), 1) + 1.2))
     ax = fig.subplots()
     rows = np.arange(len(tested))[::-1]
-    scores = [float(d["score"]) for d in tested]  # type: ignore[arg-type]
+    scores = [float(d["score"]) for d in tested]
     colors = ["tab:red" if d["significant"] else "lightgray" for d in tested]
     ax.barh(rows, scores, color=colors, edgecolor="black", lw=0.5)
     labels = [f"{d['effect']}{' (added)' if d['effect'] == added else ''}" for d in tested]
     ax.set_yticks(rows, labels, fontsize=8)
     for row, d in zip(rows, tested, strict=True):
-        ax.annotate(f"p {float(d['p_value']):.2g}", (max(float(d["score"]), 0.0), row),  # type: ignore[arg-type]
+        ax.annotate(f"p {float(d['p_value']):.2g}", (max(float(d["score"]), 0.0), row),
                     xytext=(3, 0), textcoords="offset points", va="center", fontsize=7)
     ax.axvline(min_score, color="black", ls="--", lw=0.8, label=f"loop.min_score {min_score:g}")
     ax.axvline(0.0, color="black", lw=0.5)
