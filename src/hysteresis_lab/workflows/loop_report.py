@@ -93,8 +93,8 @@ def _rules_lines(settings: Mapping[str, Any] | None) -> list[str]:
         f"An effect is significant when its held-out score reaches loop.min_score="
         f"{settings['min_score']:g} at p <= loop.alpha={settings['alpha']:g} "
         f"(loop.significance={settings['significance']}); a refit is kept when its free run "
-        "on the held-out validation data beats the last kept model's (by loop.min_refit_gain="
-        f"{settings['min_refit_gain']:g} of it) and stays stable.",
+        "on the held-out validation data beats the last kept model's by more than the share "
+        f"loop.min_refit_gain={settings['min_refit_gain']:g} and stays stable.",
     ]
 
 
@@ -118,8 +118,9 @@ def _round_section(report: Mapping[str, Any], number: int, unit: str) -> list[st
 
 def _round_title(r: Mapping[str, Any], number: int) -> str:
     decision = r.get("decision")
-    if decision is None:
-        return f"Round {number}: the start, effects {r['effects'] or '[]'}"
+    if decision is None:  # the start (or a round of a report older than decisions)
+        what = "the start, " if number == 0 else ""
+        return f"Round {number}: {what}effects {r['effects'] or '[]'}"
     verdict = "kept" if decision["kept"] else "dropped"
     return f"Round {number}: + {decision['effect']}, {verdict}"
 
