@@ -72,6 +72,8 @@ def check_loop_notebook(run: Path) -> dict[str, Any]:
             assert number == 0
             continue
         assert decision["kept"] is ("rejected" not in entry)
+        assert entry["effects"][-1] == decision["effect"]  # the effects the refit declared
+        assert f"effects {entry['effects']}" in subsection(section, "Fit")
         title = section.splitlines()[0]
         assert title == f"Round {number}: + {decision['effect']}, " + (
             "kept" if decision["kept"] else "dropped")

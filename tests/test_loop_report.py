@@ -73,7 +73,7 @@ def write_loop_folder(folder: LoopFolder) -> dict:
     refit["decision"] = _decision("hysteresis", result(), refit, state, 0.0)
     state.rounds.append(refit)
     state.kept.append((result(), HeldOut(0.3, {}, [], [])))
-    dropped = {"effects": ["hysteresis"], **scores(0.8), "diagnosis": [], "added": None,
+    dropped = {"effects": ["hysteresis", "creep"], **scores(0.8), "diagnosis": [], "added": None,
                "held_out": held(0.3), "rejected": "creep",
                "rejected_refit": {**scores(0.9), "held_out": held(0.35)},
                "note": "the refit with 'creep' did not beat the last model"}

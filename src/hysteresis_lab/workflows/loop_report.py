@@ -131,20 +131,14 @@ def _fit_lines(r: Mapping[str, Any], unit: str) -> list[str]:
     if decision is None:
         lines = [f"- effects declared: {r['effects'] or '[]'}"]
     else:
-        effects = _tried(r) if r.get("rejected") else r["effects"]
         lines = [f"- refit of round {decision['against_round']}'s model with "
-                 f"'{decision['effect']}': effects {effects}"]
+                 f"'{decision['effect']}': effects {r['effects']}"]
     lines += _refit_rate_lines(r)
     if decision is None or decision["kept"]:
         lines += _held_out_lines("held-out validation", r.get("held_out"), unit)
     if decision is None and r.get("note") and not r.get("diagnosis"):
         lines.append(f"- {r['note']}")  # a start that diverges
     return lines
-
-
-def _tried(r: Mapping[str, Any]) -> list[str]:
-    """The effects a dropped refit declared (the standing model's and the one tried)."""
-    return [*r["effects"], r["rejected"]]
 
 
 def before_after_table(report: Mapping[str, Any], number: int, unit: str) -> list[str]:
