@@ -9,6 +9,7 @@ from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.models.registry import get_model_class
+from hysteresis_lab.trainer import TrainerSettings
 
 
 def narx_data(n: int = 1500, nu: int = 1, ny: int = 1, seed: int = 0) -> DatasetSplits:
@@ -50,9 +51,6 @@ CONFIGS = {
     },
     "svm": {"name": "svm", "kernel": "rbf", "C": 10.0, "gamma": 0.05, "n_components": 200},
 }
-TRAINER = {
-    "max_epochs": 4,
-    "accelerator": "cpu",
-    "enable_progress_bar": False,
-    "enable_model_summary": False,
-}
+TRAINER = TrainerSettings(
+    max_epochs=4, accelerator="cpu", enable_progress_bar=False, enable_model_summary=False
+)

@@ -15,10 +15,11 @@ from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.evaluation.predict import free_run, one_step
 from hysteresis_lab.models.io import load_model, save_model
 from hysteresis_lab.sim.default_dataset import make_default_dataset
+from hysteresis_lab.trainer import TrainerSettings
 from hysteresis_lab.training import build_model, fit
 
-TRAINER = {"max_epochs": 6, "accelerator": "cpu", "enable_progress_bar": False,
-           "enable_model_summary": False}
+TRAINER = TrainerSettings(max_epochs=6, accelerator="cpu", enable_progress_bar=False,
+                          enable_model_summary=False)
 NOISE_UM = 0.01  # the simulator's sensor noise (conf/sim/positioner.yaml)
 
 
@@ -41,7 +42,7 @@ def fitted(tmp_path_factory):
     dm = WindowDataModule(data, scaling="paper")
     L.seed_everything(0)
     model = build_model({"name": "greybox"}, dm, trained_on={"fs": data.fs})
-    result = fit(model, dm, {**TRAINER, "max_epochs": 15}, tmp_path_factory.mktemp("greybox"))
+    result = fit(model, dm, TRAINER.with_changes(max_epochs=15), tmp_path_factory.mktemp("greybox"))
     return result.model, dm
 
 
@@ -96,7 +97,7 @@ def test_the_residual_network_learns_what_the_physics_lacks(tmp_path):
         L.seed_everything(0)
         model = build_model({"name": "greybox", "residual_neurons": neurons}, dm,
                             trained_on={"fs": data.fs})
-        fitted = fit(model, dm, {**TRAINER, "max_epochs": 10}, tmp_path / str(neurons)).model
+        fitted = fit(model, dm, TRAINER.with_changes(max_epochs=10), tmp_path / str(neurons)).model
         errors[neurons] = np.mean(rmse(free_run(fitted, data.test, dm.window), data.test,
                                        dm.window.first_target))
     assert errors[16] < 0.7 * errors[0], errors

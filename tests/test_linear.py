@@ -15,10 +15,11 @@ from hysteresis_lab.effects.augment import augment_splits, context_to_dict
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.evaluation.predict import free_run
 from hysteresis_lab.sim.default_dataset import make_default_dataset
+from hysteresis_lab.trainer import TrainerSettings
 from hysteresis_lab.training import build_model, fit
 
-TRAINER = {"max_epochs": 5, "accelerator": "cpu", "enable_progress_bar": False,
-           "enable_model_summary": False}
+TRAINER = TrainerSettings(max_epochs=5, accelerator="cpu", enable_progress_bar=False,
+                          enable_model_summary=False)
 NOISE_UM = 0.01
 
 
@@ -70,7 +71,7 @@ def test_an_added_effect_block_starts_where_it_changes_nothing(tmp_path):
     data, dm = positioner({})
     L.seed_everything(0)
     plain = fit(build_model({"name": "linear"}, dm, trained_on={"fs": data.fs}), dm,
-                {**TRAINER, "max_epochs": 1}, tmp_path).model
+                TRAINER.with_changes(max_epochs=1), tmp_path).model
     effects = ["saturation", "dead_zone", "backlash", "hysteresis", "creep", "resonance",
                "overflow"]
     augmented, context = augment_splits(data, effects)
@@ -135,7 +136,7 @@ def test_mimo_data_are_identified_per_output_and_input(tmp_path):
     dm = WindowDataModule(splits, scaling="standard")
     L.seed_everything(0)
     model = build_model({"name": "linear", "order": 3}, dm, trained_on={"fs": 1000.0})
-    fitted = fit(model, dm, {**TRAINER, "max_epochs": 1}, tmp_path).model
+    fitted = fit(model, dm, TRAINER.with_changes(max_epochs=1), tmp_path).model
     assert len(fitted.dynamics) == 2 and len(fitted.dynamics[0]) == 2
     predicted = free_run(fitted, splits.test, dm.window)[0]
     y = splits.test[0].y

@@ -13,10 +13,12 @@ from scipy import signal
 from helpers import data_overrides, run_app, small_dataset
 from hysteresis_lab.analysis.diagnosis import diagnose
 from hysteresis_lab.data.recording import Recording
+from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.effects.augment import feature_context
 from hysteresis_lab.errors import ConfigError, DataError
 from hysteresis_lab.signals import multisine
+from hysteresis_lab.trainer import TrainerSettings
 from hysteresis_lab.workflows.loop import (
     HeldOut,
     LoopSettings,
@@ -29,8 +31,8 @@ from hysteresis_lab.workflows.pipeline import RunResult
 
 FS = 100.0
 CLIP = 0.6
-TRAINER = {"max_epochs": 20, "accelerator": "cpu", "devices": 1, "enable_progress_bar": False,
-           "enable_model_summary": False}
+TRAINER = TrainerSettings(max_epochs=20, accelerator="cpu", devices=1, enable_progress_bar=False,
+                          enable_model_summary=False)
 
 
 def clipped(n: int, seed: int, name: str) -> tuple[Recording, np.ndarray]:
@@ -76,10 +78,9 @@ def test_the_loop_names_overflow_and_its_refit_cuts_the_free_run_error(tmp_path)
     names overflow, the refit carries it as an output block after the dynamics, and the
     test's free-run error falls."""
     model = {"name": "linear", "order": 2, "effects": [], "lr": 0.01}
-    report = run_loop(model, {"name": "clip", "scaling": {"mode": "standard"}}, TRAINER,
-                      clipped_splits(), tmp_path, LoopSettings(max_rounds=1,
-                                                               refit_lr_factors=(1.0,)),
-                      use_tensorboard=False)
+    data = DataSpec.from_config({"name": "clip", "scaling": {"mode": "standard"}})
+    report = run_loop(model, data, TRAINER, clipped_splits(), tmp_path,
+                      LoopSettings(max_rounds=1, refit_lr_factors=(1.0,)), use_tensorboard=False)
     first, refit = report["rounds"][:2]
     significant = [d["effect"] for d in first["diagnosis"] if d["significant"]]
     assert significant[0] == "overflow" and first["added"] == "overflow"
@@ -93,7 +94,7 @@ def test_the_loop_names_overflow_and_its_refit_cuts_the_free_run_error(tmp_path)
 
 def test_without_validation_recordings_a_stretch_is_held_out_and_named():
     splits = clipped_splits(val=False)
-    data = loop_data(splits, {}, holdout=0.2)
+    data = loop_data(splits, DataSpec.from_config({}), holdout=0.2)
     assert data.fit.train[0].n_samples == 1200
     assert [s.start for s in data.validation] == [1200]
     assert data.validation[0].recording.n_samples == 1500  # simulated end to end
@@ -101,23 +102,23 @@ def test_without_validation_recordings_a_stretch_is_held_out_and_named():
     assert data.roles() == {"train": ["train[0:1200]"], "validation": ["train[1200:1500]"],
                             "diagnosis": ["train[1200:1500]"], "test": ["test"]}
     with pytest.raises(DataError, match="loop.holdout=0.99"):
-        loop_data(splits, {}, holdout=0.99)
+        loop_data(splits, DataSpec.from_config({}), holdout=0.99)
 
 
 def test_data_diagnose_names_the_recordings_that_choose(tmp_path):
     splits = clipped_splits()
     extra = clipped(800, 4, "extra")[0]
     splits = dataclasses.replace(splits, test=[*splits.test, extra])
-    data = loop_data(splits, {"diagnose": ["extra"]}, holdout=0.25)
+    data = loop_data(splits, DataSpec.from_config({"diagnose": ["extra"]}), holdout=0.25)
     assert [s.name for s in data.diagnosis] == ["extra"]
     assert [r.name for r in data.fit.test] == ["test"]  # it left the before/after set
     assert [s.name for s in data.validation] == ["val"]
     with pytest.raises(ConfigError, match="a training recording"):
-        loop_data(splits, {"diagnose": ["train"]}, holdout=0.25)
+        loop_data(splits, DataSpec.from_config({"diagnose": ["train"]}), holdout=0.25)
     with pytest.raises(ConfigError, match="no recording of data 'clip'"):
-        loop_data(splits, {"diagnose": ["nothing"]}, holdout=0.25)
+        loop_data(splits, DataSpec.from_config({"diagnose": ["nothing"]}), holdout=0.25)
     with pytest.raises(ConfigError, match="every test recording"):
-        loop_data(splits, {"diagnose": ["test", "extra"]}, holdout=0.25)
+        loop_data(splits, DataSpec.from_config({"diagnose": ["test", "extra"]}), holdout=0.25)
 
 
 def _result(tmp_path, name: str) -> RunResult:

@@ -63,7 +63,7 @@ class _StepLosses(L.Callback):
 def test_logged_training_loss_is_the_last_epochs_weighted_mean(splits):
     dm = datamodule_for("ffnn", splits)
     steps = _StepLosses()
-    trainer = L.Trainer(**{**TRAINER, "max_epochs": 2}, logger=False,
+    trainer = L.Trainer(**TRAINER.with_changes(max_epochs=2).trainer_arguments(), logger=False,
                         enable_checkpointing=False, callbacks=[steps])
     trainer.fit(build_model(CONFIGS["ffnn"], dm), datamodule=dm)
 
@@ -119,7 +119,7 @@ def test_mimo_model_trains_and_simulates(tmp_path):
     splits = narx_data(n=800, nu=2, ny=1)
     dm = datamodule_for("lstm", splits)
     model = build_model(CONFIGS["lstm"], dm)
-    result = fit(model, dm, {**TRAINER, "max_epochs": 1}, tmp_path)
+    result = fit(model, dm, TRAINER.with_changes(max_epochs=1), tmp_path)
     (y,) = free_run(result.model, splits.test[:1], dm.window)
     assert y.shape == splits.test[0].y.shape and np.all(np.isfinite(y))
 
@@ -159,7 +159,7 @@ def test_checking_trainer_settings_logs_no_lightning_lines():
     lightning_log = logging.getLogger("lightning.pytorch")
     lightning_log.addHandler(handler)
     try:
-        check_trainer_settings({**TRAINER, "max_epochs": 1})
+        check_trainer_settings(TRAINER.with_changes(max_epochs=1))
         assert not records
         # the same Trainer built for real does log them
         L.Trainer(logger=False, enable_checkpointing=False, enable_progress_bar=False)

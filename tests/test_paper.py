@@ -5,10 +5,11 @@ import os
 import pytest
 
 from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.trainer import TrainerSettings
 from hysteresis_lab.workflows import paper
 from hysteresis_lab.workflows.paper import available_cores, plan_workers
 
-CPU = {"accelerator": "cpu"}
+CPU = TrainerSettings(accelerator="cpu")
 
 
 @pytest.mark.skipif(not hasattr(os, "sched_getaffinity"), reason="Linux only")

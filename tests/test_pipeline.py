@@ -3,10 +3,22 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
+from pathlib import Path
 
+import hysteresis_lab as hl
 from hysteresis_lab import fit_record
+from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.run_folder import RunFolder
-from hysteresis_lab.workflows.pipeline import RunConfig, RunSettings, run_model, train_and_evaluate
+from hysteresis_lab.trainer import TrainerSettings
+from hysteresis_lab.workflows.pipeline import (
+    RunConfig,
+    RunSettings,
+    _fit_record_key,
+    plain_dict,
+    run_model,
+    train_and_evaluate,
+)
 from narx import CONFIGS, TRAINER, narx_data
 
 DATA = {"window": {"na": 2, "nb": 2, "nk": 1}, "scaling": {"mode": "standard"}}
@@ -15,7 +27,7 @@ DATA = {"window": {"na": 2, "nb": 2, "nk": 1}, "scaling": {"mode": "standard"}}
 def test_a_run_scores_writes_its_folder_and_is_reused_with_the_same_settings(tmp_path, caplog):
     splits = narx_data(600)
     settings = RunSettings(seed=3, use_tensorboard=False, plots=False, reuse=True)
-    config = RunConfig(dict(CONFIGS["ffnn"]), DATA, {**TRAINER, "max_epochs": 2},
+    config = RunConfig(dict(CONFIGS["ffnn"]), DATA, TRAINER.with_changes(max_epochs=2),
                        tmp_path / "run", settings)
     result = run_model(config, splits=splits)
     folder = RunFolder(tmp_path / "run")
@@ -28,7 +40,8 @@ def test_a_run_scores_writes_its_folder_and_is_reused_with_the_same_settings(tmp
     saved = (tmp_path / "run" / "model.ckpt").stat().st_mtime_ns
     caplog.set_level("INFO", logger="hysteresis_lab.workflows.pipeline")
     again = train_and_evaluate(
-        dict(CONFIGS["ffnn"]), DATA, {**TRAINER, "max_epochs": 2}, tmp_path / "run", seed=3,
+        dict(CONFIGS["ffnn"]), DataSpec.from_config(DATA), TRAINER.with_changes(max_epochs=2),
+        tmp_path / "run", seed=3,
         splits=splits, use_tensorboard=False, plots=False, reuse=True,
     )
     assert again.document == result.document and again.val_mse == result.val_mse
@@ -57,3 +70,28 @@ def test_a_losing_refit_is_set_aside_under_the_run_folders_rejected_names(tmp_pa
     assert aside == tmp_path / "run" / "rejected_refit_model.skops"
     assert folder.model_file() is None and not folder.metrics.exists()
     assert folder.read_rejected_refit_metrics() == scores
+
+
+def test_a_fit_record_of_the_dict_configs_is_recognised_from_the_typed_ones():
+    """Fit records fingerprint the ``data`` and ``trainer`` configs; the run holds them as a
+    `DataSpec` and `TrainerSettings` now, whose ``to_config`` must give the same digest as
+    the resolved config dicts the runs hashed before (else a resumed run would refit)."""
+    cfg = hl.compose("experiment=paper", "trainer.max_epochs=2", "+trainer.num_sanity_val_steps=0")
+    splits = narx_data(600)
+    model = dict(CONFIGS["ffnn"])
+    settings = RunSettings(seed=1, reuse=True)
+    data, trainer = plain_dict(cfg.data), plain_dict(cfg.trainer)
+    as_dicts = {"model": model, "data": data, "trainer": trainer, "seed": 1, "n_steps": None,
+                "refit": None, "min_refit_gain": 0.0}
+    config = RunConfig(model, DataSpec.from_config(cfg.data),
+                       TrainerSettings.from_config(cfg.trainer), Path("unused"), settings)
+    assert isinstance(config.trainer, TrainerSettings) and isinstance(config.data, DataSpec)
+    assert _fit_record_key(config, splits, None) == fit_record.fingerprint(as_dicts, splits, None)
+    # a paper worker turns Lightning's progress bar and summary off in its settings
+    quiet = config.trainer.with_changes(enable_progress_bar=False, enable_model_summary=False)
+    in_worker = {**trainer, "enable_progress_bar": False, "enable_model_summary": False}
+    assert _fit_record_key(replace(config, trainer=quiet), splits, None) == fit_record.fingerprint(
+        {**as_dicts, "trainer": in_worker}, splits, None)
+    # ...and another setting is another fit
+    other = replace(config, trainer=config.trainer.with_changes(max_epochs=3))
+    assert _fit_record_key(other, splits, None) != _fit_record_key(config, splits, None)

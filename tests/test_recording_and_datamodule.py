@@ -14,6 +14,7 @@ from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.data.factory import build_datamodule
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.scaling import PAPER_U_SCALE, PAPER_Y_SCALE, Scaler, ScalingSettings
+from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.errors import ConfigError, DataError
@@ -75,7 +76,7 @@ def test_the_scaling_defaults_are_set_once():
     assert ScalingSettings.from_config({"mode": "none"}) == ScalingSettings(mode="none")
     rec = Recording(u=np.linspace(-1, 1, 40), y=np.linspace(0, 2, 40), fs=1.0)
     splits = DatasetSplits(name="d", train=[rec], val=[], test=[])
-    scaler = build_datamodule({"splits": None}, "flat", splits=splits).scaler
+    scaler = build_datamodule(DataSpec.from_config({}), "flat", splits=splits).scaler
     assert (scaler.u_scale[0], scaler.y_scale[0]) == (PAPER_U_SCALE, PAPER_Y_SCALE)
 
 

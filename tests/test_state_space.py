@@ -71,7 +71,7 @@ def test_training_on_the_simulation_error_lowers_it(splits, tmp_path):
             return float(torch.mean((model.simulate_scaled(u, y[:, :ft]) - y[:, ft:]) ** 2))
 
     before = loss()
-    result = fit(model, dm, {**TRAINER, "max_epochs": 40}, tmp_path)
+    result = fit(model, dm, TRAINER.with_changes(max_epochs=40), tmp_path)
     assert loss() < 0.5 * before
     assert result.val_mse == pytest.approx(loss(), rel=1e-3)  # selection on the free run
     assert result.checkpoint is not None and result.checkpoint.parent.name == "checkpoints"

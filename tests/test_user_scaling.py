@@ -13,6 +13,7 @@ from helpers import run_app
 from hysteresis_lab.data.factory import build_datamodule
 from hysteresis_lab.data.readers import write_csv
 from hysteresis_lab.data.recording import Recording
+from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.evaluation.predict import _scaler
 from hysteresis_lab.models.io import load_model
 
@@ -41,7 +42,7 @@ def datamodule(files: tuple[Path, Path], *overrides: str):
         cfg = compose(
             "train", ["data=csv", f"data.train={train}", f"data.test=[{test}]", *overrides]
         )
-    return build_datamodule(cfg.data, "flat")
+    return build_datamodule(DataSpec.from_config(cfg.data), "flat")
 
 
 def test_user_data_is_scaled_by_its_own_statistics_unless_a_fixed_scale_is_chosen(files):

@@ -1,8 +1,10 @@
 """The trainer factory: every Lightning `Trainer` of the package is built by `build_trainer`
-from a typed `TrainerSettings` (the ``trainer`` config, ``conf/trainer/default.yaml``)."""
+from a typed `TrainerSettings` (the ``trainer`` config, ``conf/trainer/default.yaml``), made
+once where a run starts (`TrainerSettings.from_config`)."""
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -10,6 +12,7 @@ from typing import Any
 
 import lightning as L
 from lightning.pytorch.callbacks import TQDMProgressBar
+from omegaconf import DictConfig, OmegaConf
 
 #: batches between progress-bar refreshes (one per batch costs a small network ~10 % of its time)
 PROGRESS_BAR_REFRESH_BATCHES = 20
@@ -22,7 +25,9 @@ class TrainerSettings:
     Each field's default is Lightning's own, so a setting the config leaves out behaves as
     Lightning decides; ``extra`` carries any other ``Trainer`` argument a config adds
     (``+trainer.num_sanity_val_steps=0``), passed on unchecked (Lightning refuses unknown
-    ones, see `hysteresis_lab.training.check_trainer_settings`).
+    ones, see `hysteresis_lab.training.check_trainer_settings`). ``configured``: the fields
+    the config set (all of them for settings made in code), so that `to_config` gives back
+    the config itself, which fit records fingerprint (`hysteresis_lab.fit_record`).
     """
 
     max_epochs: int | None = None
@@ -36,23 +41,41 @@ class TrainerSettings:
     deterministic: bool | str | None = None
     gradient_clip_val: float | None = None
     extra: Mapping[str, Any] = field(default_factory=dict)
+    configured: frozenset[str] | None = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.configured is None:
+            object.__setattr__(self, "configured", frozenset(_field_names()))
 
     @classmethod
-    def from_config(cls, cfg: Mapping[str, Any] | TrainerSettings) -> TrainerSettings:
-        """Settings from a ``trainer`` config node (a plain mapping); settings pass through."""
+    def from_config(
+        cls, cfg: Mapping[str, Any] | DictConfig | TrainerSettings
+    ) -> TrainerSettings:
+        """Settings from a ``trainer`` config node (resolved when a Hydra node); settings
+        pass through."""
         if isinstance(cfg, TrainerSettings):
             return cfg
+        if isinstance(cfg, DictConfig):
+            cfg = OmegaConf.to_container(cfg, resolve=True)  # type: ignore[assignment]
         names = _field_names()
-        known = {k: v for k, v in cfg.items() if k in names}
+        known = {str(k): v for k, v in cfg.items() if k in names}
         extra = {str(k): v for k, v in cfg.items() if k not in names}
-        return cls(**known, extra=extra)
+        return cls(**known, extra=extra, configured=frozenset(known))
+
+    def to_config(self) -> dict[str, Any]:
+        """The ``trainer`` config these settings came from: the fields it set and ``extra``
+        (what a fit record fingerprints; `from_config` of it gives these settings back)."""
+        values = {name: getattr(self, name) for name in sorted(self.configured or ())}
+        return copy.deepcopy({**values, **self.extra})
 
     def with_changes(self, **changes: Any) -> TrainerSettings:
-        """A copy with ``changes``; names that are not fields go to ``extra``."""
+        """A copy with ``changes`` (set in its config, too); names that are not fields go to
+        ``extra``."""
         names = _field_names()
         extra = {**self.extra, **{k: v for k, v in changes.items() if k not in names}}
         known = {k: v for k, v in changes.items() if k in names}
-        return dataclasses.replace(self, **known, extra=extra)
+        configured = frozenset(self.configured or ()) | frozenset(known)
+        return dataclasses.replace(self, **known, extra=extra, configured=configured)
 
     def trainer_arguments(self) -> dict[str, Any]:
         """The keyword arguments of ``lightning.Trainer``."""
@@ -61,18 +84,17 @@ class TrainerSettings:
 
 
 def _field_names() -> set[str]:
-    return {f.name for f in dataclasses.fields(TrainerSettings)} - {"extra"}
+    return {f.name for f in dataclasses.fields(TrainerSettings)} - {"extra", "configured"}
 
 
 def build_trainer(
-    settings: TrainerSettings | Mapping[str, Any],
+    settings: TrainerSettings,
     callbacks: Sequence[L.Callback] = (),
     **overrides: Any,
 ) -> L.Trainer:
     """A Lightning ``Trainer`` from ``settings``; ``overrides`` (one stage's logger,
     checkpointing, root folder) win over them. Its progress bar, when enabled, refreshes
     every `PROGRESS_BAR_REFRESH_BATCHES` batches."""
-    settings = TrainerSettings.from_config(settings)
     arguments = {**settings.trainer_arguments(), **overrides}
     all_callbacks = list(callbacks)
     if arguments.get("enable_progress_bar") is not False:

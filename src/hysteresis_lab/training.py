@@ -87,7 +87,7 @@ def build_model(
 def fit(
     model: Any,
     datamodule: WindowDataModule,
-    trainer_cfg: Mapping[str, Any] | TrainerSettings,
+    settings: TrainerSettings,
     output_dir: Path,
     logger: TensorBoardLogger | None = None,
     callbacks: list[Any] | None = None,
@@ -103,7 +103,6 @@ def fit(
     are kept unless training beats them on the validation free-run loss (one-step MSE with
     the one-step objective) by more than the share ``min_gain``.
     """
-    settings = TrainerSettings.from_config(trainer_cfg)
     if isinstance(model, L.LightningModule):
         _check_max_epochs(settings)
     start = (
@@ -280,12 +279,11 @@ def is_network(model: Mapping[str, Any] | ModelSpec) -> bool:
     return ModelSpec.from_config(model).is_network
 
 
-def check_trainer_settings(trainer_cfg: Mapping[str, Any] | TrainerSettings) -> None:
+def check_trainer_settings(settings: TrainerSettings) -> None:
     """Fail before any data or training work when the ``trainer`` settings cannot train a
     network: a training length that trains nothing or never stops, settings Lightning refuses
     (an unknown argument, a precision or accelerator this machine lacks) or more than one
     device (a model here trains, and is scored, in one process on one device)."""
-    settings = TrainerSettings.from_config(trainer_cfg)
     _check_max_epochs(settings)
     quiet = ("enable_progress_bar", "logger", "enable_checkpointing", "enable_model_summary")
     try:

@@ -23,7 +23,9 @@ log = logging.getLogger(__name__)
 def run(cfg: DictConfig) -> dict:
     """Build the data, run the loop, return the report."""
     from hysteresis_lab.data.factory import build_splits
+    from hysteresis_lab.data.spec import DataSpec
     from hysteresis_lab.errors import ConfigError
+    from hysteresis_lab.trainer import TrainerSettings
     from hysteresis_lab.workflows.loop import LoopSettings, run_loop
 
     settings = OmegaConf.to_container(cfg.loop, resolve=True)
@@ -35,12 +37,12 @@ def run(cfg: DictConfig) -> dict:
         )
     loop_settings = LoopSettings(**settings)  # checked before any data is built
     output_dir = Path(HydraConfig.get().runtime.output_dir)
-    data_cfg = OmegaConf.to_container(cfg.data, resolve=True)
+    data = DataSpec.from_config(cfg.data)
     return run_loop(
         OmegaConf.to_container(cfg.model, resolve=True),
-        data_cfg,
-        OmegaConf.to_container(cfg.trainer, resolve=True),
-        build_splits(data_cfg),
+        data,
+        TrainerSettings.from_config(cfg.trainer),
+        build_splits(data),
         output_dir,
         loop_settings,
         seed=cfg.seed,

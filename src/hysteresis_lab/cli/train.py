@@ -29,6 +29,8 @@ log = logging.getLogger(__name__)
 @report_errors
 def run(cfg: DictConfig) -> float | None:
     """Run the task the composed config describes; return the sweep objective."""
+    from hysteresis_lab.data.spec import DataSpec
+    from hysteresis_lab.trainer import TrainerSettings
     from hysteresis_lab.tuning.pruning import trial_callback
     from hysteresis_lab.workflows.paper import run_paper
     from hysteresis_lab.workflows.pipeline import train_from_config
@@ -39,8 +41,8 @@ def run(cfg: DictConfig) -> float | None:
         models = OmegaConf.to_container(cfg.paper.models, resolve=True)
         run_paper(
             models,
-            cfg.data,
-            cfg.trainer,
+            DataSpec.from_config(cfg.data),
+            TrainerSettings.from_config(cfg.trainer),
             output_dir,
             seed=cfg.seed,
             use_tensorboard=use_tensorboard,

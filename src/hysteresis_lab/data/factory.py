@@ -1,4 +1,5 @@
-"""Build `DatasetSplits` and DataModules from a ``data`` config node (Hydra or plain dict)."""
+"""Build `DatasetSplits` from a ``data`` config (a Hydra node, a plain dict or its `DataSpec`)
+and DataModules from a `DataSpec`."""
 
 from __future__ import annotations
 
@@ -10,22 +11,26 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 from hysteresis_lab.data.datamodules import WindowDataModule
-from hysteresis_lab.data.scaling import ScalingSettings
+from hysteresis_lab.data.spec import DataSpec, window_spec
 from hysteresis_lab.data.splits import DatasetSplits
-from hysteresis_lab.data.windows import Layout, WindowSpec
+from hysteresis_lab.data.windows import Layout
 from hysteresis_lab.errors import ConfigError, HysteresisLabError
+
+__all__ = ["WHITELIST", "build_datamodule", "build_splits", "window_spec"]
 
 # data.splits._target_ may name any loader in this package (Hydra 1.5 requires a whitelist).
 WHITELIST = ("hysteresis_lab.*",)
 
 
-def _as_dict(cfg: Mapping[str, Any] | DictConfig) -> dict[str, Any]:
+def _as_dict(cfg: Mapping[str, Any] | DictConfig | DataSpec) -> dict[str, Any]:
+    if isinstance(cfg, DataSpec):
+        return cfg.to_config()
     if isinstance(cfg, DictConfig):
         return OmegaConf.to_container(cfg, resolve=True)  # type: ignore[return-value]
     return dict(cfg)
 
 
-def build_splits(data_cfg: Mapping[str, Any] | DictConfig) -> DatasetSplits:
+def build_splits(data_cfg: Mapping[str, Any] | DictConfig | DataSpec) -> DatasetSplits:
     """Load the data set that ``data_cfg.splits`` (a ``_target_`` node) describes."""
     cfg = _as_dict(data_cfg)
     splits_cfg = cfg.get("splits")
@@ -48,36 +53,24 @@ def build_splits(data_cfg: Mapping[str, Any] | DictConfig) -> DatasetSplits:
     return splits
 
 
-def window_spec(data_cfg: Mapping[str, Any] | DictConfig) -> WindowSpec:
-    """The regression window ``data_cfg.window`` describes (checked)."""
-    window = _as_dict(data_cfg).get("window", {}) or {}
-    unknown = set(window) - {"na", "nb", "nk"}
-    if unknown:
-        raise ConfigError(
-            f"unknown key(s) {sorted(unknown)} in data.window. Fix: use na, nb and nk."
-        )
-    return WindowSpec(**window)
-
-
 def build_datamodule(
-    data_cfg: Mapping[str, Any] | DictConfig,
+    data: DataSpec,
     layout: Layout,
     seed: int = 0,
     splits: DatasetSplits | None = None,
 ) -> WindowDataModule:
-    """A `WindowDataModule` for ``data_cfg`` in the layout the model needs."""
-    cfg = _as_dict(data_cfg)
-    scaling = ScalingSettings.from_config(cfg.get("scaling"))
-    window = window_spec(cfg)
+    """A `WindowDataModule` for the data set ``data`` (``splits`` when given, else loaded)
+    in the layout the model needs."""
+    scaling = data.scaling
     return WindowDataModule(
-        splits if splits is not None else build_splits(cfg),
-        window=window,
+        splits if splits is not None else build_splits(data),
+        window=data.window,
         layout=layout,
         scaling=scaling.mode,
         u_scale=scaling.u_scale,
         y_scale=scaling.y_scale,
-        val_fraction=cfg.get("val_fraction", 0.1),
-        batch_size=cfg.get("batch_size", 128),
+        val_fraction=data.val_fraction,
+        batch_size=data.batch_size,
         seed=seed,
-        num_workers=cfg.get("num_workers", 0),
+        num_workers=data.num_workers,
     )

@@ -33,6 +33,7 @@ from hysteresis_lab.analysis.excitation import operator_excitation
 from hysteresis_lab.analysis.loop_figures import ResidualEvidence
 from hysteresis_lab.analysis.report import diagnostics_figure, residual_analysis
 from hysteresis_lab.data.recording import Recording
+from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.effects.augment import feature_context, for_model
 from hysteresis_lab.effects.base import FeatureContext
@@ -45,6 +46,7 @@ from hysteresis_lab.evaluation.report import write_json
 from hysteresis_lab.models.base import NarxModule
 from hysteresis_lab.models.spec import ModelSpec
 from hysteresis_lab.run_folder import LoopFolder, RunFolder
+from hysteresis_lab.trainer import TrainerSettings
 from hysteresis_lab.workflows.loop_data import LoopData, Stretch, loop_data
 from hysteresis_lab.workflows.loop_report import loop_markdown, start_label, write_round_figures
 from hysteresis_lab.workflows.pipeline import RunResult, evaluation_device, train_and_evaluate
@@ -183,19 +185,20 @@ class _LoopState:
 
 def run_loop(
     model_cfg: Mapping[str, Any],
-    data_cfg: Mapping[str, Any],
-    trainer_cfg: Mapping[str, Any],
+    data_spec: DataSpec,
+    trainer: TrainerSettings,
     splits: DatasetSplits,
     output_dir: Path,
     settings: LoopSettings,
     seed: int = 0,
     use_tensorboard: bool = True,
 ) -> dict[str, Any]:
-    """Run the loop; write ``loop_report.json``, ``loop_report.md`` and figures."""
+    """Run the loop on ``splits``, the data set of ``data_spec``; write
+    ``loop_report.json``, ``loop_report.md`` and figures."""
     model = _without_network_only_settings(ModelSpec.from_config(model_cfg))
     start = {"model": model.name, "effects": model.effects}
     log.info("loop start: %s", start_label(start))
-    data = loop_data(splits, data_cfg, settings.holdout)
+    data = loop_data(splits, data_spec, settings.holdout)
     log.info("loop data roles: %s", data.roles())
     run = _LoopRun(
         model=model,
@@ -204,15 +207,15 @@ def run_loop(
         context=feature_context(data.fit.train),
         fit_model=functools.partial(
             train_and_evaluate,
-            data_cfg=data_cfg,
-            trainer_cfg=trainer_cfg,
+            data=data_spec,
+            trainer=trainer,
             seed=seed,
             splits=data.fit,
             use_tensorboard=use_tensorboard,
             min_refit_gain=settings.min_refit_gain,
             reuse=settings.resume,
         ),
-        judge=functools.partial(held_out, data=data, device=evaluation_device(trainer_cfg)),
+        judge=functools.partial(held_out, data=data, device=evaluation_device(trainer)),
         folder=LoopFolder(output_dir),
         use_tensorboard=use_tensorboard,
     )

@@ -19,15 +19,15 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from hysteresis_lab.data.readers import read_recording
 from hysteresis_lab.data.recording import Recording
+from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.errors import ConfigError, DataError
 
@@ -77,11 +77,11 @@ class LoopData:
         }
 
 
-def loop_data(splits: DatasetSplits, data_cfg: Mapping[str, Any], holdout: float) -> LoopData:
-    """The recordings of ``splits`` in the loop's roles; ``data_cfg.diagnose`` names the
+def loop_data(splits: DatasetSplits, data: DataSpec, holdout: float) -> LoopData:
+    """The recordings of ``splits`` in the loop's roles; ``data.diagnose`` names the
     diagnosis recordings (default: the validation data)."""
-    named = list(data_cfg.get("diagnose") or [])
-    chosen, moved = _diagnosis_recordings(splits, named, data_cfg)
+    named = list(data.diagnose)
+    chosen, moved = _diagnosis_recordings(splits, named, data)
     test = [r for r in splits.test if r.name not in moved]
     if moved and not test:  # (no test recordings at all: the pipeline says so, with the fix)
         raise ConfigError(
@@ -125,7 +125,7 @@ def _held_out_stretches(
 
 
 def _diagnosis_recordings(
-    splits: DatasetSplits, named: Sequence[str], data_cfg: Mapping[str, Any]
+    splits: DatasetSplits, named: Sequence[str], data: DataSpec
 ) -> tuple[list[Recording], set[str]]:
     """The recordings ``named`` (data set names or files) and the test names among them."""
     by_name = {r.name: r for r in [*splits.val, *splits.test]}
@@ -142,7 +142,7 @@ def _diagnosis_recordings(
                 f"({sorted(by_name)}) or files."
             )
         elif Path(entry).is_file():
-            chosen.append(_read(entry, data_cfg))
+            chosen.append(read_recording(entry, **data.recording_options))
         else:
             raise ConfigError(
                 f"data.diagnose names '{entry}': no recording of data '{splits.name}' and no "
@@ -158,13 +158,3 @@ def _diagnosis_recordings(
             )
     return chosen, moved
 
-
-def _read(path: str, data_cfg: Mapping[str, Any]) -> Recording:
-    """A diagnosis file read with the data config's columns, rate and units (data=csv)."""
-    columns = dict(data_cfg.get("columns") or {})
-    options = {key: columns[key] for key in ("time", "inputs", "outputs") if key in columns}
-    if data_cfg.get("fs") is not None:
-        options["fs"] = data_cfg["fs"]
-    if data_cfg.get("units"):
-        options["units"] = dict(data_cfg["units"])
-    return read_recording(path, **options)

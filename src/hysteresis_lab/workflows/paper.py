@@ -27,10 +27,12 @@ import numpy as np
 import torch
 
 from hysteresis_lab.data.factory import build_splits
+from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.evaluation.plots import loops_figure, save_figure
 from hysteresis_lab.evaluation.report import write_json, write_table2
+from hysteresis_lab.trainer import TrainerSettings
 from hysteresis_lab.training import check_trainer_settings, is_network, model_layout
 from hysteresis_lab.workflows.pipeline import evaluation_device, plain_dict, train_and_evaluate
 
@@ -52,8 +54,8 @@ class PaperEntry:
 class _Job:
     key: str
     model_cfg: dict[str, Any]
-    data_cfg: dict[str, Any]
-    trainer_cfg: dict[str, Any]
+    data: DataSpec
+    trainer: TrainerSettings
     output_dir: Path
     seed: int
     use_tensorboard: bool
@@ -71,11 +73,11 @@ def available_cores() -> int:
 
 
 def plan_workers(
-    n_models: int, trainer_cfg: Mapping[str, Any], workers: int | str = "auto"
+    n_models: int, trainer: TrainerSettings, workers: int | str = "auto"
 ) -> tuple[int, int | None]:
     """``(processes, torch threads per process)``; threads None means torch's default."""
     if workers == "auto":
-        if evaluation_device(trainer_cfg) != "cpu":
+        if evaluation_device(trainer) != "cpu":
             return 1, None
         workers = min(n_models, available_cores())
     if not isinstance(workers, int) or isinstance(workers, bool) or workers < 1:
@@ -90,7 +92,7 @@ def _run_job(job: _Job, callbacks: list[Any] | None = None) -> PaperEntry:
     if job.threads is not None:
         torch.set_num_threads(job.threads)
     result = train_and_evaluate(
-        job.model_cfg, job.data_cfg, job.trainer_cfg, job.output_dir, seed=job.seed,
+        job.model_cfg, job.data, job.trainer, job.output_dir, seed=job.seed,
         splits=job.splits, use_tensorboard=job.use_tensorboard, reuse=job.resume,
         callbacks=callbacks,
     )
@@ -161,9 +163,9 @@ def _run_job_in_worker(job: _Job) -> PaperEntry:
     Lightning's progress bar and model summary are off; the epoch progress, the pipeline's
     milestones and any warning go to the parent through the queue (one labelled line each)."""
     job.output_dir.mkdir(parents=True, exist_ok=True)
-    job = replace(job, trainer_cfg={
-        **job.trainer_cfg, "enable_progress_bar": False, "enable_model_summary": False,
-    })
+    job = replace(job, trainer=job.trainer.with_changes(
+        enable_progress_bar=False, enable_model_summary=False,
+    ))
     formatter = logging.Formatter(LOG_FORMAT.replace("%(message)s", f"[{job.key}] %(message)s"))
     handlers: list[logging.Handler] = [logging.FileHandler(job.output_dir / "train.log")]
     root = logging.getLogger()
@@ -210,33 +212,33 @@ def _relay_progress(queue: Any) -> None:
 
 def run_paper(
     models: Mapping[str, Mapping[str, Any]],
-    data_cfg: Mapping[str, Any],
-    trainer_cfg: Mapping[str, Any],
+    data: DataSpec,
+    trainer: TrainerSettings,
     output_dir: Path,
     seed: int = 0,
     use_tensorboard: bool = True,
     workers: int | str = "auto",
     resume: bool = True,
 ) -> dict[str, PaperEntry]:
-    """Train and score every model; write table2.md/.csv, paper_results.json, figure1.png.
+    """Train and score every model (their configs) on the data set ``data``; write
+    table2.md/.csv, paper_results.json, figure1.png.
 
     ``resume``: a model whose fit finished in its folder with the same settings and data (a
     rerun of a stopped experiment in its folder) is loaded and scored, not trained again.
     """
-    data_cfg, trainer_cfg = plain_dict(data_cfg), plain_dict(trainer_cfg)
     if any(is_network(cfg) for cfg in models.values()):
-        check_trainer_settings(trainer_cfg)  # before any model trains, not in a worker
-    splits = build_splits(data_cfg)
+        check_trainer_settings(trainer)  # before any model trains, not in a worker
+    splits = build_splits(data)
     if not splits.val:
         log.info(
             "validation: the study's random %.0f %% of the training windows (the multisine is "
             "periodic, so these windows repeat inputs the models train on; data=default "
             "outside experiment=paper validates on a second multisine instead)",
-            100 * float(data_cfg.get("val_fraction", 0.1)),
+            100 * float(data.val_fraction),
         )
-    processes, threads = plan_workers(len(models), trainer_cfg, workers)
+    processes, threads = plan_workers(len(models), trainer, workers)
     jobs = [
-        _Job(key, plain_dict(cfg), data_cfg, trainer_cfg, output_dir / key, seed,
+        _Job(key, plain_dict(cfg), data, trainer, output_dir / key, seed,
              use_tensorboard, splits, threads, resume)
         for key, cfg in models.items()
     ]

@@ -24,7 +24,8 @@ from omegaconf import DictConfig, OmegaConf
 
 from hysteresis_lab import fit_record
 from hysteresis_lab.data.datamodules import WindowDataModule
-from hysteresis_lab.data.factory import build_datamodule, build_splits, window_spec
+from hysteresis_lab.data.factory import build_datamodule, build_splits
+from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.effects.augment import augment_splits, context_to_dict
@@ -73,9 +74,9 @@ def plain_dict(cfg: Mapping[str, Any] | DictConfig) -> dict[str, Any]:
     return dict(cfg)
 
 
-def evaluation_device(trainer_cfg: Mapping[str, Any] | TrainerSettings) -> str:
+def evaluation_device(trainer: TrainerSettings) -> str:
     """The device free-run simulation uses: the GPU when training may use one and it exists."""
-    accelerator = str(TrainerSettings.from_config(trainer_cfg).accelerator)
+    accelerator = str(trainer.accelerator)
     if accelerator in {"auto", "gpu", "cuda"} and torch.cuda.is_available():
         return "cuda"
     return "cpu"
@@ -104,18 +105,20 @@ class RunSettings:
 
 @dataclass(frozen=True)
 class RunConfig:
-    """One run: the ``model`` (a `ModelSpec`; a config mapping is turned into one), the
-    resolved ``data`` and ``trainer`` configs, where it writes,
-    and its `RunSettings`."""
+    """One run: the ``model`` (a `ModelSpec`), ``data`` (a `DataSpec`) and ``trainer``
+    (`TrainerSettings`), where it writes, and its `RunSettings`. Config mappings given for
+    the first three are turned into those objects here, once."""
 
     model: ModelSpec
-    data: dict[str, Any]
-    trainer: dict[str, Any]
+    data: DataSpec
+    trainer: TrainerSettings
     output_dir: Path
     settings: RunSettings = RunSettings()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "model", ModelSpec.from_config(self.model))
+        object.__setattr__(self, "data", DataSpec.from_config(self.data))
+        object.__setattr__(self, "trainer", TrainerSettings.from_config(self.trainer))
 
     @property
     def model_name(self) -> str:
@@ -123,9 +126,9 @@ class RunConfig:
 
 
 def train_and_evaluate(
-    model_cfg: Mapping[str, Any],
-    data_cfg: Mapping[str, Any],
-    trainer_cfg: Mapping[str, Any],
+    model_cfg: Mapping[str, Any] | ModelSpec,
+    data: DataSpec,
+    trainer: TrainerSettings,
     output_dir: Path,
     seed: int = 0,
     splits: DatasetSplits | None = None,
@@ -139,15 +142,19 @@ def train_and_evaluate(
     min_refit_gain: float = 0.0,
     reuse: bool = False,
 ) -> RunResult:
-    """Fit the model ``model_cfg`` on ``data_cfg``'s data, score it on every test recording.
+    """Fit the model ``model_cfg`` (its config, or spec) on the data set ``data`` (loaded unless
+    ``splits`` are given), score it on every test recording.
 
     ``warm_start``: a fitted network of the same architecture whose inputs are the first of
     this model's (see `NarxModule.warm_start_from`); both training stages run from it, and
     it is kept when they do not beat it on validation (by more than the share
     ``min_refit_gain``). The other keywords are `RunSettings`; `run_model` takes them grouped.
     """
+    model = model_cfg if isinstance(model_cfg, ModelSpec) else plain_dict(model_cfg)
     config = RunConfig(
-        *map(plain_dict, (model_cfg, data_cfg, trainer_cfg)),
+        ModelSpec.from_config(model),
+        data,
+        trainer,
         output_dir,
         RunSettings(seed, use_tensorboard, n_steps, plots, evaluate, refit, min_refit_gain, reuse),
     )
@@ -162,11 +169,12 @@ def train_from_config(
 ) -> RunResult:
     """`train_and_evaluate` with the settings of a composed ``train`` config (``model``,
     ``data``, ``trainer``, ``seed``, ``logger``, ``n_step``, ``plots``, ``evaluate``): what
-    ``hysteresis-lab-train`` and `hysteresis_lab.api.train` run."""
+    ``hysteresis-lab-train`` and `hysteresis_lab.api.train` run; the model, data and trainer
+    configs become their spec and settings objects here."""
     return train_and_evaluate(
-        cfg["model"],
-        cfg["data"],
-        cfg["trainer"],
+        ModelSpec.from_config(plain_dict(cfg["model"])),
+        DataSpec.from_config(cfg["data"]),
+        TrainerSettings.from_config(cfg["trainer"]),
         Path(output_dir),
         seed=cfg["seed"],
         splits=splits,
@@ -229,7 +237,7 @@ def _run_data(
     splits = splits or build_splits(config.data)
     data, context = augment_splits(splits, effects)
     if config.settings.evaluate:
-        _check_evaluation_settings(data, config.settings.n_steps, window_spec(config.data))
+        _check_evaluation_settings(data, config.settings.n_steps, config.data.window)
     return splits, data, context
 
 
@@ -241,7 +249,8 @@ def _fit_record_key(
     if not (settings.reuse and settings.evaluate):
         return None
     fingerprinted = {
-        "model": config.model.to_config(), "data": config.data, "trainer": config.trainer,
+        "model": config.model.to_config(), "data": config.data.to_config(),
+        "trainer": config.trainer.to_config(),
         "seed": settings.seed, "n_steps": settings.n_steps,
         "refit": settings.refit if warm_start is not None else None,
         "min_refit_gain": settings.min_refit_gain,
@@ -415,7 +424,7 @@ def _reused_fit(
     record: Mapping[str, Any],
     data: DatasetSplits,
     output_dir: Path,
-    trainer_cfg: Mapping[str, Any],
+    trainer: TrainerSettings,
     n_steps: int | None,
 ) -> RunResult | None:
     """The result of the finished fit ``record`` describes, its model loaded and scored again
@@ -434,7 +443,7 @@ def _reused_fit(
     window = model_window(model)
     evaluation = evaluate_model(
         model, data.test, window, n_init=data.n_init, n_steps=n_steps,
-        device=evaluation_device(trainer_cfg),
+        device=evaluation_device(trainer),
     )
     folder = RunFolder(output_dir)
     document = folder.read_metrics()
@@ -480,7 +489,7 @@ def _score_rejected_refit(
     trained: TrainResult,
     data: DatasetSplits,
     window: WindowSpec,
-    trainer_cfg: Mapping[str, Any],
+    trainer: TrainerSettings,
     n_steps: int | None,
     units: dict[str, str],
     model_name: str,
@@ -493,7 +502,7 @@ def _score_rejected_refit(
         window,
         n_init=data.n_init,
         n_steps=n_steps,
-        device=evaluation_device(trainer_cfg),
+        device=evaluation_device(trainer),
     )
     return metrics_document(
         model_name,
