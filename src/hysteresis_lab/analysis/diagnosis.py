@@ -370,6 +370,17 @@ def _has_state_evidence(effect: Effect) -> bool:
     return type(effect).state_evidence is not Effect.state_evidence
 
 
+def _reads_model_output(effect: Effect, evidence: _Evidence) -> bool:
+    """Whether the effect's candidate signals come from the model's own output (an
+    output-side effect, or the state-side signals of one acting inside the dynamics): its
+    baseline then holds the model's output too, as a gain or phase error of the model's
+    output is none of these effects (play operators of the output with a small threshold are
+    the output itself, and would take up any such error)."""
+    return effect.block == "output" or (
+        evidence.model_outputs is not None and _has_state_evidence(effect)
+    )
+
+
 def _output_evidence(
     effect: Effect, model_outputs: Sequence[np.ndarray], outputs: Sequence[int],
     state: bool = False,
@@ -526,7 +537,8 @@ def _score_effect(
         ))
     shown = [evidence.prepared[i] for i in tested]
     shown_names = [evidence.recordings[i].name for i in tested]
-    base, base_blocks = _baseline(evidence, tested, effect.block == "output", settings)
+    base, base_blocks = _baseline(evidence, tested, _reads_model_output(effect, evidence),
+                                  settings)
     # an input-independent trend gains nothing from delayed copies of itself
     own_lags = settings.lags if effect.predictable else (0,)
     evidence_signals = [
