@@ -174,11 +174,13 @@ def run_case(name: str, root: Path, rounds: int) -> dict:
 
 
 def commit() -> str:
-    """The short commit, marked when tracked files have uncommitted changes."""
+    """The short commit, marked when the code (src/, experiments/) has uncommitted changes."""
     out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True,
                          text=True)
-    dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=REPO,
-                           capture_output=True, text=True).stdout.strip()
+    dirty = subprocess.run(
+        ["git", "status", "--porcelain", "--untracked-files=no", "--", "src", "experiments"],
+        cwd=REPO, capture_output=True, text=True,
+    ).stdout.strip()
     return out.stdout.strip() + (" (with uncommitted changes)" if dirty else "")
 
 
