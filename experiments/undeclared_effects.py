@@ -217,8 +217,9 @@ def table(rows: list[dict]) -> str:
     lines = [
         "# Undeclared effects on the simulator: does the loop name and fix them?",
         "",
-        "Written by `python experiments/undeclared_effects.py` (one case at a time: "
-        "`--cases <name>`, then `--table-only`) on a shared 2-core CPU (OMP_NUM_THREADS=1). "
+        "Written by `python experiments/undeclared_effects.py` (the cases one after another; "
+        "`--cases <name>` reruns one, `--table-only` rewrites this page from the kept rows) "
+        "on a shared 2-core CPU (OMP_NUM_THREADS=1). "
         "Start `model=linear effects=[]` (rate dependence: `effects=[hysteresis]`); the "
         "simulator's hysteresis and creep off but where under test (rate: hysteresis on), "
         "so each case has one effect beyond linear dynamics; default loop settings but "
