@@ -21,11 +21,7 @@ free-run output (``predictions``), not from the input: a model that does not cli
 where the system clips, and its residual follows those excesses. Their baseline also holds
 the model's output (a gain error is no overflow). An effect that also acts inside the
 dynamics (`Effect.state_evidence`: hysteresis in the feedback, as a Bouc–Wen restoring
-force) adds signals of the model's output to its input-side ones; those are scored beyond a
-baseline that holds the model's output too (play operators of the output with a small
-threshold are the output itself, and would take up any gain or phase error of the model as
-hysteresis), and the effect keeps the better of that score and its input-side signals' on
-the common baseline.
+force) adds signals of the model's output to its input-side ones.
 
 Each effect is tested on the recordings that can show it. An input-dependent effect: those
 whose input moves. An input-independent one (drift): those that hold the input constant — on
@@ -499,8 +495,7 @@ def _baseline(
 
 
 def _raw_signals(
-    effect: Effect, evidence: _Evidence, tested: tuple[int, ...], context: FeatureContext,
-    state: bool = True,
+    effect: Effect, evidence: _Evidence, tested: tuple[int, ...], context: FeatureContext
 ) -> list[np.ndarray]:
     """The effect's candidate signals on each tested recording: from its input, or for an
     output-side effect from the model's output (plus the state-side ones from it)."""
@@ -509,51 +504,18 @@ def _raw_signals(
         assert evidence.model_outputs is not None
         return _output_evidence(effect, [evidence.model_outputs[i] for i in tested], outputs)
     raw = [effect.evidence(evidence.recordings[i].u, context) for i in tested]
-    if state and _reads_state(effect, evidence):
-        state_signals = _output_evidence(
-            effect, [evidence.model_outputs[i] for i in tested], outputs, state=True
-        )
-        raw = [np.column_stack([r, x]) for r, x in zip(raw, state_signals, strict=True)]
+    if evidence.model_outputs is not None and _has_state_evidence(effect):
+        state = _output_evidence(effect, [evidence.model_outputs[i] for i in tested], outputs,
+                                 state=True)
+        raw = [np.column_stack([r, x]) for r, x in zip(raw, state, strict=True)]
     return raw
-
-
-def _reads_state(effect: Effect, evidence: _Evidence) -> bool:
-    """Whether the effect's evidence includes state-side signals read from the model's output
-    (`Effect.state_evidence`, and a free-run prediction to read them from)."""
-    return evidence.model_outputs is not None and _has_state_evidence(effect)
-
-
-def _held_out_gains(
-    effect: Effect, evidence: _Evidence, tested: tuple[int, ...], context: FeatureContext,
-    settings: DiagnosisSettings, reads_output: bool,
-) -> tuple[_Gains, int]:
-    """The candidate's held-out gains over its baseline, and the number of blocks.
-    ``reads_output``: its signals include ones read from the model's output, and its baseline
-    holds that output (a gain or phase error of the model's output is none of the effects:
-    play operators of the output with a small threshold are the output itself)."""
-    shown = [evidence.prepared[i] for i in tested]
-    base, base_blocks = _baseline(evidence, tested, reads_output, settings)
-    # an input-independent trend gains nothing from delayed copies of itself
-    own_lags = settings.lags if effect.predictable else (0,)
-    raw = _raw_signals(effect, evidence, tested, context, state=reads_output)
-    evidence_signals = [
-        _centre(_lagged_rows(signal, p.keep, own_lags)) * p.weight
-        for signal, p in zip(raw, shown, strict=True)
-    ]
-    groups = ([evidence.outputs[i] for i in tested] if effect.predictable
-              else list(range(len(tested))))
-    signals = _standardised(_in_groups(evidence_signals, groups))
-    full = [np.column_stack([b, s]) for b, s in zip(base, signals, strict=True)]
-    return _gains(base_blocks, _blocks(shown, full, settings.folds)), len(base_blocks)
 
 
 def _score_effect(
     effect: Effect, name: str, evidence: _Evidence, context: FeatureContext,
     settings: DiagnosisSettings,
 ) -> EffectScore:
-    """One candidate's held-out gain over the baseline, its significance and its evidence.
-    An effect with state evidence scores the better of its input-side signals over the
-    common baseline and all its signals over the baseline with the model's output."""
+    """One candidate's held-out gain over the baseline, its significance and its evidence."""
     # input-dependent: where the input moves; input-independent: where it is held
     tested = tuple(i for i, h in enumerate(evidence.held) if h != effect.predictable)
     if not tested:
@@ -562,14 +524,20 @@ def _score_effect(
         return _not_tested(name, effect.description, True, why=(
             "acts on the model's output: no free-run prediction was given to read it from"
         ))
+    shown = [evidence.prepared[i] for i in tested]
     shown_names = [evidence.recordings[i].name for i in tested]
-    output_side = effect.block == "output"
-    gains, n_blocks = _held_out_gains(effect, evidence, tested, context, settings, output_side)
-    state_read = False
-    if not output_side and _reads_state(effect, evidence):
-        with_state, _ = _held_out_gains(effect, evidence, tested, context, settings, True)
-        if with_state.score > gains.score:
-            gains, state_read = with_state, True
+    base, base_blocks = _baseline(evidence, tested, effect.block == "output", settings)
+    # an input-independent trend gains nothing from delayed copies of itself
+    own_lags = settings.lags if effect.predictable else (0,)
+    evidence_signals = [
+        _centre(_lagged_rows(signal, p.keep, own_lags)) * p.weight
+        for signal, p in zip(_raw_signals(effect, evidence, tested, context), shown, strict=True)
+    ]
+    groups = ([evidence.outputs[i] for i in tested] if effect.predictable
+              else list(range(len(tested))))
+    signals = _standardised(_in_groups(evidence_signals, groups))
+    full = [np.column_stack([b, s]) for b, s in zip(base, signals, strict=True)]
+    gains = _gains(base_blocks, _blocks(shown, full, settings.folds))
     significant, p_value, how = _verdict(gains, settings.test, settings.min_score,
                                          settings.alpha, shown_names)
     n_all = len(evidence.recordings)
@@ -577,13 +545,10 @@ def _score_effect(
         f" on the {len(tested)} of {n_all} recordings that "
         + ("move the input" if effect.predictable else "hold the input constant")
     )
-    beyond = ("the input, the declared effects and the model's output (its state-side "
-              "signals read from that output)" if state_read
-              else "the input and the declared effects")
     text = (
         f"{effect.description}: explains {100 * gains.score:.1f} % of the residual variance "
-        f"of held-out blocks beyond {beyond}{where} "
-        f"({how}; {n_blocks} blocks: p = {p_value:.2g})"
+        f"of held-out blocks beyond the input and the declared effects{where} "
+        f"({how}; {len(base_blocks)} blocks: p = {p_value:.2g})"
     )
     log.info("%s", text)
     return EffectScore(name, gains.score, p_value, bool(significant), text, effect.predictable)
