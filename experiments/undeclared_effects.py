@@ -1,78 +1,90 @@
-"""Undeclared-effect check of the closed loop on the simulator (issue: the closed loop).
+"""Undeclared-effect check of the closed loop on the simulator (issue #23 item 4).
 
-    python experiments/undeclared_effects.py                       # all cases
-    python experiments/undeclared_effects.py --cases creep --epochs 100
+    python experiments/undeclared_effects.py                        # all cases, then the table
+    python experiments/undeclared_effects.py --cases creep          # one case (rows are kept)
+    python experiments/undeclared_effects.py --table-only           # the table from kept rows
 
-For each case the simulator switches one effect on that the model does not declare, while
-the model declares the other effects present (the first bending mode, always on, counts as
-"resonance"); `hysteresis-lab-loop` runs one round (fit, diagnose, add the top significant
-effect, refit). Reported per case: the top-ranked effect, whether it is significant and the
-expected one, the free-run RMSE change per test recording, the effect's own size per test
-(RMS change of the noise-free output when it is switched on) and the verdict of the issue's
-rule: named as the top significant effect; where it acts (> 0.05 µm) the free-run RMSE cut by
->= 30 %; no other test more than 5 % worse (an input-independent effect only has to be named).
+For each case the simulator switches one effect on that the start model does not declare.
+The start is the loop's own, ``model=linear effects=[]``; the simulator's always-on
+nonlinear blocks (Bouc–Wen hysteresis, creep) are switched off, so the effect under test is
+the only one beyond linear dynamics (amplifier, delay, first bending mode). Rate dependence
+modulates the Bouc–Wen loop, so there the hysteresis stays on and the start declares it.
+Everything else is the loop's default but ``loop.max_rounds=1``: only round 0's diagnosis
+and the refit that adds its choice are judged here. The drift case also
+diagnoses a 10 s recording that holds the input at 0 V (``data.splits.test_hold_s=10
+data.diagnose=[hold_10s]``): on a moving input a trend cannot be told apart from slow
+input-driven error.
 
-The test set is the study's twelve sines plus 10 s with the input held at 0 V (drift, which
-does not depend on the input, can only be told apart from slow input-driven error where the
-input does not move). The identification data is the study's multisine plus full-amplitude
-sines between the test frequencies (``--train-sines``; the multisine alone never drives the
-full-amplitude loops of the test sines, so a model trained on it mostly shows its own
-extrapolation error), and the networks are fine-tuned on their free-run error (``--horizon``).
-Each case also reports, per test where the effect acts, the RMSE cut that taking the effect's
-own output off the round-0 error would give (``experiments/effect_ceiling.py``).
+Reported per case: the top significant effect of round 0 and its score; the share of the
+round-0 diagnosis residual that the effect's own output explains (``effect_share``: where it
+is below ``loop.min_score`` the rule does not ask for the effect to be named); per test where
+the effect acts (its own output > 0.05 µm RMS) the free-run RMSE before and after the refit
+and the ceiling (``hysteresis_lab.analysis.loop_checks.ceiling``: the cut that taking the
+effect's own output off the round-0 error would give); and the verdict of the rule: named as
+the top significant effect (or its catalogue stand-in); the refit takes at least half the
+ceiling off where the effect acts; no other test more than 5 % worse; an input-independent
+effect (drift) named and no gain claimed for it. Each case's row is kept as JSON under
+``--root``; the table of all kept rows goes to ``docs/results/undeclared_effects.md``.
 """
 
 from __future__ import annotations
 
 import argparse
+import datetime
 import json
 import logging
+import shutil
 import subprocess
+import sys
 import time
 from pathlib import Path
 
-from hysteresis_lab.analysis.diagnosis import TESTS
-from hysteresis_lab.analysis.loop_checks import ceiling
+from hysteresis_lab.analysis.loop_checks import ceiling, effect_share
 from hysteresis_lab.effects.registry import get_effect
 
 log = logging.getLogger("undeclared_effects")
 
-#: case -> (simulator block, effects the model declares, catalogue effect expected)
-CASES: dict[str, tuple[str, list[str], str]] = {
-    "creep": ("creep", ["hysteresis", "resonance"], "creep"),
-    "mode2": ("mode2", ["hysteresis", "creep"], "resonance"),
-    "drift": ("drift", ["hysteresis", "creep", "resonance"], "drift"),
-    "saturation": ("saturation", ["hysteresis", "creep", "resonance"], "saturation"),
+REPO = Path(__file__).resolve().parents[1]
+OUT = REPO / "docs" / "results" / "undeclared_effects.md"
+#: case -> (simulator block, effects the start declares, catalogue effects that name it)
+CASES: dict[str, tuple[str, list[str], tuple[str, ...]]] = {
+    "creep": ("creep", [], ("creep",)),
+    "mode2": ("mode2", [], ("resonance",)),
+    "drift": ("drift", [], ("drift",)),
+    "saturation": ("saturation", [], ("saturation",)),
+    # a play operator is a backlash: the hysteresis's play operators model it as well
+    "backlash": ("backlash", [], ("backlash", "hysteresis")),
+    "dead_zone": ("dead_zone", [], ("dead_zone",)),
+    # creep again, its slow test diagnosed: the 1 s validation multisine cannot show it
+    "creep_1hz": ("creep", [], ("creep",)),
+    # rate dependence modulates the Bouc–Wen loop: the hysteresis stays on and is declared; a
+    # loop that widens with the rate lowers the gain at high frequencies, which the
+    # resonance's filters (a frequency-dependent gain) model
+    "rate_dependence": ("rate_dependence", ["hysteresis"], ("rate", "resonance")),
 }
-#: every case's test set ends with 10 s of the input held at 0 V: the metrology test for
-#: drift, the one recording on which an input-independent effect can be told apart
-TEST_HOLD = "data.splits.test_hold_s=10"
-#: extra data overrides per case: identification inside the amplifier's linear range (80 V
-#: sines; the multisine's rare peaks still reach the clipping level), tested at full range
-CASE_DATA = {"saturation": ["data.splits.train_sine_amplitude=80"]}
-TRAIN_SINES = "[0.3,3,30,75,125,175,225,275,350,425,475]"
+#: the simulator's always-on nonlinear blocks, switched off unless the case needs them
+NONLINEAR = ("hysteresis", "creep")
+#: extra data overrides per case (drift: a held input, diagnosed)
+CASE_DATA = {"drift": ["data.splits.test_hold_s=10", "data.diagnose=[hold_10s]"],
+             "creep_1hz": ["data.diagnose=[sine_1Hz]"]}
+QUIET = ["trainer.enable_progress_bar=false", "logger=none"]
 ACTS_UM = 0.05  # an effect "acts" on a test where it moves the noise-free output by more (RMS)
 WORSE_PCT = 5.0  # no other test may get worse than this
-CUT_PCT = 30.0  # the gain required where the effect acts
+CEILING_SHARE = 0.5  # the share of the ceiling the refit must take off where the effect acts
+MIN_SCORE = 0.05  # loop.min_score's default
 
 
-def verdict(row: dict, sizes: dict[str, float], predictable: bool) -> str:
-    """Does the case meet the issue's rule (named; cut where it acts; nothing else worse)?"""
-    if row["top"] != row["expected"] or not row["significant"]:
-        return "FAIL: not named as the top significant effect"
-    if not predictable:
-        return "PASS: named (an input-independent effect is reported, not added)"
-    change = row.get("change_pct")
-    if change is None:
-        return "FAIL: named but not refitted"
-    acting = [t for t, size in sizes.items() if size > ACTS_UM]
-    missed = [t for t in acting if change[t] > -CUT_PCT]
-    worse = [t for t in change if t not in acting and change[t] > WORSE_PCT]
-    failures = ([f"cut < {CUT_PCT:.0f} % on {missed}"] if missed else []) + (
-        [f"> {WORSE_PCT:.0f} % worse on {worse}"] if worse else [])
-    if failures:
-        return "FAIL: " + "; ".join(failures)
-    return f"PASS: cut >= {CUT_PCT:.0f} % on {acting}; no other test > {WORSE_PCT:.0f} % worse"
+def command_for(name: str, root: Path, rounds: int) -> list[str]:
+    """The hysteresis-lab-loop command of case ``name``."""
+    block, declared, _ = CASES[name]
+    off = [f"data.effects.{b}.enabled=false" for b in NONLINEAR
+           if b != block and b not in declared]
+    start = [f"model.effects=[{','.join(declared)}]"] if declared else []
+    return [
+        "hysteresis-lab-loop", *start, *off,
+        f"data.effects.{block}.enabled=true", *CASE_DATA.get(name, []),
+        f"loop.max_rounds={rounds}", *QUIET, f"hydra.run.dir={root / name}",
+    ]
 
 
 def change_pct(before: dict, after: dict) -> dict[str, float]:
@@ -83,72 +95,182 @@ def change_pct(before: dict, after: dict) -> dict[str, float]:
     }
 
 
-def run_case(name: str, args: argparse.Namespace) -> dict:
-    block, declared, expected = CASES[name]
-    overrides = [f"data.effects.{block}.enabled=true", TEST_HOLD, *CASE_DATA.get(name, [])]
-    out = args.root / name
-    command = [
-        "hysteresis-lab-loop", "model=ffnn", f"model.effects=[{','.join(declared)}]",
-        "loop.max_rounds=1", f"trainer.max_epochs={args.epochs}",
-        "model.objective=simulation", f"model.horizon={args.horizon}",
-        f"model.simulation_epochs={args.simulation_epochs}",
-        f"data.splits.train_sines={args.train_sines}", f"model.effect_path={args.effect_path}",
-        f"loop.significance={args.significance}", f"loop.resume={str(args.resume).lower()}",
-        "trainer.enable_progress_bar=false",
-        "logger=none", f"hydra.run.dir={out}", *overrides,
-    ]
+def verdict(row: dict) -> str:
+    """Does the case meet the rule (named where it shows; half the ceiling off where it acts;
+    no other test > 5 % worse; an input-independent effect named, no gain claimed)?"""
+    shows = row["effect_share_max"] >= MIN_SCORE
+    named = row["top"] in row["expected"] and row["significant"]
+    if not named:
+        return ("FAIL: not named as the top significant effect" if shows else
+                f"n/a: the effect holds {100 * row['effect_share_max']:.1f} % < "
+                f"{100 * MIN_SCORE:g} % of the residual; not named")
+    if not row["predictable"]:
+        claimed = row.get("change_pct") is not None
+        return "FAIL: a gain is claimed" if claimed else "PASS: named, reported, not added"
+    if row.get("change_pct") is None:
+        return f"named; not refitted ({row.get('why_not_refitted', 'no refit')})"
+    acting = row["ceiling_pct"]
+    missed = [t for t, top in acting.items() if -row["change_pct"][t] < CEILING_SHARE * top]
+    worse = [t for t, c in row["change_pct"].items() if t not in acting and c > WORSE_PCT]
+    failures = ([f"less than half the ceiling off {missed}"] if missed else []) + (
+        [f"> {WORSE_PCT:.0f} % worse on {worse}"] if worse else [])
+    return "FAIL: " + "; ".join(failures) if failures else "PASS"
+
+
+def _why_not_refitted(first: dict, report: dict) -> str:
+    if first.get("not_carried"):
+        return f"model=linear has no block for {first['not_carried']}"
+    return first.get("note", "no refit")
+
+
+def run_case(name: str, root: Path, rounds: int) -> dict:
+    """Run one case's loop (fresh) and read its row."""
+    block, _, expected = CASES[name]
+    folder = root / name
+    if folder.exists():  # a fresh run: the loop would reuse the fits it finds there
+        shutil.rmtree(folder)
+    command = command_for(name, root, rounds)
     start = time.perf_counter()
-    subprocess.run(command, check=True, capture_output=True, text=True)
+    proc = subprocess.run([sys.executable, "-m", "hysteresis_lab.cli.loop", *command[1:]],
+                          cwd=REPO, capture_output=True, text=True)
     seconds = time.perf_counter() - start
-    report = json.loads((out / "loop_report.json").read_text())
+    if proc.returncode != 0:
+        raise SystemExit(f"{' '.join(command)} failed:\n{proc.stderr[-3000:]}")
+    report = json.loads((folder / "loop_report.json").read_text())
     first = report["rounds"][0]
-    top = first["diagnosis"][0] if first["diagnosis"] else {"effect": None, "significant": False}
-    row = {"case": name, "expected": expected, "top": top["effect"],
-           "significant": top["significant"], "added": first["added"], "seconds": seconds}
-    if len(report["rounds"]) > 1:
-        after = report["rounds"][1]
-        row["change_pct"] = change_pct(first, after)
-        if after.get("rejected"):  # the loop kept round 0; what the refit would have done:
-            row["rejected"] = after["rejected"]
-            row["rejected_refit_change_pct"] = change_pct(first, after["rejected_refit"])
-    # per test: the effect's size and the cut that taking its own output off the round-0
-    # error would give
-    shares = ceiling(out, block, 0)
-    sizes = {r["test"]: r["effect_size_um"] for r in shares}
-    row["effect_size_um"] = sizes
-    row["effect_share_max_cut_pct"] = {
-        r["test"]: r["max_cut_pct"] for r in shares if sizes[r["test"]] > ACTS_UM
+    significant = [d for d in first["diagnosis"] if d["significant"]]
+    top = significant[0] if significant else (first["diagnosis"] or [{}])[0]
+    scores = {d["effect"]: d["score"] for d in first["diagnosis"]}
+    shares = effect_share(folder, block, 0)
+    row = {
+        "case": name, "block": block, "expected": list(expected),
+        "command": " ".join(c for c in command if not c.startswith("hydra.run.dir")),
+        "commit": commit(), "date": f"{datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M}",
+        "seconds": seconds, "top": top.get("effect"), "top_score": top.get("score"),
+        "significant": bool(top.get("significant")),
+        "expected_score": max(scores.get(e, float("nan")) for e in expected),
+        "predictable": get_effect(expected[0]).predictable,
+        "added": first.get("added"), "effect_share": shares,
+        "effect_share_max": max(shares.values()),
+        "before": {t: m["rmse_free_run"] for t, m in first["tests"].items()},
     }
-    row["verdict"] = verdict(row, sizes, get_effect(expected).predictable)
+    if len(report["rounds"]) > 1 and first.get("added"):
+        after = report["rounds"][1]
+        refit = after.get("rejected_refit", after) if after.get("rejected") else after
+        row["rejected"] = bool(after.get("rejected"))
+        row["after"] = {t: m["rmse_free_run"] for t, m in refit["tests"].items()}
+        # a rejected refit claims no gain: the last model stands
+        row["change_pct"] = (change_pct(first, after) if not after.get("rejected")
+                             else dict.fromkeys(first["tests"], 0.0))
+        row["refit_change_pct"] = change_pct(first, refit)
+    else:
+        row["why_not_refitted"] = _why_not_refitted(first, report)
+    acting = [r for r in ceiling(folder, block, 0) if r["effect_size_um"] > ACTS_UM
+              and r["test"] in first["tests"]]
+    row["ceiling_pct"] = {r["test"]: r["max_cut_pct"] for r in acting}
+    row["effect_size_um"] = {r["test"]: r["effect_size_um"] for r in acting}
+    row["verdict"] = verdict(row)
     return row
+
+
+def commit() -> str:
+    """The short commit, marked when the code (src/, experiments/) has uncommitted changes."""
+    out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True,
+                         text=True)
+    dirty = subprocess.run(
+        ["git", "status", "--porcelain", "--untracked-files=no", "--", "src", "experiments"],
+        cwd=REPO, capture_output=True, text=True,
+    ).stdout.strip()
+    return out.stdout.strip() + (" (with uncommitted changes)" if dirty else "")
+
+
+def _tests_cell(row: dict) -> str:
+    """Per acting test: before -> after (change; ceiling)."""
+    if not row["ceiling_pct"]:
+        return "acts on no test (> 0.05 µm)"
+    after = row.get("after", {})
+    cells = []
+    for test, top in row["ceiling_pct"].items():
+        before = row["before"][test]
+        if test in after:
+            cells.append(f"{test}: {before:.3f} → {after[test]:.3f} "
+                         f"({row['refit_change_pct'][test]:+.0f} %; ceiling −{top:.0f} %)")
+        else:
+            cells.append(f"{test}: {before:.3f} (ceiling −{top:.0f} %)")
+    return "<br>".join(cells)
+
+
+def _others_cell(row: dict) -> str:
+    """The worst change on the tests where the effect does not act."""
+    change = row.get("refit_change_pct")
+    if change is None:
+        return "–"
+    others = {t: c for t, c in change.items() if t not in row["ceiling_pct"]}
+    if not others:
+        return "–"
+    worst = max(others, key=others.get)
+    return f"{others[worst]:+.1f} % ({worst})"
+
+
+def table(rows: list[dict]) -> str:
+    """The markdown page of all kept rows."""
+    lines = [
+        "# Undeclared effects on the simulator: does the loop name and fix them?",
+        "",
+        "Written by `python experiments/undeclared_effects.py` (the cases one after another; "
+        "`--cases <name>` reruns one, `--table-only` rewrites this page from the kept rows) "
+        "on a shared 2-core CPU (OMP_NUM_THREADS=1). "
+        "Start `model=linear effects=[]` (rate dependence: `effects=[hysteresis]`); the "
+        "simulator's hysteresis and creep off but where under test (rate: hysteresis on), "
+        "so each case has one effect beyond linear dynamics; default loop settings but "
+        "`loop.max_rounds=1` (round 0's "
+        "diagnosis and its refit are what is judged). Rule: named as the top significant "
+        "effect where its own output holds ≥ 5 % (`loop.min_score`) of the round-0 "
+        "diagnosis residual; the refit takes at least half the ceiling off every test "
+        "where the effect acts (> 0.05 µm RMS); no other test > 5 % worse; drift named, "
+        "no gain claimed. Free-run RMSE in µm; 'after' is the refit's, also when the loop "
+        "rejected it (then the loop claims no gain).",
+        "",
+        "| case | top significant (score) | expected's score | effect share of residual "
+        "| tests where it acts: before → after (refit; ceiling) | worst other test "
+        "| refit kept | verdict |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        top = (f"{r['top']} ({100 * r['top_score']:.1f} %)" if r["significant"]
+               else "none significant")
+        kept = ("–" if "after" not in r else "no (rejected)" if r["rejected"] else "yes")
+        lines.append(
+            f"| {r['case']} | {top} | {'/'.join(r['expected'])} "
+            f"{100 * r['expected_score']:.1f} % | {100 * r['effect_share_max']:.1f} % "
+            f"| {_tests_cell(r)} | {_others_cell(r)} | {kept} | {r['verdict']} |"
+        )
+    lines += ["", "Per case: command, commit, date, wall time:", ""]
+    lines += [f"- {r['case']}: `{r['command']}` at {r['commit']}, {r['date']} UTC, "
+              f"{r['seconds']:.0f} s" for r in rows]
+    return "\n".join(lines) + "\n"
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES))
-    parser.add_argument(
-        "--epochs", type=int, default=20,
-        help="one-step epochs of each fit (20 for speed; the study's 100 leave the round-0 "
-        "network holding more of creep and the second mode: see experiments/README.md)",
-    )
-    parser.add_argument("--horizon", type=int, default=200)
-    parser.add_argument("--simulation-epochs", type=int, default=5)
-    parser.add_argument("--train-sines", default=TRAIN_SINES, help="Hydra list, or [] for none")
-    parser.add_argument("--effect-path", default="network", choices=["network", "linear"],
-                        help="how effect operators enter the network (model.effect_path)")
-    parser.add_argument("--significance", default="pooled", choices=list(TESTS),
-                        help="how the diagnosis tests significance (loop.significance)")
-    parser.add_argument("--root", type=Path, default=Path("outputs/undeclared"))
-    parser.add_argument(
-        "--resume", action="store_true",
-        help="reuse the fits a stopped run finished under --root (their seconds are then not "
-        "training times); by default every fit trains, so the figures come from this code",
-    )
+    parser.add_argument("--rounds", type=int, default=1, help="loop.max_rounds")
+    parser.add_argument("--root", type=Path, default=REPO / "outputs" / "undeclared")
+    parser.add_argument("--table-only", action="store_true",
+                        help="write the table from the rows kept under --root")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
-    for name in args.cases:
-        row = run_case(name, args)
-        log.info("%s", json.dumps(row, indent=1))
+    if not args.table_only:
+        for name in args.cases:
+            log.info("case %s ...", name)
+            row = run_case(name, args.root, args.rounds)
+            (args.root / name / "row.json").write_text(json.dumps(row, indent=1))
+            log.info("%s", json.dumps(row, indent=1))
+    rows = [json.loads((args.root / n / "row.json").read_text()) for n in CASES
+            if (args.root / n / "row.json").is_file()]
+    OUT.parent.mkdir(parents=True, exist_ok=True)
+    OUT.write_text(table(rows))
+    log.info("wrote %s", OUT)
 
 
 if __name__ == "__main__":

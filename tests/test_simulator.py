@@ -112,6 +112,28 @@ def test_saturation_clips_the_amplifier_output():
     assert np.ptp(clipped) < 0.6 * np.ptp(full)
 
 
+
+def test_dead_zone_and_backlash_act_ahead_of_the_actuator():
+    """A dead zone: the response to a command inside the band is nil, and beyond it the same
+    as to the command less the band; backlash: a reversal moves nothing until the command
+    has come back twice the play."""
+    base = effects(creep={"enabled": False}, amplifier={"enabled": False},
+                   hysteresis={"enabled": False}, mode1={"enabled": False},
+                   input_delay={"enabled": False})
+    dead = {**base, "dead_zone": {"enabled": True, "width_v": 10.0}}
+    assert np.all(Positioner(dead).simulate(np.full(100, 9.0), FS) == 0.0)
+    u = sine(1.0, fs=FS, amplitude=100.0)
+    reference = Positioner(base).simulate(np.sign(u) * np.maximum(np.abs(u) - 10.0, 0.0), FS)
+    np.testing.assert_allclose(Positioner(dead).simulate(u, FS), reference)
+    play = {**base, "backlash": {"enabled": True, "width_v": 5.0}}
+    ramp = np.concatenate([np.linspace(0.0, 50.0, 500), np.linspace(50.0, 30.0, 500)])
+    y = Positioner(play).simulate(ramp, FS)
+    gain = 0.23  # um/V with the hysteresis off
+    assert y[499] == pytest.approx(gain * 45.0, abs=1e-3)  # follows 5 V behind
+    back = 500 + np.flatnonzero(ramp[500:] <= 40.0)[0]  # 10 V down: the play taken up
+    assert np.all(np.abs(y[500:back] - y[499]) < 1e-3) and y[-1] < y[499] - 1.0
+
+
 # ---------------------------------------------------------------- creep and drift
 def step_response(config: dict, seconds: float = 10.0) -> np.ndarray:
     u = np.full(int(seconds * FS), 50.0)

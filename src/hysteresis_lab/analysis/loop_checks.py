@@ -91,23 +91,63 @@ def free_run_rmse(model: Any, recordings: list[Recording], n_init: int) -> dict[
 
 
 # ---------------------------------------------------------------------------- effect ceiling
-def effect_contribution(data_cfg: dict[str, Any], block: str) -> dict[str, np.ndarray]:
-    """Noise-free output with simulator ``block`` on minus with it off, per test recording."""
+def _quiet_outputs(data_cfg: dict[str, Any], block: str, enabled: bool) -> DatasetSplits:
+    """The run's simulated data without noise or quantisation, ``block`` switched as given."""
     quiet = {"noise": {"enabled": False}, "quantisation": {"enabled": False}}
+    effects = {
+        **data_cfg["effects"],
+        **quiet,
+        block: {**data_cfg["effects"][block], "enabled": enabled},
+    }
+    return build_splits(
+        {**data_cfg, "effects": effects, "splits": {**data_cfg["splits"], "effects": effects}}
+    )
 
-    def outputs(enabled: bool) -> dict[str, np.ndarray]:
-        effects = {
-            **data_cfg["effects"],
-            **quiet,
-            block: {**data_cfg["effects"][block], "enabled": enabled},
-        }
-        splits = build_splits(
-            {**data_cfg, "effects": effects, "splits": {**data_cfg["splits"], "effects": effects}}
-        )
-        return {r.name: r.y[:, 0] for r in splits.test}
 
-    on, off = outputs(True), outputs(False)
+def effect_contribution(
+    data_cfg: dict[str, Any], block: str, role: str = "test"
+) -> dict[str, np.ndarray]:
+    """Noise-free output with simulator ``block`` on minus with it off, per recording of
+    ``role`` (``"test"``, or ``"diagnosis"``: those the loop diagnoses, `diagnosis_recordings`)."""
+    pick = (lambda s: s.test) if role == "test" else (
+        lambda s: diagnosis_recordings(s, data_cfg))
+    on = {r.name: r.y[:, 0] for r in pick(_quiet_outputs(data_cfg, block, True))}
+    off = {r.name: r.y[:, 0] for r in pick(_quiet_outputs(data_cfg, block, False))}
     return {name: on[name] - off[name] for name in on}
+
+
+def diagnosis_recordings(splits: DatasetSplits, data_cfg: dict[str, Any]) -> list[Recording]:
+    """The whole recordings a loop run diagnoses (``data.diagnose``, else the validation
+    recordings); a loop without validation recordings diagnoses held-out stretches, which
+    this check does not rebuild."""
+    named = list(data_cfg.get("diagnose") or [])
+    chosen = [r for r in [*splits.val, *splits.test] if r.name in named]
+    if named or splits.val:
+        return chosen or list(splits.val)
+    raise ConfigError("the run diagnoses held-out stretches of its training recordings: give "
+                      "it validation recordings (the simulator's data.splits.val_samples > 0).")
+
+
+def effect_share(run: Path, block: str, number: int) -> dict[str, float]:
+    """Per diagnosis recording of a loop run on the simulator: the share of round
+    ``number``'s de-meaned free-run residual variance that ``block``'s own contribution
+    explains (its squared correlation with the residual), scored from `scoring_start`. What
+    the diagnosis could find of the effect at most, with no lags."""
+    data_cfg = run_data_config(run)
+    splits = build_splits(data_cfg)
+    recordings = diagnosis_recordings(splits, data_cfg)
+    model = load_model(round_model(run, number))
+    predictions = free_run(model, for_model(model, recordings), model.window)
+    contribution = effect_contribution(data_cfg, block, role="diagnosis")
+    skip = scoring_start(model.window, splits.n_init)
+    shares = {}
+    for rec, prediction in zip(recordings, predictions, strict=True):
+        e = (rec.y - prediction)[skip:, 0]
+        d = contribution[rec.name][skip:]
+        e, d = e - e.mean(), d - d.mean()
+        norm = float((e @ e) * (d @ d))
+        shares[rec.name] = float((e @ d) ** 2 / norm) if norm > 0 else 0.0
+    return shares
 
 
 def _ceiling_row(rec: Recording, prediction: np.ndarray, whole: np.ndarray, skip: int) -> dict:

@@ -56,6 +56,10 @@ class NarxModule(L.LightningModule, NetworkModel):
     registry_name: ClassVar[str] = ""
     #: the catalogue effects the model can take in ``effects`` (None: every one)
     carried_effects: ClassVar[tuple[str, ...] | None] = None
+    #: carried effects whose block takes a share of the large-signal gain off what the fitted
+    #: dynamics see (a dead zone): a loop refit adding one trains the whole model, as the gain
+    #: the fit lowered to meet the effect must come back
+    whole_refit_effects: ClassVar[tuple[str, ...]] = ()
     #: True for models built to train on the free-run error alone (no one-step stage)
     simulation_trained: ClassVar[bool] = False
 

@@ -185,6 +185,9 @@ class LinearModel(PhysicalChainModule):
     """Stable linear dynamics with the declared effects' blocks (see the module docstring)."""
 
     carried_effects = LINEAR_EFFECTS
+    #: ``v - w clip(v, ±c)`` takes a band off every input: a linear fit meets the lost output
+    #: with a lower gain, which a refit that only trains the block cannot give back
+    whole_refit_effects = ("dead_zone",)
 
     def __init__(
         self,

@@ -5,6 +5,8 @@ Signal chain (each block switchable; parameters in `hysteresis_lab.sim.config` a
 
     u [V] -> amplifier        first-order low-pass [5 kHz]
           -> saturation       clipping at ±limit [off, 90 V]
+          -> dead_zone        sign(v) max(|v| - w, 0) [off, 10 V]
+          -> backlash         play operator of half-width w [off, 5 V]
           -> input_delay      [1 sample]
           -> hysteresis       Bouc-Wen, n = 1 [d = 0.23 um/V, alpha 0.32, beta 0.02, gamma 0.006]
           -> asymmetry        + c * 40 um * (v / 100 V)^2 [off, c = 0.02]

@@ -5,11 +5,14 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal
 
+from hysteresis_lab.effects.operators import play_operators
 from hysteresis_lab.sim.bouc_wen import bouc_wen_state
 from hysteresis_lab.sim.config import (
     Amplifier,
     Asymmetry,
+    Backlash,
     Creep,
+    DeadZone,
     Drift,
     Hysteresis,
     Mode,
@@ -32,6 +35,17 @@ def amplifier(v: np.ndarray, fs: float, cfg: Amplifier) -> np.ndarray:
 
 def saturation(v: np.ndarray, cfg: Saturation) -> np.ndarray:
     return np.clip(v, -cfg.limit_v, cfg.limit_v)
+
+
+def dead_zone(v: np.ndarray, cfg: DeadZone) -> np.ndarray:
+    """``v`` with the band ``±width_v`` around zero removed."""
+    return np.sign(v) * np.maximum(np.abs(v) - cfg.width_v, 0.0)
+
+
+def backlash(v: np.ndarray, cfg: Backlash) -> np.ndarray:
+    """A play operator of half-width ``width_v``, starting at rest."""
+    x = np.ascontiguousarray(v, dtype=float)
+    return play_operators(x, np.array([cfg.width_v]))[:, 0]
 
 
 def delay(x: np.ndarray, samples: int) -> np.ndarray:

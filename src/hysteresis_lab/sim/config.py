@@ -38,6 +38,25 @@ class Saturation:
 
 
 @dataclass
+class DeadZone:
+    """Dead zone of ``±width_v`` ahead of the actuator: ``sign(v) max(|v| - width_v, 0)`` (a
+    drive stage that does not respond to small commands, stiction of a clamp)."""
+
+    enabled: bool = False
+    width_v: float = 10.0
+
+
+@dataclass
+class Backlash:
+    """Backlash (mechanical play) of ``±width_v`` ahead of the actuator: a play operator that
+    follows the command only once it has moved ``width_v`` the other way (a gear or clamp
+    with play)."""
+
+    enabled: bool = False
+    width_v: float = 5.0
+
+
+@dataclass
 class Delay:
     """Pure delay in samples (DAC/amplifier latency on the input, sensor latency on the output)."""
 
@@ -150,6 +169,8 @@ class PositionerConfig:
 
     amplifier: Amplifier = field(default_factory=Amplifier)
     saturation: Saturation = field(default_factory=Saturation)
+    dead_zone: DeadZone = field(default_factory=DeadZone)
+    backlash: Backlash = field(default_factory=Backlash)
     input_delay: Delay = field(default_factory=Delay)
     hysteresis: Hysteresis = field(default_factory=Hysteresis)
     asymmetry: Asymmetry = field(default_factory=Asymmetry)
@@ -221,6 +242,8 @@ class PositionerConfig:
         positive = {
             "amplifier.cutoff_hz": (self.amplifier, self.amplifier.cutoff_hz),
             "saturation.limit_v": (self.saturation, self.saturation.limit_v),
+            "dead_zone.width_v": (self.dead_zone, self.dead_zone.width_v),
+            "backlash.width_v": (self.backlash, self.backlash.width_v),
             "hysteresis.d_um_per_v": (self.hysteresis, self.hysteresis.d_um_per_v),
             "rate_dependence.rate_ref_v_per_s": (
                 self.rate_dependence, self.rate_dependence.rate_ref_v_per_s),

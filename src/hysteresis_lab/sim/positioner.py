@@ -41,6 +41,10 @@ class Positioner:
         v = blocks.amplifier(u, fs, c.amplifier) if c.amplifier.enabled else u
         if c.saturation.enabled:
             v = blocks.saturation(v, c.saturation)
+        if c.dead_zone.enabled:
+            v = blocks.dead_zone(v, c.dead_zone)
+        if c.backlash.enabled:
+            v = blocks.backlash(v, c.backlash)
         if c.input_delay.enabled:
             v = blocks.delay(v, c.input_delay.samples)
         if c.hysteresis.enabled:

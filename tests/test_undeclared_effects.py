@@ -1,0 +1,112 @@
+"""One test per undeclared simulator effect (issue #23 item 4), on small data: the diagnosis
+names the effect (or the catalogue effect that models it) from the residual it leaves, and,
+where a refit is cheap, the loop's refit with it cuts the free-run error.
+
+The simulator runs at 2 kHz with its first mode at 300 Hz (the second at 700 Hz) and every
+nonlinear block off but the one under test, so each case has one effect beyond linear
+dynamics (as in ``experiments/undeclared_effects.py``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hysteresis_lab.analysis.diagnosis import diagnose, evidence_lags
+from hysteresis_lab.data.recording import Recording
+from hysteresis_lab.effects.augment import feature_context
+from hysteresis_lab.signals import multisine, sine
+from hysteresis_lab.sim.default_dataset import make_default_dataset
+from hysteresis_lab.sim.positioner import simulate_recording
+from hysteresis_lab.workflows.loop import LoopSettings, run_loop
+
+FS = 2000.0
+#: the small positioner: modes inside the band 2 kHz can show
+BASE = {"mode1": {"frequency_hz": 300.0}, "mode2": {"frequency_hz": 700.0},
+        "hysteresis": {"enabled": False}, "creep": {"enabled": False}}
+QUIET = {"noise": {"enabled": False}, "quantisation": {"enabled": False}}
+#: case -> (simulator blocks switched on, effects declared, catalogue effects that name it)
+CASES = {
+    "creep": ({"creep": {"enabled": True}}, [], {"creep"}),
+    "mode2": ({"mode2": {"enabled": True}}, [], {"resonance"}),
+    "drift": ({"drift": {"enabled": True, "rate_um_per_s": 0.05}}, [], {"drift"}),
+    "saturation": ({"saturation": {"enabled": True, "limit_v": 80.0}}, [], {"saturation"}),
+    # a play operator is a backlash: the hysteresis's play operators model it as well
+    "backlash": ({"backlash": {"enabled": True}}, [], {"backlash", "hysteresis"}),
+    "dead_zone": ({"dead_zone": {"enabled": True}}, [], {"dead_zone"}),
+    # a loop that widens with the rate lowers the gain at high frequencies: the resonance's
+    # filters (frequency-dependent gain) model that part of it
+    "rate_dependence": ({"hysteresis": {"enabled": True}, "rate_dependence": {"enabled": True}},
+                        ["hysteresis"], {"rate", "resonance"}),
+}
+LAGS = evidence_lags(10)
+
+
+def _inputs() -> dict[str, np.ndarray]:
+    """Two multisines and two full-amplitude sines (4 s in all), and 2 s held at 0 V."""
+    return {
+        "ms1": multisine(2000, fs=FS, n_components=50, f_max=50.0, seed=1),
+        "ms2": multisine(2000, fs=FS, n_components=50, f_max=50.0, seed=2),
+        "s1": sine(1.0, fs=FS, n_periods=2),
+        "s20": sine(20.0, fs=FS, n_periods=10),
+        "hold": np.zeros(4000),
+    }
+
+
+def _simulate(effects: dict, quiet: bool = False) -> list[Recording]:
+    config = {name: dict(block) for name, block in BASE.items()}
+    for name, block in {**effects, **(QUIET if quiet else {})}.items():
+        config[name] = {**config.get(name, {}), **block}
+    return [simulate_recording(u, FS, config, seed=i, name=name)
+            for i, (name, u) in enumerate(_inputs().items())]
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_the_diagnosis_names_the_undeclared_effect(case):
+    """The model is the simulator without the effect (noise-free): the residual is the
+    effect's own output plus sensor noise. The diagnosis, given the model's output, must
+    rank the effect (or its stand-in) first and significant; the same recordings without
+    the effect leave nothing significant."""
+    blocks, declared, expected = CASES[case]
+    measured = _simulate(blocks)
+    present = {k: v for k, v in blocks.items() if k in declared}  # what the model has
+    model = _simulate(present, quiet=True)
+    context = feature_context(measured[:2])
+    predictions = [m.y for m in model]
+    ranked = diagnose(measured, [r.y - p for r, p in zip(measured, predictions, strict=True)],
+                      context, declared, lags=LAGS, predictions=predictions)
+    assert ranked[0].effect in expected and ranked[0].significant, [
+        (d.effect, round(d.score, 3), d.significant) for d in ranked[:3]]
+    unaffected = _simulate(present)
+    quiet = diagnose(unaffected, [r.y - p for r, p in zip(unaffected, predictions, strict=True)],
+                     context, declared, lags=LAGS, predictions=predictions)
+    assert not any(d.significant for d in quiet), [(d.effect, d.score) for d in quiet[:3]]
+
+
+TRAINER = {"max_epochs": 5, "accelerator": "cpu", "devices": 1, "enable_progress_bar": False,
+           "enable_model_summary": False}
+#: effects model=linear carries as a block whose refit is cheap here: the study's positioner
+#: (20 kHz, its nonlinear blocks off) with the effect on. (Clipping at 80 V is named as
+#: hysteresis on these records: the play operators of the linear model's own output take up
+#: its error, see docs/results/undeclared_effects.md.)
+REFITS = {"dead_zone": {"enabled": True}}
+
+
+@pytest.mark.parametrize("case", list(REFITS))
+def test_the_loop_adds_the_undeclared_effect_and_its_refit_cuts_the_error(case, tmp_path):
+    """From model=linear effects=[] on short simulator records: round 0 names the effect,
+    the refit carries it, and the refit's held-out and test free-run errors fall by a
+    quarter or more (a few epochs at a high rate: the cut, not the best fit, is tested)."""
+    effects = {"hysteresis": {"enabled": False}, "creep": {"enabled": False},
+               case: REFITS[case]}
+    data = make_default_dataset(effects=effects, n_train=8000, test_frequencies=(10.0, 100.0),
+                                max_test_samples=3000, val_samples=4000)
+    report = run_loop({"name": "linear", "effects": [], "lr": 0.02}, {"name": "small"},
+                      TRAINER, data, tmp_path,
+                      LoopSettings(max_rounds=1, refit_lr_factors=(1.0,)), use_tensorboard=False)
+    first, refit = report["rounds"][:2]
+    assert first["added"] == case, first["diagnosis"][:3]
+    assert refit["effects"] == [case] and "rejected" not in refit
+    assert refit["held_out"]["loss"] < 0.75 * first["held_out"]["loss"]
+    assert refit["mean_rmse_free_run"] < 0.75 * first["mean_rmse_free_run"]
+
