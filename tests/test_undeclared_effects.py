@@ -14,10 +14,12 @@ import pytest
 
 from hysteresis_lab.analysis.diagnosis import diagnose, evidence_lags
 from hysteresis_lab.data.recording import Recording
+from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.effects.augment import feature_context
 from hysteresis_lab.signals import multisine, sine
 from hysteresis_lab.sim.default_dataset import make_default_dataset
 from hysteresis_lab.sim.positioner import simulate_recording
+from hysteresis_lab.trainer import TrainerSettings
 from hysteresis_lab.workflows.loop import LoopSettings, run_loop
 
 FS = 2000.0
@@ -83,8 +85,8 @@ def test_the_diagnosis_names_the_undeclared_effect(case):
     assert not any(d.significant for d in quiet), [(d.effect, d.score) for d in quiet[:3]]
 
 
-TRAINER = {"max_epochs": 5, "accelerator": "cpu", "devices": 1, "enable_progress_bar": False,
-           "enable_model_summary": False}
+TRAINER = TrainerSettings(max_epochs=5, accelerator="cpu", devices=1,
+                          enable_progress_bar=False, enable_model_summary=False)
 #: effects model=linear carries as a block whose refit is cheap here: the study's positioner
 #: (20 kHz, its nonlinear blocks off) with the effect on. (Clipping at 80 V is named as
 #: hysteresis on these records: the play operators of the linear model's own output take up
@@ -101,8 +103,8 @@ def test_the_loop_adds_the_undeclared_effect_and_its_refit_cuts_the_error(case, 
                case: REFITS[case]}
     data = make_default_dataset(effects=effects, n_train=8000, test_frequencies=(10.0, 100.0),
                                 max_test_samples=3000, val_samples=4000)
-    report = run_loop({"name": "linear", "effects": [], "lr": 0.02}, {"name": "small"},
-                      TRAINER, data, tmp_path,
+    model = {"name": "linear", "effects": [], "lr": 0.02}
+    report = run_loop(model, DataSpec.from_config({"name": "small"}), TRAINER, data, tmp_path,
                       LoopSettings(max_rounds=1, refit_lr_factors=(1.0,)), use_tensorboard=False)
     first, refit = report["rounds"][:2]
     assert first["added"] == case, first["diagnosis"][:3]
