@@ -245,7 +245,7 @@ def _fit_round_and_decide(
         run.folder.round_dir(number),
         _refit_rates(run.model.settings, settings) if warm_start is not None else [None],
         warm_start=warm_start,
-        refit=_refit_mode(settings.refit, trying),
+        refit=_refit_mode(settings.refit, trying, run.model.cls),
     )
     if trying is not None and warm_start is None:
         result = judge_cold_refit(result, state.kept[-1][0], settings.min_refit_gain)
@@ -613,12 +613,18 @@ def _refit_loss(result: RunResult) -> float:
     return float(loss["refit"]) if loss else float("inf")
 
 
-def _refit_mode(refit: str, added: str | None) -> str:
+def _refit_mode(refit: str, added: str | None, model_cls: type | None = None) -> str:
     """``refit``, except for an effect that enters through the input block (it changes what
-    the fitted network sees, the corrected input) or acts on the output (the gain a fit
-    lowered to meet a clipped output comes back under the clip): the model refits whole."""
-    block = get_effect(added).block if added is not None else None
-    if refit == "new_inputs" and block in ("input", "output"):
+    the fitted network sees, the corrected input), acts on the output (the gain a fit
+    lowered to meet a clipped output comes back under the clip) or sits in the dynamics'
+    feedback (``model_cls.feedback_effects``: the restoring force changes the loop the
+    dynamics were fitted in): the model refits whole."""
+    if refit != "new_inputs" or added is None:
+        return refit
+    block = get_effect(added).block
+    if added in getattr(model_cls, "feedback_effects", ()):
+        block = "feedback"
+    if block in ("input", "output", "feedback"):
         log.info("'%s' acts on the model's %s: the whole model refits", added, block)
         return "full"
     return refit
