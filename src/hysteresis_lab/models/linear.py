@@ -18,8 +18,10 @@ refit that adds an effect starts exactly from the model it grows:
 * ``saturation``: ``v - w (v - clip(v, ±c))``, amplifier clipping ahead of the actuator;
 * ``dead_zone``: ``v - w clip(v, ±c)``; ``backlash``: ``v + w (play_c(v) - v)``;
 * ``hysteresis``: ``v - w h(v)``, ``h`` the Bouc–Wen state (the grey-box's cell), and
-  inside the dynamics' feedback to first order: play operators of the linear response,
-  weighted from zero, subtracted from the dynamics' input (a hysteretic restoring force);
+  inside the dynamics' feedback: the dynamics in a closed loop with a Bouc–Wen restoring
+  force of their output, weighted from zero (`StateHysteresis`; per output and input pair,
+  each on its own part of the output). The loop refits the whole model when it adds it
+  (``feedback_effects``);
 * ``creep``: a first-order filter bank (the grey-box's block), weights from zero;
 * ``resonance``: a second-order section in parallel with the dynamics, numerator from zero;
 * ``overflow``: ``y - w_hi relu(y - c_hi) + w_lo relu(c_lo - y)`` on each output, after the
@@ -464,8 +466,17 @@ class LinearModel(PhysicalChainModule):
         return order, a
 
     def load_state_dict(self, state_dict: Any, strict: bool = True, assign: bool = False) -> Any:
-        """Also reads a one-input, one-output model saved before the MIMO layout."""
-        return super().load_state_dict(_mimo_keys(state_dict), strict=strict, assign=assign)
+        """Also reads a one-input, one-output model saved before the MIMO layout; refuses,
+        with what to do, one whose feedback hysteresis is the former play operators."""
+        state_dict = _mimo_keys(state_dict)
+        if any(re.match(r"^state_hysteresis\.\d+\.\d+\.weights$", key) for key in state_dict):
+            raise ConfigError(
+                "this linear model was saved with the former feedback hysteresis (play "
+                "operators of the linear response); the block is now the closed loop with a "
+                "Bouc–Wen restoring force and those weights do not carry over. Fix: train it "
+                "again (hysteresis-lab-train model=linear model.effects=[hysteresis,...])."
+            )
+        return super().load_state_dict(state_dict, strict=strict, assign=assign)
 
     def physical_parameters(self) -> dict[str, Any]:
         """Every block's current parameters (for reports); per output and input pair
