@@ -191,6 +191,7 @@ class StateHysteresis(nn.Module):
                            r2, self._lag(dynamics))
 
     def state_names(self, dynamics: StableSections) -> list[str]:
+        """The step's state: past dynamics' inputs ``e`` and outputs ``y``, Bouc–Wen ``h``."""
         b, a = dynamics.polynomials()
         return ([f"e{i}" for i in range(1, b.shape[0])] + [f"y{i}" for i in range(1, a.shape[0])]
                 + [f"h{c}" for c in range(self.n_channels)])
