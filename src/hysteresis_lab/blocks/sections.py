@@ -61,6 +61,16 @@ class StableSections(nn.Module):
             x = iir_filter(x, self.numerators[i].double(), a[i])
         return x
 
+    def polynomials(self) -> tuple[Tensor, Tensor]:
+        """The whole cascade as one transfer function ``b(z^-1) / a(z^-1)`` (the delay's
+        leading zeros in ``b``, ``a[0] = 1``), differentiable w.r.t. the parameters."""
+        a = self.denominators()
+        b_total, a_total = self.numerators[0].double(), a[0]
+        for i in range(1, self.n_sections):
+            b_total = _polymul(b_total, self.numerators[i].double())
+            a_total = _polymul(a_total, a[i])
+        return nn.functional.pad(b_total, (int(self.delay), 0)), a_total
+
     def state_names(self) -> list[str]:
         return [f"delay_{i}" for i in range(int(self.delay))] + [
             f"section{i}_z{j}" for i in range(self.n_sections) for j in (1, 2)]
@@ -106,6 +116,12 @@ class StableSections(nn.Module):
         with torch.no_grad():
             return {"delay": int(self.delay), "numerators": self.numerators.cpu().numpy().copy(),
                     "denominators": self.denominators().cpu().numpy().copy()}
+
+
+def _polymul(p: Tensor, q: Tensor) -> Tensor:
+    """The product of two polynomials (coefficient vectors), differentiable."""
+    return nn.functional.conv1d(p.reshape(1, 1, -1), q.flip(0).reshape(1, 1, -1),
+                                padding=q.shape[0] - 1).reshape(-1)
 
 
 def arx_least_squares(

@@ -56,9 +56,10 @@ class NarxModule(L.LightningModule, NetworkModel):
     registry_name: ClassVar[str] = ""
     #: the catalogue effects the model can take in ``effects`` (None: every one)
     carried_effects: ClassVar[tuple[str, ...] | None] = None
-    #: carried effects whose block takes a share of the large-signal gain off what the fitted
-    #: dynamics see (a dead zone): a loop refit adding one trains the whole model, as the gain
-    #: the fit lowered to meet the effect must come back
+    #: carried effects that change what the fitted dynamics were fitted to: a block taking a
+    #: share of the large-signal gain off what they see (a dead zone: the gain the fit lowered
+    #: to meet it must come back) or one inside their feedback (a restoring force changes the
+    #: loop they sit in). A loop refit adding one trains the whole model
     whole_refit_effects: ClassVar[tuple[str, ...]] = ()
     #: True for models built to train on the free-run error alone (no one-step stage)
     simulation_trained: ClassVar[bool] = False

@@ -18,8 +18,10 @@ refit that adds an effect starts exactly from the model it grows:
 * ``saturation``: ``v - w (v - clip(v, ±c))``, amplifier clipping ahead of the actuator;
 * ``dead_zone``: ``v - w clip(v, ±c)``; ``backlash``: ``v + w (play_c(v) - v)``;
 * ``hysteresis``: ``v - w h(v)``, ``h`` the Bouc–Wen state (the grey-box's cell), and
-  inside the dynamics' feedback to first order: play operators of the linear response,
-  weighted from zero, subtracted from the dynamics' input (a hysteretic restoring force);
+  inside the dynamics' feedback: the dynamics in a closed loop with a Bouc–Wen restoring
+  force of their output, weighted from zero (`StateHysteresis`; per output and input pair,
+  each on its own part of the output). The loop refits the whole model when it adds it
+  (``whole_refit_effects``, as for the dead zone);
 * ``creep``: a first-order filter bank (the grey-box's block), weights from zero;
 * ``resonance``: a second-order section in parallel with the dynamics, numerator from zero;
 * ``overflow``: ``y - w_hi relu(y - c_hi) + w_lo relu(c_lo - y)`` on each output, after the
@@ -39,8 +41,9 @@ import torch
 from torch import nn
 
 from hysteresis_lab.blocks import BoucWen, CreepBank, bouc_wen_scaled_params, play
+from hysteresis_lab.blocks.feedback import closed_loop
 from hysteresis_lab.blocks.sections import StableSections, arx_least_squares
-from hysteresis_lab.blocks.step import StepState, frozen, play_step
+from hysteresis_lab.blocks.step import StepState, bouc_wen_advance, frozen, play_step
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.effects.augment import context_from_dict
 from hysteresis_lab.errors import ConfigError
@@ -51,8 +54,6 @@ log = logging.getLogger(__name__)
 #: catalogue effects the linear model carries as blocks, in physical order
 LINEAR_EFFECTS = ("saturation", "dead_zone", "backlash", "hysteresis", "creep", "resonance",
                   "overflow")
-#: thresholds of the feedback hysteresis's play operators, as fractions of the output's range
-STATE_HYSTERESIS_FRACTIONS = (0.02, 0.05, 0.1, 0.2, 0.4)
 
 
 class _Level(nn.Module):
@@ -154,26 +155,70 @@ class Overflow(nn.Module):
 
 
 class StateHysteresis(nn.Module):
-    """Hysteresis in the dynamics' feedback (a hysteretic restoring force, as in the
-    Bouc–Wen oscillator), to first order: play operators of the linear response ``y`` at
-    ``thresholds`` (the output over its scale), weighted from zero, are subtracted from the
-    dynamics' input: ``x - w @ play(y)``."""
+    """Hysteresis in the dynamics' feedback: a Bouc–Wen restoring force of the output fed
+    back into the dynamics' input, ``e = x - w (d y - h(y))``, ``y = dynamics(e)`` — the
+    Bouc–Wen oscillator ``m y'' + c y' + k y + z(y) = u`` — simulated as the closed loop
+    (`hysteresis_lab.blocks.feedback`). ``w`` starts at zero (the dynamics alone). The
+    force is the Bouc–Wen cell's output (`hysteresis_lab.blocks.BoucWen`): its states ``h``
+    start with the slope ``d`` of the spring ``d y``, so the force starts with none for small
+    motions (the fitted dynamics hold the linear stiffness) and grows as the states saturate,
+    over about ``width`` (the output over its scale)."""
 
-    def __init__(self, thresholds: Sequence[float]) -> None:
+    n_channels = 2
+
+    def __init__(self, width: float) -> None:
         super().__init__()
-        self.register_buffer("thresholds", torch.as_tensor(thresholds, dtype=torch.float64))
-        self.weights = nn.Parameter(torch.zeros(len(thresholds), dtype=torch.float64))
+        self.bouc_wen = BoucWen(d=1.0, alpha=1.0, beta=2.0 / max(width, 1e-6), gamma=0.0,
+                                n_channels=self.n_channels)
+        self.weight = nn.Parameter(torch.zeros((), dtype=torch.float64))
 
-    def forward(self, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
-        return x - play(y, self.thresholds) @ self.weights
+    def _coefficients(self, dynamics: StableSections) -> tuple[torch.Tensor, ...]:
+        """``b, a`` of the dynamics (delay included) and the Bouc–Wen ``a, r1, r2``."""
+        b, a = dynamics.polynomials()
+        bw = self.bouc_wen
+        beta, gamma = bw.beta, bw.gamma
+        return b, a, bw.alpha * bw.d, beta - gamma, beta + gamma
 
-    def state_names(self) -> list[str]:
-        return [f"play{i}" for i in range(self.thresholds.shape[0])]
+    @staticmethod
+    def _lag(dynamics: StableSections) -> int:
+        """0 when the dynamics delay their input (the loop is causal as it is), else 1."""
+        return 0 if int(dynamics.delay) > 0 else 1
 
-    def step(self, x: torch.Tensor, y: torch.Tensor, state: StepState) -> torch.Tensor:
-        """One sample: ``x, y`` (B,) -> (B,); state: the play operators' outputs."""
-        thresholds, weights = frozen(self.thresholds, self.weights)
-        return x - play_step(y, thresholds, state) @ weights
+    def forward(self, dynamics: StableSections, x: torch.Tensor) -> torch.Tensor:
+        """The closed loop's output (B, T) for the dynamics' input ``x`` (B, T)."""
+        b, a, ba, r1, r2 = self._coefficients(dynamics)
+        return closed_loop(x.double(), b, a, -self.weight, self.weight * self.bouc_wen.d, ba, r1,
+                           r2, self._lag(dynamics))
+
+    def state_names(self, dynamics: StableSections) -> list[str]:
+        """The step's state: past dynamics' inputs ``e`` and outputs ``y``, Bouc–Wen ``h``."""
+        b, a = dynamics.polynomials()
+        return ([f"e{i}" for i in range(1, b.shape[0])] + [f"y{i}" for i in range(1, a.shape[0])]
+                + [f"h{c}" for c in range(self.n_channels)])
+
+    def step(self, dynamics: StableSections, x: torch.Tensor, state: StepState) -> torch.Tensor:
+        """One sample of `forward`: ``x`` (B,) -> ``y`` (B,); state: the past dynamics'
+        inputs and outputs (newest first) and the Bouc–Wen states."""
+        b, a, ba, r1, r2, weight, d = frozen(*self._coefficients(dynamics), self.weight,
+                                             self.bouc_wen.d)
+        past_e = state.take(b.shape[0] - 1)
+        past_y = state.take(a.shape[0] - 1)
+        h = state.take(self.n_channels)
+        lag = self._lag(dynamics)
+        e = x - weight * (d * past_y[:, 0] - h.sum(dim=1)) if lag else torch.zeros_like(x)
+        y = b[0] * e + past_e @ b[1:] - past_y @ a[1:]
+        h = bouc_wen_advance(h, (y - past_y[:, 0])[:, None], ba[None], r1[None], r2[None])
+        if not lag:
+            e = x - weight * (d * y - h.sum(dim=1))
+        state.put(torch.cat([e[:, None], past_e[:, :-1]], dim=1))
+        state.put(torch.cat([y[:, None], past_y[:, :-1]], dim=1))
+        state.put(h)
+        return y
+
+    def export(self) -> dict[str, Any]:
+        """The weight and the Bouc–Wen parameters."""
+        return {"weight": float(self.weight.detach()), **{
+            k: np.asarray(v).tolist() for k, v in self.bouc_wen.export().items()}}
 
 
 def _pairs(n_out: int, n_in: int, make: Any) -> nn.ModuleList:
@@ -185,9 +230,10 @@ class LinearModel(PhysicalChainModule):
     """Stable linear dynamics with the declared effects' blocks (see the module docstring)."""
 
     carried_effects = LINEAR_EFFECTS
-    #: ``v - w clip(v, ±c)`` takes a band off every input: a linear fit meets the lost output
-    #: with a lower gain, which a refit that only trains the block cannot give back
-    whole_refit_effects = ("dead_zone",)
+    #: a dead zone takes a band off every input (a linear fit meets the lost output with a
+    #: lower gain, which a block-only refit cannot give back); hysteresis closes a restoring
+    #: force around the dynamics: the loop refits the whole model when it adds either
+    whole_refit_effects = ("dead_zone", "hysteresis")
 
     def __init__(
         self,
@@ -238,9 +284,7 @@ class LinearModel(PhysicalChainModule):
         self.state_hysteresis: nn.ModuleList | None = None
         if "hysteresis" in effects:
             self.state_hysteresis = nn.ModuleList(
-                nn.ModuleList(StateHysteresis([f * (high - low)
-                                               for f in STATE_HYSTERESIS_FRACTIONS])
-                              for _ in range(n_in))
+                nn.ModuleList(StateHysteresis(high - low) for _ in range(n_in))
                 for low, high in extremes)
 
     def _output_extremes(self, channel: int) -> tuple[float, float]:
@@ -297,10 +341,11 @@ class LinearModel(PhysicalChainModule):
         xs = [self._input_path(v[..., j], j) for j in range(self.n_base_inputs)]
         outputs = []
         for o in range(self.ny):
-            y = sum(self.dynamics[o][j](x) for j, x in enumerate(xs))
-            if self.state_hysteresis is not None:  # the linear response's hysteresis fed back
-                y = sum(self.dynamics[o][j](self.state_hysteresis[o][j](x, y))
+            if self.state_hysteresis is not None:  # the dynamics in a hysteretic loop
+                y = sum(self.state_hysteresis[o][j](self.dynamics[o][j], x)
                         for j, x in enumerate(xs))
+            else:
+                y = sum(self.dynamics[o][j](x) for j, x in enumerate(xs))
             if self.resonance is not None:
                 y = y + sum(self.resonance[o][j](x) for j, x in enumerate(xs))
             if self.overflow is not None:  # on the output itself, offset included
@@ -320,12 +365,12 @@ class LinearModel(PhysicalChainModule):
                 names += [f"input{j}.creep.{part}" for part in self.creep[j].state_names()]
         for o in range(self.ny):
             n_in = self.n_base_inputs
-            names += [f"dynamics{o}{j}.{part}" for j in range(n_in)
-                      for part in self.dynamics[o][j].state_names()]
             if self.state_hysteresis is not None:
                 names += [f"state_hysteresis{o}{j}.{part}" for j in range(n_in)
-                          for part in self.state_hysteresis[o][j].state_names()]
-                names += [f"dynamics{o}{j}.feedback.{part}" for j in range(n_in)
+                          for part in self.state_hysteresis[o][j].state_names(
+                              self.dynamics[o][j])]
+            else:
+                names += [f"dynamics{o}{j}.{part}" for j in range(n_in)
                           for part in self.dynamics[o][j].state_names()]
             if self.resonance is not None:
                 names += [f"resonance{o}{j}.{part}" for j in range(n_in)
@@ -343,11 +388,11 @@ class LinearModel(PhysicalChainModule):
             xs.append(x)
         outputs = []
         for o in range(self.ny):  # the blocks in the order of `state_names`
-            y = sum(self.dynamics[o][j].step(x, state) for j, x in enumerate(xs))
             if self.state_hysteresis is not None:
-                corrected = [self.state_hysteresis[o][j].step(x, y, state)
-                             for j, x in enumerate(xs)]
-                y = sum(self.dynamics[o][j].step(x, state) for j, x in enumerate(corrected))
+                y = sum(self.state_hysteresis[o][j].step(self.dynamics[o][j], x, state)
+                        for j, x in enumerate(xs))
+            else:
+                y = sum(self.dynamics[o][j].step(x, state) for j, x in enumerate(xs))
             if self.resonance is not None:
                 y = y + sum(self.resonance[o][j].step(x, state) for j, x in enumerate(xs))
             if self.overflow is not None:
@@ -423,8 +468,17 @@ class LinearModel(PhysicalChainModule):
         return order, a
 
     def load_state_dict(self, state_dict: Any, strict: bool = True, assign: bool = False) -> Any:
-        """Also reads a one-input, one-output model saved before the MIMO layout."""
-        return super().load_state_dict(_mimo_keys(state_dict), strict=strict, assign=assign)
+        """Also reads a one-input, one-output model saved before the MIMO layout; refuses,
+        with what to do, one whose feedback hysteresis is the former play operators."""
+        state_dict = _mimo_keys(state_dict)
+        if any(re.match(r"^state_hysteresis\.\d+\.\d+\.weights$", key) for key in state_dict):
+            raise ConfigError(
+                "this linear model was saved with the former feedback hysteresis (play "
+                "operators of the linear response); the block is now the closed loop with a "
+                "Bouc–Wen restoring force and those weights do not carry over. Fix: train it "
+                "again (hysteresis-lab-train model=linear model.effects=[hysteresis,...])."
+            )
+        return super().load_state_dict(state_dict, strict=strict, assign=assign)
 
     def physical_parameters(self) -> dict[str, Any]:
         """Every block's current parameters (for reports); per output and input pair
@@ -442,7 +496,7 @@ class LinearModel(PhysicalChainModule):
             if self.resonance is not None:
                 out["resonance"] = [[block.export() for block in row] for row in self.resonance]
             if self.state_hysteresis is not None:
-                out["state_hysteresis"] = [[block.weights.cpu().numpy().tolist() for block in row]
+                out["state_hysteresis"] = [[block.export() for block in row]
                                            for row in self.state_hysteresis]
             if self.overflow is not None:
                 out["overflow"] = [{k: v.detach().cpu().numpy().tolist()

@@ -259,7 +259,7 @@ def _fit_round_and_decide(
         run.folder.round_dir(number),
         _refit_rates(run.model.settings, settings) if warm_start is not None else [None],
         warm_start=warm_start,
-        refit=_refit_mode(settings.refit, trying, run.model),
+        refit=_refit_mode(settings.refit, trying, run.model.cls),
     )
     if trying is not None and warm_start is None:
         result = judge_cold_refit(result, state.kept[-1][0], settings.min_refit_gain)
@@ -670,21 +670,21 @@ def _refit_loss(result: RunResult) -> float:
     return float(loss["refit"]) if loss else float("inf")
 
 
-def _refit_mode(refit: str, added: str | None, model: ModelSpec | None = None) -> str:
+def _refit_mode(refit: str, added: str | None, model_cls: type | None = None) -> str:
     """``refit``, except for an effect that enters through the input block (it changes what
     the fitted network sees, the corrected input) or acts on the output (the gain a fit
     lowered to meet a clipped output comes back under the clip), or one the model class
-    names in ``whole_refit_effects`` (a dead zone ahead of linear dynamics: the gain the fit
-    lowered to meet it comes back): the model refits whole."""
+    names in ``whole_refit_effects`` (a dead zone ahead of linear dynamics, a restoring force
+    in their feedback): the model refits whole."""
     if refit != "new_inputs" or added is None:
         return refit
     block = get_effect(added).block
     if block in ("input", "output"):
         log.info("'%s' acts on the model's %s: the whole model refits", added, block)
         return "full"
-    if model is not None and added in getattr(model.cls, "whole_refit_effects", ()):
-        log.info("'%s' takes gain off what %s's dynamics see: the whole model refits", added,
-                 model.name)
+    if added in getattr(model_cls, "whole_refit_effects", ()):
+        log.info("'%s' changes what %s's dynamics were fitted to: the whole model refits",
+                 added, getattr(model_cls, "__name__", "the model"))
         return "full"
     return refit
 

@@ -1,0 +1,192 @@
+"""Linear dynamics with a Bouc–Wen restoring force in their feedback: the closed loop.
+
+Model (per sample ``t``, one row)::
+
+    y[t] = sum_i b_i e[t-i] - sum_{i>=1} a_i y[t-i]        (the dynamics, direct form)
+    h_c[t] = advance(h_c[t-1], y[t] - y[t-1])               (Bouc–Wen states of the output)
+    e[t] = x[t] - wh sum_c h_c[t - lag] - wy y[t - lag]     (the restoring force fed back)
+
+as in the Bouc–Wen oscillator ``m y'' + c y' + k y + z(y) = u`` (``z`` a Bouc–Wen state driven
+by the displacement ``y``). The Bouc–Wen update is `hysteresis_lab.sim.bouc_wen.advance`
+(exact for an output moving linearly between samples), with ``a = alpha d``,
+``r1 = beta - gamma``, ``r2 = beta + gamma`` as in `hysteresis_lab.blocks.BoucWen`. With a
+delayed numerator (``b_0 = 0``) the loop is causal at ``lag = 0``; otherwise the force of the
+previous sample is fed back (``lag = 1``). The forward pass and its adjoint are numba kernels
+(float64) wrapped in a `torch.autograd.Function`: exact gradients w.r.t. the input, ``b, a``,
+``wh, wy`` and the Bouc–Wen parameters.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numba
+import numpy as np
+import torch
+from torch import Tensor
+
+from hysteresis_lab.blocks._bw_kernels import _advance_grad
+from hysteresis_lab.blocks._util import from_numpy, to_numpy64
+from hysteresis_lab.sim.bouc_wen import advance
+
+JIT = {"cache": True, "error_model": "numpy"}
+
+
+@numba.njit(**JIT)
+def feedback_states(
+    x: np.ndarray, b: np.ndarray, a: np.ndarray, wh: float, wy: float, lag: int,
+    ba: np.ndarray, r1: np.ndarray, r2: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The closed loop from rest: outputs ``y`` (B, T), dynamics inputs ``e`` (B, T) and
+    Bouc–Wen states ``h`` (B, T, C) for inputs ``x`` (B, T); ``a[0] = 1``."""
+    n_b, n_t = x.shape
+    n_c = ba.shape[0]
+    y = np.zeros((n_b, n_t))
+    e = np.zeros((n_b, n_t))
+    h = np.zeros((n_b, n_t, n_c))
+    for r in range(n_b):
+        hc = np.zeros(n_c)
+        y_prev = 0.0
+        for t in range(n_t):
+            if lag == 1:
+                e[r, t] = x[r, t] - wh * hc.sum() - wy * y_prev
+            acc = 0.0
+            for i in range(b.shape[0]):
+                if t - i < 0:
+                    break
+                acc += b[i] * e[r, t - i]
+            for i in range(1, a.shape[0]):
+                if t - i < 0:
+                    break
+                acc -= a[i] * y[r, t - i]
+            y[r, t] = acc
+            dv = acc - y_prev
+            if dv != 0.0:
+                s = 1.0 if dv > 0.0 else -1.0
+                for c in range(n_c):
+                    hc[c] = advance(hc[c], abs(dv), s, ba[c], r1[c], r2[c])
+            h[r, t, :] = hc
+            y_prev = acc
+            if lag == 0:
+                e[r, t] = x[r, t] - wh * hc.sum() - wy * acc
+    return y, e, h
+
+
+@numba.njit(**JIT)
+def feedback_backward(
+    g: np.ndarray, y: np.ndarray, e: np.ndarray, h: np.ndarray, b: np.ndarray, a: np.ndarray,
+    wh: float, wy: float, lag: int, ba: np.ndarray, r1: np.ndarray, r2: np.ndarray,
+) -> tuple[np.ndarray, ...]:
+    """Adjoint of `feedback_states`: ``g`` (B, T) = dL/dy; returns dL/d(x, b, a, wh, wy, ba,
+    r1, r2) (``wh, wy`` as 1-element arrays)."""
+    n_b, n_t = y.shape
+    n_c = ba.shape[0]
+    gx = np.zeros((n_b, n_t))
+    gb = np.zeros(b.shape[0])
+    ga = np.zeros(a.shape[0])
+    gwh = np.zeros(1)
+    gwy = np.zeros(1)
+    gba = np.zeros(n_c)
+    gr1 = np.zeros(n_c)
+    gr2 = np.zeros(n_c)
+    for r in range(n_b):
+        # partial derivatives of every Bouc–Wen step: d h[t] / d h[t-1], d h[t] / d y[t]
+        d_h = np.ones((n_t, n_c))
+        d_y = np.zeros((n_t, n_c))
+        d_p = np.zeros((n_t, n_c, 3))
+        for t in range(n_t):
+            step = y[r, t] - (y[r, t - 1] if t > 0 else 0.0)
+            if step == 0.0:
+                continue
+            s = 1.0 if step > 0.0 else -1.0
+            for c in range(n_c):
+                h_prev = h[r, t - 1, c] if t > 0 else 0.0
+                _, dh, dx, da_, dr1, dr2 = _advance_grad(h_prev, abs(step), s, ba[c], r1[c],
+                                                         r2[c])
+                d_h[t, c] = dh
+                d_y[t, c] = s * dx
+                d_p[t, c, 0] = da_
+                d_p[t, c, 1] = dr1
+                d_p[t, c, 2] = dr2
+        g_y = np.zeros(n_t)
+        g_e = np.zeros(n_t)
+        g_h = np.zeros((n_t, n_c))
+        for t in range(n_t - 1, -1, -1):
+            if lag == 0:  # e[t] feeds y[t+1..] (b_0 = 0) and reads h[t]
+                acc = 0.0
+                for i in range(1, b.shape[0]):
+                    if t + i >= n_t:
+                        break
+                    acc += b[i] * g_y[t + i]
+                g_e[t] = acc
+                for c in range(n_c):
+                    nxt = d_h[t + 1, c] * g_h[t + 1, c] if t + 1 < n_t else 0.0
+                    g_h[t, c] = nxt - wh * g_e[t]
+            else:  # h[t] feeds e[t+1]
+                for c in range(n_c):
+                    g_h[t, c] = (d_h[t + 1, c] * g_h[t + 1, c] - wh * g_e[t + 1]
+                                 if t + 1 < n_t else 0.0)
+            acc = g[r, t]
+            if t + lag < n_t:  # y[t] is fed back into e[t + lag]
+                acc -= wy * g_e[t + lag]
+            for i in range(1, a.shape[0]):
+                if t + i >= n_t:
+                    break
+                acc -= a[i] * g_y[t + i]
+            for c in range(n_c):
+                acc += d_y[t, c] * g_h[t, c]
+                if t + 1 < n_t:
+                    acc -= d_y[t + 1, c] * g_h[t + 1, c]
+            g_y[t] = acc
+            if lag == 1:
+                acc = 0.0
+                for i in range(b.shape[0]):
+                    if t + i >= n_t:
+                        break
+                    acc += b[i] * g_y[t + i]
+                g_e[t] = acc
+        for t in range(n_t):
+            gx[r, t] = g_e[t]
+            for i in range(lag ^ 1, b.shape[0]):  # b_0 reads nothing at lag 0
+                if t - i < 0:
+                    break
+                gb[i] += g_y[t] * e[r, t - i]
+            for i in range(1, a.shape[0]):
+                if t - i < 0:
+                    break
+                ga[i] -= g_y[t] * y[r, t - i]
+            if t - lag >= 0:
+                gwh[0] -= g_e[t] * h[r, t - lag, :].sum()
+                gwy[0] -= g_e[t] * y[r, t - lag]
+            for c in range(n_c):
+                gba[c] += g_h[t, c] * d_p[t, c, 0]
+                gr1[c] += g_h[t, c] * d_p[t, c, 1]
+                gr2[c] += g_h[t, c] * d_p[t, c, 2]
+    return gx, gb, ga, gwh, gwy, gba, gr1, gr2
+
+
+class _FeedbackFunction(torch.autograd.Function):
+    """``y (B, T)`` from ``x (B, T), b, a, wh, wy (), ba, r1, r2 (C,)`` and the int ``lag``."""
+
+    @staticmethod
+    def forward(ctx: Any, x: Tensor, b: Tensor, a: Tensor, wh: Tensor, wy: Tensor, ba: Tensor,
+                r1: Tensor, r2: Tensor, lag: int) -> Tensor:
+        x_, b_, a_, ba_, r1_, r2_ = (to_numpy64(t) for t in (x, b, a, ba, r1, r2))
+        weights = float(wh.detach()), float(wy.detach())
+        y, e, h = feedback_states(x_, b_, a_, *weights, lag, ba_, r1_, r2_)
+        ctx.saved = (y, e, h, b_, a_, *weights, lag, ba_, r1_, r2_)
+        return from_numpy(y, x)
+
+    @staticmethod
+    def backward(ctx: Any, g: Tensor) -> tuple[Tensor | None, ...]:
+        gx, gb, ga, gwh, gwy, gba, gr1, gr2 = feedback_backward(to_numpy64(g), *ctx.saved)
+        grads = (gx, gb, ga, gwh.reshape(()), gwy.reshape(()), gba, gr1, gr2)
+        return (*(from_numpy(gr, g) for gr in grads), None)
+
+
+def closed_loop(
+    x: Tensor, b: Tensor, a: Tensor, wh: Tensor, wy: Tensor, ba: Tensor, r1: Tensor,
+    r2: Tensor, lag: int,
+) -> Tensor:
+    """`feedback_states`' output ``y`` (B, T), differentiable w.r.t. every tensor argument."""
+    return _FeedbackFunction.apply(x, b, a, wh, wy, ba, r1, r2, lag)
