@@ -18,6 +18,7 @@ from hysteresis_lab.effects.augment import augment_splits, context_to_dict
 from hysteresis_lab.evaluation.predict import free_run
 from hysteresis_lab.models.linear import LinearModel
 from hysteresis_lab.signals import multisine
+from hysteresis_lab.trainer import TrainerSettings
 from hysteresis_lab.training import build_model, fit
 from hysteresis_lab.workflows.loop import _refit_mode
 
@@ -78,8 +79,8 @@ def test_the_feedback_refit_learns_a_bouc_wen_oscillator(tmp_path):
     below the linear model's."""
     splits = DatasetSplits("oscillator", train=[oscillator(2000, 1, "train")],
                            val=[oscillator(600, 2, "val")], test=[oscillator(600, 3, "test")])
-    trainer = {"max_epochs": 80, "accelerator": "cpu", "enable_progress_bar": False,
-               "enable_model_summary": False, "logger": False}
+    trainer = TrainerSettings(max_epochs=80, accelerator="cpu", enable_progress_bar=False,
+                              enable_model_summary=False)
     settings = {"name": "linear", "order": 2, "lr": 0.01}
     dm = WindowDataModule(splits, scaling="standard")
     L.seed_everything(0)
