@@ -15,6 +15,16 @@ from hysteresis_lab.training import build_model, fit
 from narx import CONFIGS, TRAINER, datamodule_for, narx_data
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    """In a pytest-xdist worker, one thread per process (the workers already share the
+    cores; the console apps the tests start inherit the setting)."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        os.environ.setdefault("OMP_NUM_THREADS", "1")
+        import torch
+
+        torch.set_num_threads(int(os.environ["OMP_NUM_THREADS"]))
+
+
 def optional_dependency(name: str) -> ModuleType:
     """Import an optional dependency (onnxruntime, pgserver): skip the test where it is not
     installed, except in CI (``CI`` set), whose test install includes it: there its absence

@@ -16,8 +16,9 @@ from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.effects.augment import feature_context
-from hysteresis_lab.errors import ConfigError, DataError
+from hysteresis_lab.errors import ConfigError, DataError, DivergedError
 from hysteresis_lab.signals import multisine
+from hysteresis_lab.sim.default_dataset import make_default_dataset
 from hysteresis_lab.trainer import TrainerSettings
 from hysteresis_lab.workflows.loop import (
     HeldOut,
@@ -171,3 +172,38 @@ def test_the_default_loop_starts_linear_and_names_its_start(tmp_path):
     markdown = (run / "loop_report.md").read_text()
     assert "Start: `model=linear effects=[]`." in markdown
     assert "- diagnosis (its residual chooses the effect): train[2250:3000]" in markdown
+
+
+def _dead_zone_loop(tmp_path, factors: tuple[float, ...]) -> dict:
+    """One round of the loop from model=linear on short simulator records with a dead zone
+    (which the round-0 diagnosis names), its refit at ``factors`` times model.lr."""
+    effects = {"hysteresis": {"enabled": False}, "creep": {"enabled": False},
+               "dead_zone": {"enabled": True}}
+    splits = make_default_dataset(effects=effects, n_train=8000, test_frequencies=(10.0,),
+                                  max_test_samples=3000, val_samples=4000)
+    model = {"name": "linear", "effects": [], "lr": 0.02}
+    settings = LoopSettings(max_rounds=1, refit_lr_factors=factors)
+    return run_loop(model, DataSpec.from_config({"name": "small"}),
+                    TRAINER.with_changes(max_epochs=5), splits, tmp_path, settings,
+                    use_tensorboard=False)
+
+
+def test_a_refit_rate_that_diverges_is_no_candidate_and_the_loop_goes_on(tmp_path):
+    """At a million times the rate the refit diverges in training: the loop records it as
+    diverged and goes on with the rate that trained."""
+    report = _dead_zone_loop(tmp_path, (1.0, 1e6))
+    refit = report["rounds"][1]
+    lost, trained = refit["refit_candidates"][-1], refit["refit_candidates"][0]
+    assert lost["diverged"] and lost["refit_lr"] == pytest.approx(2e4)
+    assert refit["refit_lr"] == trained["refit_lr"] == pytest.approx(0.02)
+    assert "stopped" not in report
+    assert "2e+04: diverged" in (tmp_path / "loop_report.md").read_text()
+
+
+def test_when_every_refit_diverges_the_rounds_done_are_reported(tmp_path):
+    with pytest.raises(DivergedError, match="every refit diverged.*Fix: smaller rates"):
+        _dead_zone_loop(tmp_path, (1e6,))
+    report = json.loads((tmp_path / "loop_report.json").read_text())
+    assert "every refit diverged" in report["stopped"]
+    assert len(report["rounds"]) == 1 and report["result"] == 0  # round 0 stands
+    assert "stopped before its end" in (tmp_path / "loop_report.md").read_text()

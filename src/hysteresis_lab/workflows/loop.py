@@ -38,7 +38,7 @@ from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.effects.augment import feature_context, for_model
 from hysteresis_lab.effects.base import FeatureContext
 from hysteresis_lab.effects.registry import get_effect
-from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.errors import ConfigError, DivergedError, HysteresisLabError
 from hysteresis_lab.evaluation.evaluate import scoring_start
 from hysteresis_lab.evaluation.plots import loops_figure, save_figure
 from hysteresis_lab.evaluation.predict import free_run
@@ -220,24 +220,47 @@ def run_loop(
         use_tensorboard=use_tensorboard,
     )
     state = _LoopState(effects=list(start["effects"]))
+    try:
+        _run_rounds(run, state)
+    except HysteresisLabError as exc:
+        if state.rounds:  # the rounds done are reported; their fits resume on a rerun
+            _write_report(run, state, _report(run, state, splits.name, start, stopped=str(exc)))
+            log.error("the loop stopped in round %d: %s. The rounds done are in %s",
+                      len(state.rounds), exc, run.folder.report_md)
+        raise
+    report = _report(run, state, splits.name, start)
+    _write_report(run, state, report)
+    return report
+
+
+def _run_rounds(run: _LoopRun, state: _LoopState) -> None:
+    """Fit, judge and diagnose round after round until the loop ends."""
     for number in itertools.count():
         entry, goes_on = _fit_round_and_decide(run, state, number)
         goes_on = goes_on and _choose_next_effect(run, state, entry)
         write_round_figures(run.folder, number, entry, state.evidence, run.context,
-                            settings.min_score)
+                            run.settings.min_score)
         if not goes_on:
-            break
+            return
+
+
+def _report(
+    run: _LoopRun, state: _LoopState, data_name: str, start: dict[str, Any],
+    stopped: str | None = None,
+) -> dict[str, Any]:
+    """``loop_report.json``'s document; ``stopped``: why the loop stopped before its end."""
     report = {
-        "units": {"y": data.fit.test[0].y_units},
-        "data": splits.name,
-        "model": model.name,
+        "units": {"y": run.data.fit.test[0].y_units},
+        "data": data_name,
+        "model": run.model.name,
         "start": start,
-        "settings": dataclasses.asdict(settings),
-        "roles": data.roles(),
+        "settings": dataclasses.asdict(run.settings),
+        "roles": run.data.roles(),
         "result": _result_round(state.rounds, state.kept),
         "rounds": state.rounds,
     }
-    _write_report(run, state, report)
+    if stopped is not None:
+        report["stopped"] = stopped
     return report
 
 
@@ -638,21 +661,36 @@ def _fit_round(
     each in its own folder when there are several, and score each on the held-out data with
     ``judge``; the one with the lowest held-out validation loss (then training validation
     loss) is returned with its folder, its rate, every rate's losses and its held-out scores
-    (the test recordings play no part in the choice)."""
-    runs = []
+    (the test recordings play no part in the choice). A refit that diverges in training is
+    no candidate (recorded with ``diverged``); when every one does, `DivergedError`."""
+    runs, diverged = [], []
     for rate in rates:
         run_dir = LoopFolder.refit_dir(round_dir, rate, several=len(rates) > 1)
         refit_lr = {"refit_lr": rate} if rate is not None else {}
-        result = fit_model(model_cfg={**model_cfg, **refit_lr}, output_dir=run_dir, **fit_options)
+        try:
+            result = fit_model(
+                model_cfg={**model_cfg, **refit_lr}, output_dir=run_dir, **fit_options)
+        except DivergedError as exc:
+            if rate is None:
+                raise
+            log.warning("the refit at learning rate %.3g diverged: not a candidate (%s)",
+                        rate, exc)
+            diverged.append({"refit_lr": rate, "validation_loss": float("inf"),
+                             "held_out_loss": float("inf"), "diverged": str(exc)})
+            continue
         runs.append((result, run_dir, rate, judge(result)))
+    if not runs:
+        raise DivergedError(
+            f"every refit diverged in training (learning rates "
+            f"{', '.join(f'{r:.3g}' for r in rates if r is not None)}). Fix: smaller rates, "
+            "e.g. loop.refit_lr_factors=[0.1] or a smaller model.lr."
+        )
     result, run_dir, rate, check = min(runs, key=lambda run: (run[3].loss, _refit_loss(run[0])))
     losses = [
         {"refit_lr": r, "validation_loss": _refit_loss(res), "held_out_loss": c.loss}
         for res, _, r, c in runs if r is not None
-    ]
+    ] + diverged
     return result, run_dir, rate, losses, check
-
-
 
 
 def _refit_rates(model_cfg: Mapping[str, Any], settings: LoopSettings) -> list[float]:

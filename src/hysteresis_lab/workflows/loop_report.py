@@ -72,6 +72,8 @@ def loop_markdown(report: Mapping[str, Any]) -> str:
         "",
         *_rules_lines(report.get("settings")),
     ]
+    if report.get("stopped"):
+        lines += ["", f"**The loop stopped before its end**: {report['stopped']}"]
     unit = report["units"]["y"]
     rounds = report["rounds"]
     for number in range(len(rounds)):
@@ -328,7 +330,9 @@ def _refit_rate_lines(entry: Mapping[str, Any]) -> list[str]:
     if entry.get("refit_lr") is None:
         return []
     tried = ", ".join(
-        f"{c['refit_lr']:.0e}: {c['validation_loss']:.4g}" for c in entry["refit_candidates"]
+        f"{c['refit_lr']:.0e}: " + ("diverged" if c.get("diverged") else
+                                    f"{c['validation_loss']:.4g}")
+        for c in entry["refit_candidates"]
     )
     return [f"- refit learning rate {entry['refit_lr']:.0e} (validation loss per rate: {tried})"]
 
