@@ -40,6 +40,7 @@ from hysteresis_lab.evaluation.accuracy_table import (
     render_markdown,
     write_results,
 )
+from hysteresis_lab.evaluation.provenance import commit_stamp
 from hysteresis_lab.run_folder import RunFolder
 
 log = logging.getLogger("accuracy")
@@ -102,21 +103,6 @@ def recommended(model: str, data: str) -> list[str]:
 
 
 # ---------------------------------------------------------------------------- training runs
-def _git(*args: str) -> str:
-    try:
-        return subprocess.run(["git", *args], cwd=REPO, capture_output=True, text=True,
-                              check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-
-
-def commit() -> str:
-    """Short HEAD, ``+dirty`` when tracked files outside docs/results differ from it."""
-    status = _git("status", "--porcelain", "--untracked-files=no")
-    dirty = [line for line in status.splitlines() if "docs/results/" not in line]
-    return _git("rev-parse", "--short", "HEAD") + ("+dirty" if dirty else "")
-
-
 def train_command() -> list[str]:
     """The CLI of this interpreter's environment (else the one on PATH)."""
     beside = Path(sys.executable).parent / "hysteresis-lab-train"
@@ -197,7 +183,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     models = _choices(args.models, MODELS, "models")
     datasets = _choices(args.data, DATASETS, "data sets")
-    stamp = {"commit": commit(), "date": dt.date.today().isoformat()}
+    stamp = {"commit": commit_stamp(REPO), "date": dt.date.today().isoformat()}
     shown = ["python", "benchmarks/accuracy.py", *(argv if argv is not None else sys.argv[1:])]
     run = {"command": " ".join(shown), **stamp,
            "host_note": f"{os.cpu_count()} CPU cores, torch threads "

@@ -13,14 +13,11 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import json
 import logging
-import shutil
-import subprocess
-import sys
-import time
 from pathlib import Path
 
+from hysteresis_lab.analysis.loop_checks import run_fresh_loop
+from hysteresis_lab.evaluation.provenance import commit_stamp
 from hysteresis_lab.run_folder import LoopFolder, RunFolder
 
 REPO = Path(__file__).resolve().parents[1]
@@ -38,20 +35,14 @@ log = logging.getLogger("loop_measured")
 
 
 def run_one(name: str, folder: Path) -> dict:
-    """Run the loop on data set ``name`` into ``folder``; its report and wall time."""
-    if folder.exists():  # a fresh run: the loop would reuse the fits it finds there
-        shutil.rmtree(folder)
-    command = ["hysteresis-lab-loop", f"data={name}", *QUIET, f"hydra.run.dir={folder}"]
-    start = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-m", "hysteresis_lab.cli.loop", *command[1:]],
-                          cwd=REPO, capture_output=True, text=True)
-    seconds = time.perf_counter() - start
-    if proc.returncode != 0:
-        raise SystemExit(f"{' '.join(command)} failed:\n{proc.stderr[-3000:]}")
-    loop_folder = LoopFolder(folder)
-    report = json.loads(loop_folder.report_json.read_text())
-    round_0 = RunFolder(loop_folder.round_dir(0)).read_metrics()
-    return {"command": " ".join(command[:2 + len(QUIET)]), "report": report,
+    """Run the loop on data set ``name`` into ``folder`` (fresh); its report and wall time."""
+    command = ["hysteresis-lab-loop", f"data={name}", *QUIET]
+    try:
+        report, seconds = run_fresh_loop(command[1:], folder)
+    except RuntimeError as exc:
+        raise SystemExit(str(exc)) from None
+    round_0 = RunFolder(LoopFolder(folder).round_dir(0)).read_metrics()
+    return {"command": " ".join(command), "report": report,
             "seconds": seconds, "round_0_train_s": round_0.get("train_seconds")}
 
 
@@ -102,14 +93,6 @@ def diagnosis_lines(name: str, run: dict) -> list[str]:
     return lines
 
 
-def commit() -> str:
-    out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True,
-                         text=True)
-    dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=REPO,
-                           capture_output=True, text=True).stdout.strip()
-    return out.stdout.strip() + (" (with uncommitted changes)" if dirty else "")
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", nargs="+", default=["cascaded_tanks", "bouc_wen"])
@@ -125,7 +108,7 @@ def main() -> None:
         "# The loop on measured data, before and after",
         "",
         f"Written by `python benchmarks/loop_measured.py --data {' '.join(args.data)}` on "
-        f"{datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC, commit {commit()}, "
+        f"{datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC, commit {commit_stamp(REPO)}, "
         "on a shared 2-core CPU (OMP_NUM_THREADS=1). One command per data set, default "
         "settings: the start is `model=linear effects=[]`.",
         "",

@@ -33,14 +33,11 @@ import argparse
 import datetime
 import json
 import logging
-import shutil
-import subprocess
-import sys
-import time
 from pathlib import Path
 
-from hysteresis_lab.analysis.loop_checks import ceiling, effect_share
+from hysteresis_lab.analysis.loop_checks import ceiling, effect_share, run_fresh_loop
 from hysteresis_lab.effects.registry import get_effect
+from hysteresis_lab.evaluation.provenance import commit_stamp
 
 log = logging.getLogger("undeclared_effects")
 
@@ -74,7 +71,7 @@ CEILING_SHARE = 0.5  # the share of the ceiling the refit must take off where th
 MIN_SCORE = 0.05  # loop.min_score's default
 
 
-def command_for(name: str, root: Path, rounds: int) -> list[str]:
+def command_for(name: str, rounds: int) -> list[str]:
     """The hysteresis-lab-loop command of case ``name``."""
     block, declared, _ = CASES[name]
     off = [f"data.effects.{b}.enabled=false" for b in NONLINEAR
@@ -83,7 +80,7 @@ def command_for(name: str, root: Path, rounds: int) -> list[str]:
     return [
         "hysteresis-lab-loop", *start, *off,
         f"data.effects.{block}.enabled=true", *CASE_DATA.get(name, []),
-        f"loop.max_rounds={rounds}", *QUIET, f"hydra.run.dir={root / name}",
+        f"loop.max_rounds={rounds}", *QUIET,
     ]
 
 
@@ -127,16 +124,11 @@ def run_case(name: str, root: Path, rounds: int) -> dict:
     """Run one case's loop (fresh) and read its row."""
     block, _, expected = CASES[name]
     folder = root / name
-    if folder.exists():  # a fresh run: the loop would reuse the fits it finds there
-        shutil.rmtree(folder)
-    command = command_for(name, root, rounds)
-    start = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-m", "hysteresis_lab.cli.loop", *command[1:]],
-                          cwd=REPO, capture_output=True, text=True)
-    seconds = time.perf_counter() - start
-    if proc.returncode != 0:
-        raise SystemExit(f"{' '.join(command)} failed:\n{proc.stderr[-3000:]}")
-    report = json.loads((folder / "loop_report.json").read_text())
+    command = command_for(name, rounds)
+    try:
+        report, seconds = run_fresh_loop(command[1:], folder)
+    except RuntimeError as exc:
+        raise SystemExit(str(exc)) from None
     first = report["rounds"][0]
     significant = [d for d in first["diagnosis"] if d["significant"]]
     top = significant[0] if significant else (first["diagnosis"] or [{}])[0]
@@ -144,8 +136,9 @@ def run_case(name: str, root: Path, rounds: int) -> dict:
     shares = effect_share(folder, block, 0)
     row = {
         "case": name, "block": block, "expected": list(expected),
-        "command": " ".join(c for c in command if not c.startswith("hydra.run.dir")),
-        "commit": commit(), "date": f"{datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M}",
+        "command": " ".join(command),
+        "commit": commit_stamp(REPO, ("src", "experiments")),
+        "date": f"{datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M}",
         "seconds": seconds, "top": top.get("effect"), "top_score": top.get("score"),
         "significant": bool(top.get("significant")),
         "expected_score": max(scores.get(e, float("nan")) for e in expected),
@@ -171,17 +164,6 @@ def run_case(name: str, root: Path, rounds: int) -> dict:
     row["effect_size_um"] = {r["test"]: r["effect_size_um"] for r in acting}
     row["verdict"] = verdict(row)
     return row
-
-
-def commit() -> str:
-    """The short commit, marked when the code (src/, experiments/) has uncommitted changes."""
-    out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True,
-                         text=True)
-    dirty = subprocess.run(
-        ["git", "status", "--porcelain", "--untracked-files=no", "--", "src", "experiments"],
-        cwd=REPO, capture_output=True, text=True,
-    ).stdout.strip()
-    return out.stdout.strip() + (" (with uncommitted changes)" if dirty else "")
 
 
 def _tests_cell(row: dict) -> str:

@@ -5,13 +5,19 @@ between the test frequencies, and an effect's share of the free-run error."""
 from __future__ import annotations
 
 import json
+import subprocess
 from pathlib import Path
 
 import pytest
 
-from helpers import run_app
-from hysteresis_lab.analysis.loop_checks import ceiling, check_splits, refit_choices
+from hysteresis_lab.analysis.loop_checks import (
+    ceiling,
+    check_splits,
+    refit_choices,
+    run_fresh_loop,
+)
 from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.evaluation.provenance import commit_stamp
 
 #: a small simulator run: a short multisine, two short test sines
 SMALL_DEFAULT = ["data=default", "+data.splits.n_train=4000", "+data.splits.max_test_samples=3000",
@@ -21,13 +27,44 @@ SMALL_DEFAULT = ["data=default", "+data.splits.n_train=4000", "+data.splits.max_
 @pytest.fixture(scope="module")
 def loop_run(tmp_path_factory) -> Path:
     """A one-round FFNN loop on the small simulator whose every refit is rejected (no refit
-    takes 99 % off)."""
+    takes 99 % off), run by `run_fresh_loop` into a folder holding an older run's file."""
     run = tmp_path_factory.mktemp("loop_checks") / "loop"
-    proc = run_app("loop", *SMALL_DEFAULT, "model=ffnn", "loop.max_rounds=1",
-                   "loop.min_refit_gain=0.99", "trainer.max_epochs=2", "model.simulation_epochs=1",
-                   "trainer.enable_progress_bar=false", "logger=none", f"hydra.run.dir={run}")
-    assert proc.returncode == 0, proc.stderr[-3000:]
+    run.mkdir()
+    (run / "stale.txt").write_text("an older run's file")
+    report, seconds = run_fresh_loop(
+        [*SMALL_DEFAULT, "model=ffnn", "loop.max_rounds=1", "loop.min_refit_gain=0.99",
+         "trainer.max_epochs=2", "model.simulation_epochs=1",
+         "trainer.enable_progress_bar=false", "logger=none"], run)
+    assert not (run / "stale.txt").exists()  # a fresh folder: no fit of an older run reused
+    assert report == json.loads((run / "loop_report.json").read_text()) and seconds > 0
     return run
+
+
+def test_a_loop_run_that_fails_says_why(tmp_path):
+    with pytest.raises(RuntimeError, match="(?s)model=transformer failed:.*'model/transformer'"):
+        run_fresh_loop(["model=transformer"], tmp_path / "loop")
+
+
+def test_the_commit_stamp_marks_changed_code_but_not_the_measured_tables(tmp_path):
+    assert commit_stamp(tmp_path) == "unknown"  # not a git checkout
+    git = ["git", "-c", "user.name=t", "-c", "user.email=t@t", "-C", str(tmp_path)]
+    (tmp_path / "docs" / "results").mkdir(parents=True)
+    (tmp_path / "src").mkdir()
+    for path in ("src/code.py", "docs/results/table.md", "README.md"):
+        (tmp_path / path).write_text("one\n")
+    subprocess.run([*git, "init", "-q"], check=True)
+    subprocess.run([*git, "add", "."], check=True)
+    subprocess.run([*git, "commit", "-qm", "first"], check=True)
+    head = subprocess.run([*git, "rev-parse", "--short", "HEAD"], check=True,
+                          capture_output=True, text=True).stdout.strip()
+    assert commit_stamp(tmp_path) == head
+    (tmp_path / "docs" / "results" / "table.md").write_text("two\n")  # what the scripts write
+    assert commit_stamp(tmp_path) == head
+    (tmp_path / "README.md").write_text("two\n")
+    assert commit_stamp(tmp_path) == f"{head}+dirty"
+    assert commit_stamp(tmp_path, ("src",)) == head  # only src/ counts here
+    (tmp_path / "src" / "code.py").write_text("two\n")
+    assert commit_stamp(tmp_path, ("src",)) == f"{head}+dirty"
 
 
 @pytest.mark.slow
