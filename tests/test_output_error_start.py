@@ -47,8 +47,8 @@ def test_the_start_holds_a_mode_above_the_input_band():
 
 
 def test_the_start_is_never_worse_than_arx_in_free_run():
-    """On data ARX already fits (broadband input, low order) no iterate is clearly better in
-    free run: the ARX fit itself starts (several inputs, MISO, and recordings)."""
+    """On data ARX already fits (broadband input, low order) the start keeps a fit at least
+    as good in free run, for several inputs (MISO) and recordings."""
     rng = np.random.default_rng(1)
     b_true = np.array([[0.0, 0.5, 0.2], [0.0, -0.3, 0.1]])
     a_true = np.array([1.0, -0.6, 0.1])
@@ -62,8 +62,6 @@ def test_the_start_is_never_worse_than_arx_in_free_run():
             for u, y in zip(us, ys, strict=True)])))
 
     b, a = output_error_start(us, ys, na=2, nb=2, nk=1)
-    b_arx, a_arx = arx_least_squares(us, ys, na=2, nb=2, nk=1)
     assert b.shape == (2, 3) and a.shape == (3,)
-    assert error(b, a) <= error(b_arx, a_arx) + 1e-12
-    np.testing.assert_array_equal(a, a_arx)
+    assert error(b, a) <= error(*arx_least_squares(us, ys, na=2, nb=2, nk=1)) + 1e-12
     np.testing.assert_allclose(a, a_true, atol=0.05)

@@ -157,8 +157,6 @@ def arx_least_squares(
 
 #: Steiglitz–McBride iterations of `output_error_start` at most
 SM_ITERATIONS = 20
-#: an iterate replaces the ARX fit only with at most this share of its free-run error variance
-SM_REPLACES_AT = 0.5
 
 
 def _stable(a: np.ndarray) -> np.ndarray:
@@ -192,17 +190,13 @@ def output_error_start(
     again. The equation error of plain ARX weighs every frequency by ``|a|``, which on data
     sampled far above their band puts the poles the data barely excite (a second mode above
     the input band, seen only in the start transients) where the noise wants them; the
-    prefiltered fit weighs the free-run error instead. Returns the iterate whose free run
-    from rest is closest to ``y`` where it has at most `SM_REPLACES_AT` of the ARX fit's
-    free-run error variance, else the ARX fit: on data from a markedly nonlinear system
-    (the Bouc–Wen benchmark) the iterations do not settle, and an iterate a little better in
-    free run can carry a pole on the unit circle that the loop's refits cannot grow from.
-    Same arguments and shapes as `arx_least_squares`."""
+    prefiltered fit weighs the free-run error instead. Returns the fit (ARX or an iterate)
+    whose free run from rest is closest to ``y``, so it is never worse than the ARX start on
+    that measure; same arguments and shapes as `arx_least_squares`."""
     us = [u] if isinstance(u, np.ndarray) else list(u)
     ys = [y] if isinstance(y, np.ndarray) else list(y)
     b, a = arx_least_squares(us, ys, na, nb, nk)
-    arx = (_free_run_error(us, ys, b, _stable(a)), b, a)
-    best = (np.inf, b, a)
+    best = (_free_run_error(us, ys, b, _stable(a)), b, a)
     for _ in range(iterations):
         prefilter = _stable(a)
         u_f = [signal.lfilter([1.0], prefilter, np.asarray(x, dtype=float), axis=0) for x in us]
@@ -211,5 +205,4 @@ def output_error_start(
         error = _free_run_error(us, ys, b, _stable(a))
         if error < best[0]:
             best = (error, b, a)
-    chosen = best if best[0] <= SM_REPLACES_AT * arx[0] else arx
-    return chosen[1], chosen[2]
+    return best[1], best[2]
