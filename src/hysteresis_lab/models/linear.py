@@ -42,7 +42,7 @@ from torch import nn
 
 from hysteresis_lab.blocks import BoucWen, CreepBank, bouc_wen_scaled_params, play
 from hysteresis_lab.blocks.feedback import closed_loop
-from hysteresis_lab.blocks.sections import StableSections, output_error_start
+from hysteresis_lab.blocks.sections import StableSections, arx_least_squares
 from hysteresis_lab.blocks.step import StepState, bouc_wen_advance, frozen, play_step
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.effects.augment import context_from_dict
@@ -410,8 +410,7 @@ class LinearModel(PhysicalChainModule):
     def initialise_from_recordings(self, recordings: Sequence[Recording]) -> None:
         """The dynamics from a least-squares ARX fit per output (``order`` poles, one
         denominator for all inputs, ``delay``) on the training ``recordings`` (only their
-        measured inputs are read), refined towards the output-error fit by Steiglitz–McBride
-        iterations (`output_error_start`), and the output offsets.
+        measured inputs are read), and the output offsets.
 
         ``order`` starts unless its free run from rest is further from the recordings than
         their mean; then every order from 1 up is fitted and the one that simulates best
@@ -436,7 +435,7 @@ class LinearModel(PhysicalChainModule):
             residuals = [y - self.chain(torch.as_tensor(v[None]))[0].numpy()
                          for v, y in zip(vs, ys_s, strict=True)]
             self.offset.copy_(torch.as_tensor(np.concatenate(residuals).mean(axis=0)))
-        log.info("linear start: ARX + Steiglitz-McBride per output on %d recording(s), orders %s "
+        log.info("linear start: ARX per output by least squares on %d recording(s), orders %s "
                  "(model.order=%d), delay %d, poles |p| <= %.4f", len(vs), orders,
                  self.hparams.order, self.hparams.delay, radius)
 
@@ -450,7 +449,7 @@ class LinearModel(PhysicalChainModule):
 
         def fit(order: int) -> tuple[float, int, np.ndarray]:
             nb = max(1, order - max(delay, 1) + 1)
-            b, a = output_error_start(vs, ys, na=order, nb=nb, nk=delay)
+            b, a = arx_least_squares(vs, ys, na=order, nb=nb, nk=delay)
             for j in range(self.n_base_inputs):
                 self.dynamics[o][j].set_transfer_function(b[j], a)
             with torch.no_grad():
