@@ -207,20 +207,3 @@ def test_when_every_refit_diverges_the_rounds_done_are_reported(tmp_path):
     assert "every refit diverged" in report["stopped"]
     assert len(report["rounds"]) == 1 and report["result"] == 0  # round 0 stands
     assert "stopped before its end" in (tmp_path / "loop_report.md").read_text()
-
-
-def test_the_default_refit_rates_let_a_block_from_zero_reach_its_weight(tmp_path):
-    """A block starts at no effect (weight 0) and must travel O(1); Adam moves it about the
-    rate per step, so at model.lr's default (0.002) a refit leaves a dead zone half-learnt.
-    The default refit rates include 10x model.lr, and on a dead zone validation picks it."""
-    effects = {"hysteresis": {"enabled": False}, "creep": {"enabled": False},
-               "dead_zone": {"enabled": True}}
-    splits = make_default_dataset(effects=effects, n_train=8000, test_frequencies=(10.0,),
-                                  max_test_samples=3000, val_samples=4000)
-    report = run_loop({"name": "linear", "effects": []}, DataSpec.from_config({"name": "small"}),
-                      TRAINER.with_changes(max_epochs=5), splits, tmp_path,
-                      LoopSettings(max_rounds=1), use_tensorboard=False)
-    refit = report["rounds"][1]
-    assert refit["effects"] == ["dead_zone"] and "rejected" not in refit
-    rates = sorted(c["refit_lr"] for c in refit["refit_candidates"])
-    assert refit["refit_lr"] == rates[-1] == pytest.approx(10 * rates[1]), rates
