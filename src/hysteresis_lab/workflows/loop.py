@@ -84,7 +84,7 @@ class LoopSettings:
     #: a refit runs at each of these multiples of ``model.lr`` and the one with the lowest
     #: validation free-run loss goes on to the keep-or-reject test (``model.refit_lr``, when
     #: set, is the only rate tried)
-    refit_lr_factors: tuple[float, ...] = (0.1, 1.0, 10.0)
+    refit_lr_factors: tuple[float, ...] = (0.1, 1.0)
     #: run again in the folder of a stopped loop (``hydra.run.dir``), each fit that finished
     #: there with the same settings, data and start is reused, not trained again
     resume: bool = True
