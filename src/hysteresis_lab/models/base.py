@@ -449,11 +449,27 @@ class NarxModule(L.LightningModule, NetworkModel):
         )
         return loss
 
+    #: in a whole refit after `warm_start_from`, the rate of the wholly new parameters (an
+    #: added block's, from no effect) over the rest's (1: the same)
+    new_block_lr_factor = 1.0
+
+    def _parameter_groups(self, lr: float) -> list[dict[str, Any]]:
+        """The trainable parameters; in a whole refit (warm-started, not new-inputs-only)
+        the new ones at `new_block_lr_factor` times ``lr``."""
+        new = getattr(self, "_new_entries", None) or {}
+        named = [(n, p) for n, p in self.named_parameters() if p.requires_grad]
+        if not new or self.new_inputs_only or self.new_block_lr_factor == 1.0:
+            return [{"params": [p for _, p in named], "lr": lr}]
+        groups = [{"params": [p for n, p in named if n not in new], "lr": lr},
+                  {"params": [p for n, p in named if n in new],
+                   "lr": lr * self.new_block_lr_factor}]
+        return [g for g in groups if g["params"]]
+
     def configure_optimizers(self) -> Any:
         settings = self.training_settings
         lr = self.stage_lr or settings.lr
-        trainable = [p for p in self.parameters() if p.requires_grad]
-        optimizer = torch.optim.Adam(trainable, lr=lr, weight_decay=settings.weight_decay)
+        optimizer = torch.optim.Adam(self._parameter_groups(lr), lr=lr,
+                                     weight_decay=settings.weight_decay)
         schedule = settings.lr_schedule
         if schedule == "cosine":
             epochs = max(1, int(self.trainer.max_epochs or 1))

@@ -31,6 +31,10 @@ class PhysicalChainModule(NarxModule):
     simulation_trained = True
     #: trains on whole recordings simulated from rest (`hysteresis_lab.data.segments`)
     whole_recordings = True
+    #: an added block starts at no effect and must travel O(1) at about the rate per Adam
+    #: step while the fitted blocks only adjust: at one rate for all, a dead zone's weight
+    #: stopped at 0.56 of 1 and the dynamics bent to make up for it
+    new_block_lr_factor = 10.0
     predicts_from_outputs = False
 
     def _channel_routes(
