@@ -7,11 +7,12 @@ import pytest
 
 from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.effects.augment import augment_splits, context_to_dict
+from hysteresis_lab.models.linear import LinearModel
 from hysteresis_lab.sim.default_dataset import make_default_dataset
 from hysteresis_lab.training import build_model
 
 
-def _grown(effect: str):
+def _grown(effect: str) -> LinearModel:
     """A linear model with ``effect`` added, warm-started from one without (no training)."""
     data = make_default_dataset(effects={}, n_train=2000, test_frequencies=(10.0,),
                                 max_test_samples=500, val_samples=0)
