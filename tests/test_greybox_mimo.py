@@ -17,7 +17,7 @@ from hysteresis_lab.blocks.linear import mode_coefficients
 from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.splits import DatasetSplits
-from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.errors import ConfigError, DataError
 from hysteresis_lab.evaluation.predict import free_run
 from hysteresis_lab.models.io import load_model, save_model
 from hysteresis_lab.trainer import TrainerSettings
@@ -151,6 +151,15 @@ def test_settings_a_mimo_greybox_cannot_take_are_refused(mimo_data):
         build_model({"name": "greybox", "effects": ["drift"]}, dm, feature_context={})
     with pytest.raises(ConfigError, match=r"model.n_modes=40 \(0-32\)"):
         build_model({"name": "greybox", "n_modes": 40}, dm)
+
+
+def test_data_with_other_channels_than_the_model_are_refused(fitted, mimo_data):
+    _, dm = mimo_data
+    rec = two_by_two(1, 300, 4)[0]
+    one_input = Recording(u=rec.u[:, :1], y=rec.y, fs=FS, name="one_input")
+    with pytest.raises(DataError, match=r"1 input\(s\) and 2 output\(s\) but the model "
+                                        r"expects 2 and 2"):
+        free_run(fitted, [one_input], dm.window)
 
 
 def test_one_input_and_output_keep_the_single_axis_model():

@@ -134,14 +134,16 @@ class ModalDynamics(nn.Module):
     def fit_residues(self, xs: Sequence[Tensor], ys: Sequence[np.ndarray]) -> np.ndarray:
         """Set residues and feedthrough by least squares from inputs ``xs`` ((T, nu) each,
         float64) to outputs ``ys`` ((T, ny) each) with a constant per output; returns the
-        constants (ny,)."""
-        columns, targets = [], []
+        constants (ny,). The normal equations are summed recording by recording."""
+        gram: np.ndarray | float = 0.0
+        cross: np.ndarray | float = 0.0
         with torch.no_grad():
             for x, y in zip(xs, ys, strict=True):
-                r = self.responses(x[None].double())[0].reshape(len(x), -1).numpy()
-                columns.append(np.hstack([r, x.double().numpy(), np.ones((len(x), 1))]))
-                targets.append(np.asarray(y, dtype=float).reshape(len(x), -1))
-        theta, *_ = np.linalg.lstsq(np.vstack(columns), np.vstack(targets), rcond=None)
+                r = self.responses(x[None].double())[0].reshape(len(x), -1).cpu().numpy()
+                columns = np.hstack([r, x.double().cpu().numpy(), np.ones((len(x), 1))])
+                gram = gram + columns.T @ columns
+                cross = cross + columns.T @ np.asarray(y, dtype=float).reshape(len(x), -1)
+        theta, *_ = np.linalg.lstsq(np.asarray(gram), np.asarray(cross), rcond=None)
         n_r = 2 * self.nu * self.n_modes
         weights = theta[:n_r].T.reshape(self.ny, self.nu, 2 * self.n_modes)
         with torch.no_grad():
@@ -149,6 +151,10 @@ class ModalDynamics(nn.Module):
             self.quadrature.copy_(torch.as_tensor(weights[..., self.n_modes:]))
             self.feedthrough.copy_(torch.as_tensor(theta[n_r: n_r + self.nu].T))
         return theta[-1]
+
+    def linear_weights(self) -> list[nn.Parameter]:
+        """The parameters the output is linear in (`fit_residues` sets them)."""
+        return [self.residues, self.quadrature, self.feedthrough]
 
     def export(self) -> dict[str, Any]:
         """Mode frequencies (Hz) and dampings, residues and quadrature residues (ny, nu,

@@ -2,6 +2,20 @@
 
     u -> amplifier (first-order lag) -> delay -> hysteresis -> creep -> mode(s) -> + offset -> y
 
+On MIMO data (several inputs or outputs, the FSM mirror's 3x3) each input channel ``j`` has
+its own amplifier lag, delay, hysteresis cell and (declared) creep, and the structure's
+modes are shared by every pair (`hysteresis_lab.blocks.modal.ModalDynamics`):
+
+    x_j = creep_j(hysteresis_j(delay(amplifier_j(u_j))))
+    y_o = sum_j ( D_oj x_j + sum_m R_ojm mode_m(x_j) + Q_ojm rate_m(x_j) ) + offset_o
+
+with a complex residue ``(R, Q)`` per output, input and mode and a static feedthrough ``D``
+per pair; ``model.n_modes`` counts the shared modes (up to 32; ``resonance`` adds one). The
+modes start from the most prominent resonance peaks of the training data's MIMO best
+linear approximation, fitted to its frequency response (`estimate_modes`), residues,
+feedthrough and offsets by least squares on all training recordings. One input and one
+output build the one-axis chain below, parameters and fits exactly as before MIMO.
+
 * hysteresis (``model.hysteresis``): ``bouc_wen`` (a differentiable Bouc–Wen state
   recursion, the default), ``prandtl_ishlinskii`` (play operators with learnable thresholds
   and non-negative weights, the recursion the effect catalogue's ``hysteresis`` uses) or
@@ -9,10 +23,10 @@
 * creep when ``model.effects`` holds ``creep`` (a first-order filter bank, fixed time
   constants, learnable weights), a second mode when it holds ``resonance``;
 * every linear block is stable for any parameter value (`hysteresis_lab.blocks`);
-* optionally (``model.residual_neurons > 0``) a small ReLU network adds a static correction
-  from the last ``nb`` inputs and the last ``na`` outputs of the physical chain (not fed
-  back, so the physics keeps the memory and the model stays stable); its output layer
-  starts at zero, so training starts from the physical model.
+* optionally (``model.residual_neurons > 0``, one input and output) a small ReLU network
+  adds a static correction from the last ``nb`` inputs and the last ``na`` outputs of the
+  physical chain (not fed back, so the physics keeps the memory and the model stays
+  stable); its output layer starts at zero, so training starts from the physical model.
 
 The model starts from values read off the data (`initialise_from_data`: the static gain by
 least squares, the mode from the best linear approximation's resonance peak, the output
@@ -59,6 +73,8 @@ HYSTERESIS = ("bouc_wen", "prandtl_ishlinskii", "none")
 BLOCK_EFFECTS = ("hysteresis", "creep", "resonance")
 #: most shared modes of the MIMO dynamics
 MAX_MIMO_MODES = 32
+#: the MIMO modes' frequencies learn at this share of ``model.lr`` (`configure_optimizers`)
+MODE_FREQUENCY_LR_FACTOR = 0.02
 
 
 def _hysteresis_cell(hysteresis: str, operators: int) -> nn.Module | None:
@@ -379,15 +395,76 @@ class GreyBox(PhysicalChainModule):
                             "at %s Hz", exc, np.round(dynamics.export()["frequency_hz"], 1))
             else:
                 dynamics.set_modes(freqs, damps)
-        scale_u = self.u_scale[:n_in].double().numpy()
-        with torch.no_grad():
-            xs = [torch.stack([self._input_path(torch.as_tensor(u[None] / scale_u)[..., j], j)[0]
-                               for j in range(n_in)], dim=-1) for u in us]
-            offset = dynamics.fit_residues(xs, [y / self.y_scale.double().numpy() for y in ys])
-            self.offset.copy_(torch.as_tensor(offset))
+        self._fit_linear_weights(us, ys)
         log.info("grey-box start (%d inputs, %d outputs): modes %s Hz, residues and feedthrough "
                  "by least squares on %d recording(s)", n_in, self.ny,
                  np.round(dynamics.export()["frequency_hz"], 1).tolist(), len(us))
+
+    def _fit_linear_weights(self, us: Sequence[np.ndarray], ys: Sequence[np.ndarray]) -> None:
+        """MIMO: the residues, feedthrough and output offsets by least squares on recordings
+        (physical units, (T, channels)) given the other parameters."""
+        n_in = self.n_base_inputs
+        scale_u = self.u_scale[:n_in].double().cpu().numpy()
+        with torch.no_grad():
+            xs = [torch.stack([self._input_path(
+                torch.as_tensor(u[None, :, :n_in] / scale_u, device=self.offset.device)[..., j],
+                j)[0] for j in range(n_in)], dim=-1) for u in us]
+            offset = self.dynamics.fit_residues(
+                xs, [y / self.y_scale.double().cpu().numpy() for y in ys])
+            self.offset.copy_(torch.as_tensor(offset))
+
+    # ------------------------------------------------------------------ MIMO training
+    def on_train_start(self) -> None:
+        """MIMO: the weights the output is linear in (residues, feedthrough, offsets) are
+        not stepped by the optimiser but solved by least squares on the training recordings
+        at the start of every epoch and before every validation, given the other parameters
+        (variable projection: a lightly damped mode's residue is far too sensitive for
+        Adam's equal steps). Not in a refit that trains only new blocks."""
+        self._least_squares = bool(self.mimo and not self.new_inputs_only)
+        if self._least_squares:
+            for parameter in self._linear_weights():
+                parameter.requires_grad_(False)
+
+    def on_train_end(self) -> None:
+        if getattr(self, "_least_squares", False):
+            for parameter in self._linear_weights():
+                parameter.requires_grad_(True)
+            self._least_squares = False
+
+    def on_train_epoch_start(self) -> None:
+        super().on_train_epoch_start()
+        self._refit_linear_weights()
+
+    def on_validation_epoch_start(self) -> None:
+        self._refit_linear_weights()
+
+    def configure_optimizers(self) -> Any:
+        """MIMO: the shared modes' frequencies step at ``MODE_FREQUENCY_LR_FACTOR`` times the
+        learning rate (a step of the raw frequency moves a mode by about that share of its
+        frequency, and a lightly damped mode is ~1 % wide: at the full rate Adam's first
+        steps throw the modes off their peaks)."""
+        configured = super().configure_optimizers()
+        if not self.mimo:
+            return configured
+        optimizer = configured["optimizer"] if isinstance(configured, dict) else configured
+        frequencies = {id(mode.raw_frequency) for mode in self.dynamics.modes}
+        group = optimizer.param_groups[0]
+        slow = [p for p in group["params"] if id(p) in frequencies]
+        if slow:
+            group["params"] = [p for p in group["params"] if id(p) not in frequencies]
+            optimizer.add_param_group({"params": slow,
+                                       "lr": group["lr"] * MODE_FREQUENCY_LR_FACTOR})
+        return configured
+
+    def _linear_weights(self) -> list[nn.Parameter]:
+        return [*self.dynamics.linear_weights(), self.offset]
+
+    def _refit_linear_weights(self) -> None:
+        """`_fit_linear_weights` on the training recordings while training MIMO."""
+        if not getattr(self, "_least_squares", False):
+            return
+        recordings = self.trainer.datamodule.windows.splits.train
+        self._fit_linear_weights([rec.u for rec in recordings], [rec.y for rec in recordings])
 
     def _input_filter(self) -> tuple[np.ndarray, np.ndarray]:
         """The linear part of a MIMO input path at its start (amplifier lag and delay) as
