@@ -143,6 +143,31 @@ def test_a_grown_mimo_greybox_starts_where_the_fitted_one_is(fitted, mimo_data):
                                free_run(fitted, splits.test, dm.window)[0], rtol=0, atol=1e-9)
 
 
+@pytest.mark.parametrize("settings", [{"n_modes": 0}, {"n_modes": 1, "effects": ["creep"],
+                                                      "hysteresis": "prandtl_ishlinskii"}])
+def test_its_simulation_step_reproduces_its_free_run(mimo_data, settings):
+    """Without modes (feedthrough only) and with creep and play operators: stepping the
+    physical chain sample by sample from zeros gives the whole-recording simulation."""
+    splits, dm = mimo_data
+    model = build_model({"name": "greybox", **settings}, dm, trained_on={"fs": FS},
+                        feature_context={})
+    model.initialise_from_recordings(splits.train)
+    with torch.no_grad():
+        if model.creeps is not None:  # creep at work (it starts at zero weight)
+            for creep in model.creeps:
+                creep.weights.fill_(0.05)
+        rec = splits.test[0]
+        expected = free_run(model, [rec], dm.window)[0][:300]
+        state = torch.zeros(1, len(model.state_names()), dtype=torch.float64)
+        produced = []
+        for u in torch.as_tensor(rec.u[:300]):
+            y, state = model.step_physical(state, u[None])
+            produced.append(y[0].numpy())
+    ft = dm.window.first_target
+    np.testing.assert_allclose(np.array(produced)[ft:], expected[ft:], rtol=0,
+                               atol=1e-9 * np.max(np.abs(expected)))
+
+
 def test_settings_a_mimo_greybox_cannot_take_are_refused(mimo_data):
     _, dm = mimo_data
     with pytest.raises(ConfigError, match=r"residual_neurons=8 with 2 inputs and 2 outputs"):

@@ -60,13 +60,16 @@ class ModalDynamics(nn.Module):
     def coefficients(self) -> tuple[Tensor, Tensor, Tensor]:
         """Per mode the numerators of its response and of its quadrature (M, 3) and its
         denominator (M, 3)."""
+        if not self.n_modes:
+            empty = self.feedthrough.new_zeros(0, 3)
+            return empty, empty, empty
         num, rate, den = [], [], []
         for mode in self.modes:
             frequency = mode.frequency_hz[0]
             b, a = mode_coefficients(frequency, mode.damping[0], self.fs)
             c = 1.0 / torch.tan(torch.pi * frequency / self.fs)
             num.append(b)
-            rate.append(c * b[0] * torch.tensor([1.0, 0.0, -1.0], dtype=torch.float64))
+            rate.append(c * b[0] * b.new_tensor([1.0, 0.0, -1.0]))
             den.append(a)
         return torch.stack(num), torch.stack(rate), torch.stack(den)
 
