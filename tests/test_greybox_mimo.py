@@ -107,6 +107,18 @@ def test_a_mimo_greybox_trains_and_simulates_every_output(fitted, mimo_data):
     np.testing.assert_allclose(np.sort(frequencies), MODES_HZ, rtol=0.05)
 
 
+def test_its_linear_weights_are_the_least_squares_ones_after_training(fitted, mimo_data):
+    """Residues, feedthrough and offsets are solved, not stepped: the trained model's are
+    the least-squares fit given its other parameters, and every parameter trains again
+    afterwards (requires_grad restored)."""
+    splits, _ = mimo_data
+    kept = [p.detach().clone() for p in fitted._linear_weights()]
+    fitted._fit_linear_weights([r.u for r in splits.train], [r.y for r in splits.train])
+    for before, after in zip(kept, fitted._linear_weights(), strict=True):
+        torch.testing.assert_close(after.detach(), before, rtol=1e-6, atol=1e-9)
+    assert all(p.requires_grad for p in fitted.parameters())
+
+
 def test_a_saved_mimo_greybox_loads_and_simulates_the_same(fitted, mimo_data, tmp_path):
     splits, dm = mimo_data
     loaded = load_model(save_model(fitted, tmp_path / "model"))

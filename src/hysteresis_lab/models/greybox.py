@@ -13,8 +13,10 @@ with a complex residue ``(R, Q)`` per output, input and mode and a static feedth
 per pair; ``model.n_modes`` counts the shared modes (up to 32; ``resonance`` adds one). The
 modes start from the most prominent resonance peaks of the training data's MIMO best
 linear approximation, fitted to its frequency response (`estimate_modes`), residues,
-feedthrough and offsets by least squares on all training recordings. One input and one
-output build the one-axis chain below, parameters and fits exactly as before MIMO.
+feedthrough and offsets by least squares on all training recordings; while the other
+parameters train, those linear weights are solved again by least squares each epoch
+(`on_train_start`), not stepped. One input and one output build the one-axis chain below,
+parameters and fits exactly as before MIMO.
 
 * hysteresis (``model.hysteresis``): ``bouc_wen`` (a differentiable Bouc–Wen state
   recursion, the default), ``prandtl_ishlinskii`` (play operators with learnable thresholds
