@@ -10,6 +10,10 @@ the peak and bandwidth only start a least-squares fit of the resonance's shape
 ``C / ((1 - r^2)^2 + (2 zeta r)^2)`` (``r = f / f_n``) to the log power spectrum between
 0.7 and 1.4 ``f_n`` (robust loss), which gives a far steadier damping than the -3 dB points
 of a noisy spectrum.
+
+`estimate_modes` does it for MIMO data: the most prominent peaks of the MIMO best linear
+approximation (`mimo_frequency_response`) start shared modes, which `fit_modes` fits to the
+whole frequency response (residues by least squares for each candidate set of modes).
 """
 
 from __future__ import annotations
