@@ -65,6 +65,9 @@ RECOMMENDED: dict[str, dict[str, list[str]]] = {
                    "trainer.max_epochs=40"],
         # 28 poles (the published BLA's order) per output and input, a Bouc–Wen cell per input
         "linear": ["model.order=28", "model.effects=[hysteresis]", "trainer.max_epochs=18"],
+        # 14 shared modes (the published BLA's 28 states), a Bouc–Wen cell per input
+        "greybox": ["model.n_modes=14", "model.lr=5e-4", "model.recording_repeats=2",
+                    "trainer.max_epochs=10"],
     },
     "p885": {
         "subnet": ["model.horizon=200", "model.lr=1e-3", "data.batch_size=16",
@@ -90,7 +93,7 @@ RECOMMENDED: dict[str, dict[str, list[str]]] = {
     },
 }
 #: pairs a model cannot take, with the reason (shown in the table)
-UNSUPPORTED = {("greybox", "fsm"): "SISO only (FSM is 3x3 MIMO)"}
+UNSUPPORTED: dict[tuple[str, str], str] = {}
 #: added to every run: no TensorBoard, no progress bar
 COMMON = ["logger=none", "trainer.enable_progress_bar=false"]
 

@@ -2,6 +2,22 @@
 
     u -> amplifier (first-order lag) -> delay -> hysteresis -> creep -> mode(s) -> + offset -> y
 
+On MIMO data (several inputs or outputs, the FSM mirror's 3x3) each input channel ``j`` has
+its own amplifier lag, delay, hysteresis cell and (declared) creep, and the structure's
+modes are shared by every pair (`hysteresis_lab.blocks.modal.ModalDynamics`):
+
+    x_j = creep_j(hysteresis_j(delay(amplifier_j(u_j))))
+    y_o = sum_j ( D_oj x_j + sum_m R_ojm mode_m(x_j) + Q_ojm rate_m(x_j) ) + offset_o
+
+with a complex residue ``(R, Q)`` per output, input and mode and a static feedthrough ``D``
+per pair; ``model.n_modes`` counts the shared modes (up to 32; ``resonance`` adds one). The
+modes start from the most prominent resonance peaks of the training data's MIMO best
+linear approximation, fitted to its frequency response (`estimate_modes`), residues,
+feedthrough and offsets by least squares on all training recordings; while the other
+parameters train, those linear weights are solved again by least squares each epoch
+(`on_train_start`), not stepped. One input and one output build the one-axis chain below,
+parameters and fits exactly as before MIMO.
+
 * hysteresis (``model.hysteresis``): ``bouc_wen`` (a differentiable Bouc–Wen state
   recursion, the default), ``prandtl_ishlinskii`` (play operators with learnable thresholds
   and non-negative weights, the recursion the effect catalogue's ``hysteresis`` uses) or
@@ -9,10 +25,10 @@
 * creep when ``model.effects`` holds ``creep`` (a first-order filter bank, fixed time
   constants, learnable weights), a second mode when it holds ``resonance``;
 * every linear block is stable for any parameter value (`hysteresis_lab.blocks`);
-* optionally (``model.residual_neurons > 0``) a small ReLU network adds a static correction
-  from the last ``nb`` inputs and the last ``na`` outputs of the physical chain (not fed
-  back, so the physics keeps the memory and the model stays stable); its output layer
-  starts at zero, so training starts from the physical model.
+* optionally (``model.residual_neurons > 0``, one input and output) a small ReLU network
+  adds a static correction from the last ``nb`` inputs and the last ``na`` outputs of the
+  physical chain (not fed back, so the physics keeps the memory and the model stays
+  stable); its output layer starts at zero, so training starts from the physical model.
 
 The model starts from values read off the data (`initialise_from_data`: the static gain by
 least squares, the mode from the best linear approximation's resonance peak, the output
@@ -44,7 +60,10 @@ from hysteresis_lab.blocks import (
     estimate_mode,
     estimate_static_gain,
 )
+from hysteresis_lab.blocks.estimate import estimate_modes
+from hysteresis_lab.blocks.modal import ModalDynamics
 from hysteresis_lab.blocks.step import StepState, frozen
+from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.base import NarxModule, mlp
 from hysteresis_lab.models.physical_chain import PhysicalChainModule
@@ -54,6 +73,26 @@ log = logging.getLogger(__name__)
 HYSTERESIS = ("bouc_wen", "prandtl_ishlinskii", "none")
 #: catalogue effects the grey-box carries as physical blocks
 BLOCK_EFFECTS = ("hysteresis", "creep", "resonance")
+#: most shared modes of the MIMO dynamics
+MAX_MIMO_MODES = 32
+#: the MIMO Bouc–Wen cells' starting hysteretic share (one axis: 0.2); with the residues
+#: solved by least squares a strong generic loop at the start costs more than it explains
+#: (FSM start, 14 modes: 0.39 / 0.31 / 0.37 um at 0.2, 0.37 / 0.27 / 0.34 um at 0.05)
+MIMO_BOUC_WEN_ALPHA = 0.05
+#: the MIMO modes' frequencies learn at this share of ``model.lr`` (`configure_optimizers`)
+MODE_FREQUENCY_LR_FACTOR = 0.02
+
+
+def _hysteresis_cell(hysteresis: str, operators: int, alpha: float = 0.2) -> nn.Module | None:
+    """One input channel's hysteresis cell (None for ``hysteresis='none'``); ``alpha``: the
+    Bouc–Wen cell's hysteretic share."""
+    if hysteresis == "bouc_wen":
+        # a generic loop shape for an input of unit amplitude (not the simulator's values);
+        # the gain after the cell is read off the data
+        return BoucWen(**bouc_wen_scaled_params(1.0, alpha, 0.015, 0.003, 100.0, 100.0))
+    if hysteresis == "prandtl_ishlinskii":
+        return PlayOperators(n_operators=operators, max_threshold=0.8)
+    return None
 
 
 class GreyBox(PhysicalChainModule):
@@ -88,17 +127,21 @@ class GreyBox(PhysicalChainModule):
         problems = []
         if hysteresis not in HYSTERESIS:
             problems.append(f"model.hysteresis='{hysteresis}' (one of {list(HYSTERESIS)})")
-        if self.n_base_inputs != 1 or ny != 1:
-            problems.append(f"{self.n_base_inputs} input(s) and {ny} output(s) (it models one "
-                            "actuator axis: 1 and 1; model=linear and model=subnet take MIMO data)")
+        self.mimo = self.n_base_inputs != 1 or ny != 1
+        if self.mimo and residual_neurons:
+            problems.append(f"model.residual_neurons={residual_neurons!r} with "
+                            f"{self.n_base_inputs} inputs and {ny} outputs (the residual "
+                            "network corrects one input and one output; 0 for MIMO data)")
         if unknown:
             problems.append(f"effects {unknown} (its blocks: {list(BLOCK_EFFECTS)}; model=subnet "
                             "or model=ffnn take any catalogue effect as an input)")
         if objective != "simulation":
             problems.append(f"model.objective='{objective}' (it is fitted on the simulation "
                             "error only)")
-        if not (isinstance(n_modes, int) and 0 <= n_modes <= 3):
-            problems.append(f"model.n_modes={n_modes!r} (0-3)")
+        most_modes = MAX_MIMO_MODES if self.mimo else 3
+        if not (isinstance(n_modes, int) and 0 <= n_modes <= most_modes):
+            problems.append(f"model.n_modes={n_modes!r} (0-{most_modes}"
+                            + (")" if self.mimo else "; more for MIMO data)"))
         if not (isinstance(delay, int) and delay >= 0):
             problems.append(f"model.delay={delay!r} (whole samples >= 0)")
         if not (isinstance(residual_neurons, int) and residual_neurons >= 0
@@ -112,25 +155,20 @@ class GreyBox(PhysicalChainModule):
                 "model=greybox cannot take " + "; ".join(problems) + ". Fix: change those "
                 "settings (hysteresis_lab/conf/model/greybox.yaml has the defaults)."
             )
-        nyquist = 0.5 * fs
         # the blocks' 1 Hz floors scaled down for slow data (cascaded tanks: fs = 0.25 Hz)
         self.f_floor = min(1.0, 1e-3 * fs)
+        modes = n_modes + int("resonance" in effects)
+        if self.mimo:
+            self._build_mimo(fs, hysteresis, modes, mode_hz, mode_damping, amplifier_hz, delay,
+                             creep_time_constants_s if "creep" in effects else None, operators)
+            return
+        nyquist = 0.5 * fs
         self.amplifier = FirstOrderLag(fs, amplifier_hz or 0.25 * fs,
                                        min_cutoff_hz=self.f_floor)
         self.delay = Delay(delay)
-        self.hysteresis: nn.Module | None
-        if hysteresis == "bouc_wen":
-            # a generic loop shape for an input of unit amplitude (not the simulator's
-            # values); the gain after the cell is read off the data
-            self.hysteresis = BoucWen(**bouc_wen_scaled_params(1.0, 0.2, 0.015, 0.003,
-                                                               100.0, 100.0))
-        elif hysteresis == "prandtl_ishlinskii":
-            self.hysteresis = PlayOperators(n_operators=operators, max_threshold=0.8)
-        else:
-            self.hysteresis = None
+        self.hysteresis = _hysteresis_cell(hysteresis, operators)
         self.gain = nn.Parameter(torch.ones((), dtype=torch.float64))  # after the hysteresis
         self.creep = CreepBank(fs, creep_time_constants_s) if "creep" in effects else None
-        modes = n_modes + int("resonance" in effects)
         self.mode = (
             SecondOrderMode(fs, mode_hz or 0.1 * nyquist, mode_damping or 0.05, n_modes=modes,
                             fmin=self.f_floor)
@@ -145,10 +183,52 @@ class GreyBox(PhysicalChainModule):
                 self.residual[-1].weight.zero_()
                 self.residual[-1].bias.zero_()
 
+    def _build_mimo(
+        self, fs: float, hysteresis: str, n_modes: int, mode_hz: float | None,
+        mode_damping: float | None, amplifier_hz: float | None, delay: int,
+        creep_time_constants_s: Sequence[float] | None, operators: int,
+    ) -> None:
+        """Per input channel an amplifier lag, a delay, a hysteresis cell and (declared) creep;
+        then shared modes with a residue per output and input (`ModalDynamics`) and an
+        offset per output."""
+        n_in = self.n_base_inputs
+        self.amplifiers = nn.ModuleList(
+            FirstOrderLag(fs, amplifier_hz or 0.25 * fs, min_cutoff_hz=self.f_floor)
+            for _ in range(n_in))
+        self.delays = nn.ModuleList(Delay(delay) for _ in range(n_in))
+        cells = [_hysteresis_cell(hysteresis, operators, MIMO_BOUC_WEN_ALPHA)
+                 for _ in range(n_in)]
+        self.cells = None if hysteresis == "none" else nn.ModuleList(cells)
+        self.creeps = None if creep_time_constants_s is None else nn.ModuleList(
+            CreepBank(fs, creep_time_constants_s) for _ in range(n_in))
+        # the SISO convention for a given frequency (mode m at mode_hz * 3^m, clipped);
+        # without one, placeholders until the data's modes are read (`initialise_from_data`)
+        start = SecondOrderMode(fs, mode_hz or 0.1 * 0.5 * fs, mode_damping or 0.05,
+                                n_modes=max(n_modes, 1), fmin=self.f_floor)
+        self.dynamics = ModalDynamics(fs, self.ny, n_in,
+                                      start.frequency_hz.detach().numpy()[:n_modes],
+                                      start.damping.detach().numpy()[:n_modes],
+                                      fmin=self.f_floor)
+        self.offset = nn.Parameter(torch.zeros(self.ny, dtype=torch.float64))
+        self.residual = None
+
     # ------------------------------------------------------------------ the model
     def chain(self, v: torch.Tensor) -> torch.Tensor:
-        """Input over its scale (B, T, 1) -> output before the offset (B, T, 1), from rest."""
+        """Input over its scale (B, T, nu) -> output before the offset (B, T, ny), from rest."""
+        if self.mimo:
+            return self.dynamics(torch.stack(
+                [self._input_path(v[..., j], j) for j in range(self.n_base_inputs)], dim=-1))
         return self._chain(v[..., 0])[..., None]
+
+    def _input_path(self, v: torch.Tensor, j: int) -> torch.Tensor:
+        """MIMO input ``j``'s amplifier, delay, hysteresis and creep: (B, T) -> (B, T)."""
+        x = self.delays[j](self.amplifiers[j](v))
+        if self.cells is not None:
+            x = self.cells[j](x)
+            x = x[0] if isinstance(x, tuple) else x
+        if self.creeps is not None:
+            x = self.creeps[j](x)
+        return x
 
     def _chain(self, v: torch.Tensor) -> torch.Tensor:
         """`chain` on (B, T) -> (B, T)."""
@@ -176,7 +256,17 @@ class GreyBox(PhysicalChainModule):
         return self.residual(torch.cat([v_lags, x_lags], dim=-1))[..., 0]
 
     def _step_blocks(self) -> list[tuple[str, nn.Module]]:
-        """The blocks with a state, in the chain's order."""
+        """The blocks with a state, in the chain's order (MIMO: per input, then the modes)."""
+        if self.mimo:
+            blocks = []
+            for j in range(self.n_base_inputs):
+                blocks += [(f"input{j}.amplifier", self.amplifiers[j]),
+                           (f"input{j}.delay", self.delays[j])]
+                if self.cells is not None:
+                    blocks.append((f"input{j}.hysteresis", self.cells[j]))
+                if self.creeps is not None:
+                    blocks.append((f"input{j}.creep", self.creeps[j]))
+            return [*blocks, ("dynamics", self.dynamics)]
         blocks = [("amplifier", self.amplifier), ("delay", self.delay),
                   ("hysteresis", self.hysteresis), ("creep", self.creep), ("mode", self.mode)]
         return [(name, block) for name, block in blocks if block is not None]
@@ -193,7 +283,17 @@ class GreyBox(PhysicalChainModule):
         return names
 
     def chain_step(self, v: torch.Tensor, state: StepState) -> torch.Tensor:
-        """One sample of `chain`: (B, 1) -> (B, 1)."""
+        """One sample of `chain`: (B, nu) -> (B, ny)."""
+        if self.mimo:
+            xs = []
+            for j in range(self.n_base_inputs):  # the blocks in the order of `state_names`
+                x = self.delays[j].step(self.amplifiers[j].step(v[:, j], state), state)
+                if self.cells is not None:
+                    x = self.cells[j].step(x, state)
+                if self.creeps is not None:
+                    x = self.creeps[j].step(x, state)
+                xs.append(x)
+            return self.dynamics.step(torch.stack(xs, dim=-1), state)
         v_in = v[:, 0]
         x = self.delay.step(self.amplifier.step(v_in, state), state)
         if self.hysteresis is not None:
@@ -214,7 +314,15 @@ class GreyBox(PhysicalChainModule):
 
     def _start_new_parameter(self, name: str, value: torch.Tensor, previous: NarxModule) -> None:
         """A new block starts where it changes nothing: creep weights 0, a new mode at
-        weight 0 beside the fitted ones."""
+        weight 0 (MIMO: residues 0) beside the fitted ones."""
+        if self.mimo:
+            if name in ("dynamics.residues", "dynamics.quadrature"):
+                fitted = previous.get_parameter(name)
+                value.zero_()
+                value[..., : fitted.shape[-1]] = fitted
+            elif name.startswith("creeps."):
+                value.zero_()
+            return
         if name.startswith("mode.") and self.mode is not None and previous.mode:
             self._grow_mode(previous.mode)
         elif name.startswith("creep."):
@@ -230,9 +338,23 @@ class GreyBox(PhysicalChainModule):
         self.mode.raw_weights[: n - 1] = fitted.raw_weights
 
     # ------------------------------------------------------------------ initial values
+    def initialise_from_recordings(self, recordings: Sequence[Recording]) -> None:
+        """Starting values from the training recordings: one input and output, from the
+        longest one (`initialise_from_data`); MIMO, from all of them (`_initialise_mimo`)."""
+        if self.mimo:
+            self._initialise_mimo([rec.u for rec in recordings], [rec.y for rec in recordings],
+                                  recordings[0].fs)
+            return
+        longest = max(recordings, key=lambda rec: rec.n_samples)
+        self.initialise_from_data(longest.u[:, 0], longest.y[:, 0], longest.fs)
+
     def initialise_from_data(self, u: np.ndarray, y: np.ndarray, fs: float) -> None:
-        """Starting values from a training recording (physical units, 1-D): the static gain
-        (least squares), the mode (the BLA's resonance peak) and the output offset."""
+        """Starting values from a training recording (physical units; 1-D for one channel,
+        else (T, channels)): the static gain (least squares), the mode (the BLA's resonance
+        peak) and the output offset; MIMO data as `_initialise_mimo`."""
+        if self.mimo:
+            self._initialise_mimo([u], [y], fs)
+            return
         u_s = u / float(self.u_scale[0])
         y_s = y / float(self.y_scale[0])
         gain = estimate_static_gain(u_s - u_s.mean(), y_s - y_s.mean())
@@ -259,11 +381,128 @@ class GreyBox(PhysicalChainModule):
                  None if self.mode is None else np.round(self.mode.export()["frequency_hz"], 1),
                  float(self.offset.detach()))
 
+    def _initialise_mimo(
+        self, us: Sequence[np.ndarray], ys: Sequence[np.ndarray], fs: float
+    ) -> None:
+        """MIMO starting values from recordings (physical units, (T, channels)): the modes
+        from the resonance peaks of the MIMO BLA (`estimate_modes`, unless ``model.mode_hz``
+        is set), then residues, feedthrough and output offsets by least squares on the
+        outputs of the input channels' blocks."""
+        n_in = self.n_base_inputs
+        us = [np.asarray(u, dtype=float).reshape(len(u), -1)[:, :n_in] for u in us]
+        ys = [np.asarray(y, dtype=float).reshape(len(y), -1) for y in ys]
+        dynamics = self.dynamics
+        if dynamics.n_modes and self.hparams.get("mode_hz") is None:
+            fmax = 0.98 * dynamics.modes[0].fmax
+            try:
+                freqs, damps = estimate_modes(us, ys, fs, dynamics.n_modes,
+                                              fmin=max(min(50.0, 0.01 * fs), 2 * self.f_floor),
+                                              fmax=fmax, prefilter=self._input_filter())
+            except ValueError as exc:
+                log.warning("no resonances found in the training data (%s): the modes start "
+                            "at %s Hz", exc, np.round(dynamics.export()["frequency_hz"], 1))
+            else:
+                dynamics.set_modes(freqs, damps)
+        self._fit_linear_weights(us, ys)
+        log.info("grey-box start (%d inputs, %d outputs): modes %s Hz, residues and feedthrough "
+                 "by least squares on %d recording(s)", n_in, self.ny,
+                 np.round(dynamics.export()["frequency_hz"], 1).tolist(), len(us))
+
+    def _fit_linear_weights(self, us: Sequence[np.ndarray], ys: Sequence[np.ndarray]) -> None:
+        """MIMO: the residues, feedthrough and output offsets by least squares on recordings
+        (physical units, (T, channels)) given the other parameters."""
+        n_in = self.n_base_inputs
+        scale_u = self.u_scale[:n_in].double().cpu().numpy()
+        with torch.no_grad():
+            xs = [torch.stack([self._input_path(
+                torch.as_tensor(u[None, :, :n_in] / scale_u, device=self.offset.device)[..., j],
+                j)[0] for j in range(n_in)], dim=-1) for u in us]
+            offset = self.dynamics.fit_residues(
+                xs, [y / self.y_scale.double().cpu().numpy() for y in ys])
+            self.offset.copy_(torch.as_tensor(offset))
+
+    # ------------------------------------------------------------------ MIMO training
+    def on_train_start(self) -> None:
+        """MIMO: the weights the output is linear in (residues, feedthrough, offsets) are
+        not stepped by the optimiser but solved by least squares on the training recordings
+        at the start of every epoch and before every validation, given the other parameters
+        (variable projection: a lightly damped mode's residue is far too sensitive for
+        Adam's equal steps). Not in a refit that trains only new blocks."""
+        self._least_squares = bool(self.mimo and not self.new_inputs_only)
+        if self._least_squares:
+            for parameter in self._linear_weights():
+                parameter.requires_grad_(False)
+
+    def on_train_end(self) -> None:
+        if getattr(self, "_least_squares", False):
+            for parameter in self._linear_weights():
+                parameter.requires_grad_(True)
+            self._least_squares = False
+
+    def on_train_epoch_start(self) -> None:
+        super().on_train_epoch_start()
+        self._refit_linear_weights()
+
+    def on_validation_epoch_start(self) -> None:
+        self._refit_linear_weights()
+
+    def configure_optimizers(self) -> Any:
+        """MIMO: the shared modes' frequencies step at ``MODE_FREQUENCY_LR_FACTOR`` times the
+        learning rate (a step of the raw frequency moves a mode by about that share of its
+        frequency, and a lightly damped mode is ~1 % wide: at the full rate Adam's first
+        steps throw the modes off their peaks)."""
+        configured = super().configure_optimizers()
+        if not self.mimo:
+            return configured
+        optimizer = configured["optimizer"] if isinstance(configured, dict) else configured
+        frequencies = {id(mode.raw_frequency) for mode in self.dynamics.modes}
+        group = optimizer.param_groups[0]
+        slow = [p for p in group["params"] if id(p) in frequencies]
+        if slow:
+            group["params"] = [p for p in group["params"] if id(p) not in frequencies]
+            optimizer.add_param_group({"params": slow,
+                                       "lr": group["lr"] * MODE_FREQUENCY_LR_FACTOR})
+        return configured
+
+    def _linear_weights(self) -> list[nn.Parameter]:
+        return [*self.dynamics.linear_weights(), self.offset]
+
+    def _refit_linear_weights(self) -> None:
+        """`_fit_linear_weights` on the training recordings while training MIMO."""
+        if not getattr(self, "_least_squares", False):
+            return
+        recordings = self.trainer.datamodule.windows.splits.train
+        self._fit_linear_weights([rec.u for rec in recordings], [rec.y for rec in recordings])
+
+    def _input_filter(self) -> tuple[np.ndarray, np.ndarray]:
+        """The linear part of a MIMO input path at its start (amplifier lag and delay) as
+        ``(b, a)``; the channels start alike."""
+        with torch.no_grad():
+            b, a = (c.numpy() for c in self.amplifiers[0].coefficients())
+        return np.r_[np.zeros(self.delays[0].samples), b], a
+
     def physical_parameters(self) -> dict[str, Any]:
-        """Every block's current parameters (for reports)."""
+        """Every block's current parameters (for reports); MIMO: per input ``inputs[j]``, the
+        shared modes with their residues and feedthrough (``dynamics``), offsets per output."""
+        if self.mimo:
+            return self._mimo_parameters()
         blocks = {"amplifier": self.amplifier, "hysteresis": self.hysteresis,
                   "creep": self.creep, "mode": self.mode}
         out = {name: block.export() for name, block in blocks.items() if block is not None}
         out.update(gain=float(self.gain.detach()), offset=float(self.offset.detach()),
                    delay=self.delay.samples)
         return out
+
+    def _mimo_parameters(self) -> dict[str, Any]:
+        """`physical_parameters` of the MIMO layout."""
+        inputs = []
+        for j in range(self.n_base_inputs):
+            blocks = {"amplifier": self.amplifiers[j].export()}
+            if self.cells is not None:
+                blocks["hysteresis"] = self.cells[j].export()
+            if self.creeps is not None:
+                blocks["creep"] = self.creeps[j].export()
+            inputs.append(blocks)
+        return {"inputs": inputs, "dynamics": self.dynamics.export(),
+                "offset": self.offset.detach().cpu().numpy().tolist(),
+                "delay": self.delays[0].samples}
