@@ -25,7 +25,7 @@ and a model that extrapolates linearly in the new operators instead of through R
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar
 
 import lightning as L
@@ -63,6 +63,13 @@ class NarxModule(L.LightningModule, NetworkModel):
     whole_refit_effects: ClassVar[tuple[str, ...]] = ()
     #: True for models built to train on the free-run error alone (no one-step stage)
     simulation_trained: ClassVar[bool] = False
+
+    @classmethod
+    def built_in_effects(cls, settings: Mapping[str, Any]) -> tuple[str, ...]:
+        """Catalogue effects the structure holds whatever ``effects`` declares (a grey-box's
+        hysteresis cell), given the model config's ``settings``: the loop's diagnosis counts
+        them as held and never adds them."""
+        return ()
 
     def __init__(
         self,

@@ -42,7 +42,7 @@ amplitudes beyond the training data as its physics does.
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -99,6 +99,11 @@ class GreyBox(PhysicalChainModule):
     """Amplifier, delay, hysteresis, creep and modes in series (see the module docstring)."""
 
     carried_effects = BLOCK_EFFECTS
+
+    @classmethod
+    def built_in_effects(cls, settings: Mapping[str, Any]) -> tuple[str, ...]:
+        """Its hysteresis cell holds ``hysteresis`` unless ``model.hysteresis=none``."""
+        return () if settings.get("hysteresis", "bouc_wen") == "none" else ("hysteresis",)
 
     def __init__(
         self,

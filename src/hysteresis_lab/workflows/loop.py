@@ -318,7 +318,8 @@ def _fit_round_and_decide(
         state.effects, state.tried = round_effects, set()
         state.kept.append((result, check))
         state.diagnosis, state.evidence = _diagnose_round(
-            result, check, run.data, run.context, state.effects, settings, round_dir,
+            result, check, run.data, run.context, held_effects(run.model, state.effects),
+            settings, round_dir,
             run.use_tensorboard, number,
         )
         entry["diagnosis"] = [d.to_dict() for d in state.diagnosis]
@@ -509,6 +510,14 @@ def next_effect(
     candidates = [d for d in diagnosis if d.significant and d.effect not in tried]
     reported = [d.effect for d in candidates if not d.predictable]
     return next((d for d in candidates if d.predictable), None), reported
+
+
+def held_effects(model: ModelSpec, effects: Sequence[str]) -> list[str]:
+    """The effects a model holds: those declared and those its structure always has (a
+    grey-box's hysteresis cell, `built_in_effects`); the diagnosis looks beyond them."""
+    built_in = getattr(model.cls, "built_in_effects", None)
+    extra = built_in(model.settings) if built_in is not None else ()
+    return [*effects, *(e for e in extra if e not in effects)]
 
 
 def _not_carried(
