@@ -16,7 +16,8 @@ A recording with several outputs (a MIMO system) counts as one recording per out
 each output gets coefficients of its own (one law per output, shared by the recordings).
 
 An output-side effect (``Effect.block == "output"``: overflow, output clipping) acts after the
-dynamics on what the model puts out, so its candidate signals come from the model's own
+dynamics on what the model puts out (a ``"feedback"`` one, a static law of the output fed back
+into the dynamics, is read the same way), so its candidate signals come from the model's own
 free-run output (``predictions``), not from the input: a model that does not clip overshoots
 where the system clips, and its residual follows those excesses. Their baseline also holds
 the model's output (a gain error is no overflow). An effect that also acts inside the
@@ -52,7 +53,7 @@ import numpy as np
 from scipy import stats
 
 from hysteresis_lab.data.recording import Recording
-from hysteresis_lab.effects.base import Effect, FeatureContext
+from hysteresis_lab.effects.base import MODEL_OUTPUT_BLOCKS, Effect, FeatureContext
 from hysteresis_lab.effects.registry import available_effects, get_effect
 
 log = logging.getLogger(__name__)
@@ -516,7 +517,7 @@ def _signals_of(
 ) -> list[np.ndarray]:
     """The effect's candidate signals on each single-output series: from its input, or for
     an output-side effect from the model's output (plus the state-side ones from it)."""
-    if effect.block == "output":
+    if effect.block in MODEL_OUTPUT_BLOCKS:
         assert model_outputs is not None
         return _output_evidence(effect, model_outputs, outputs)
     raw = [effect.evidence(rec.u, context) for rec in recordings]
@@ -537,7 +538,7 @@ def effect_signals(
     (every output of a recording in turn). ``predictions``: the model's free run per
     recording, which an output-side effect's signals are read from."""
     effect = get_effect(name)
-    if effect.block == "output" and predictions is None:
+    if effect.block in MODEL_OUTPUT_BLOCKS and predictions is None:
         raise ValueError(f"effect '{name}' acts on the model's output: pass its free run.")
     singles, _, outputs = _one_output_each(recordings, [r.y for r in recordings])
     model_outputs = (
@@ -555,13 +556,13 @@ def _score_effect(
     tested = tuple(i for i, h in enumerate(evidence.held) if h != effect.predictable)
     if not tested:
         return _not_tested(name, effect.description, effect.predictable)
-    if effect.block == "output" and evidence.model_outputs is None:
+    if effect.block in MODEL_OUTPUT_BLOCKS and evidence.model_outputs is None:
         return _not_tested(name, effect.description, True, why=(
             "acts on the model's output: no free-run prediction was given to read it from"
         ))
     shown = [evidence.prepared[i] for i in tested]
     shown_names = [evidence.recordings[i].name for i in tested]
-    base, base_blocks = _baseline(evidence, tested, effect.block == "output", settings)
+    base, base_blocks = _baseline(evidence, tested, effect.block in MODEL_OUTPUT_BLOCKS, settings)
     # an input-independent trend gains nothing from delayed copies of itself
     own_lags = settings.lags if effect.predictable else (0,)
     evidence_signals = [

@@ -184,3 +184,35 @@ class Overflow(Effect):
         upper = [np.maximum(y - (low + f * width), 0.0) for f in self.fractions]
         lower = [np.minimum(y - (high - f * width), 0.0) for f in self.fractions]
         return np.nan_to_num(np.column_stack(upper + lower))
+
+
+class NonlinearFeedback(Effect):
+    """A static nonlinearity in the dynamics' feedback (a Lur'e system): what leaves or
+    restores the system depends on its own output level as no linear law does — a tank's
+    outflow through an orifice (Torricelli, ``sqrt`` of the level), a hardening or softening
+    spring.
+
+    It has no input operators: a model carries it as the dynamics in a closed loop with a
+    function of their output (``model=linear``: piecewise linear, weights from zero). Its
+    evidence is the model's own free-run output bent at 10-85 % of its range (hinges
+    ``relu(y - c)``) and its square: a linear law fitted to a curved one leaves a residual
+    that follows how far, on which side, the output is from the middle of its range; the
+    distributed lags of the diagnosis let the dynamics carry it to the output.
+    """
+
+    name = "nonlinear_feedback"
+    description = ("nonlinear feedback / level-dependent outflow (a static law of the "
+                   "model's own output inside its dynamics)")
+    block = "feedback"
+    fractions = np.array([0.1, 0.25, 0.4, 0.55, 0.7, 0.85])
+
+    def features(self, u: np.ndarray, ctx: FeatureContext) -> np.ndarray:
+        return np.zeros((len(u), 0))
+
+    def output_evidence(self, y_model: np.ndarray, span: tuple[float, float]) -> np.ndarray:
+        low, high = span
+        y = np.asarray(y_model, dtype=float).reshape(-1)
+        width = max(high - low, 1e-12)
+        level = (y - low) / width
+        hinges = [np.maximum(level - f, 0.0) for f in self.fractions]
+        return np.nan_to_num(np.column_stack([*hinges, (level - 0.5) ** 2]))

@@ -184,7 +184,10 @@ class NarxModule(L.LightningModule, NetworkModel):
         for name in effects:
             effect = get_effect(name)
             if effect.block not in ("network", "input"):
-                raise ConfigError(f"effect '{name}' has unknown block '{effect.block}'.")
+                raise ConfigError(
+                    f"effect '{name}' acts at the model's '{effect.block}' block, which this "
+                    "model does not have. Fix: use a model that carries it (model=linear) or "
+                    "leave it out of model.effects.")
             route = "input" if effect.block == "input" else (
                 "linear" if effect_path == "linear" else "network")
             routes += [route] * effect.features(probe, ctx).shape[1]
