@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+from scipy import signal
 
 from hysteresis_lab.effects.base import Effect, FeatureContext
 from hysteresis_lab.effects.operators import (
@@ -193,18 +194,25 @@ class NonlinearFeedback(Effect):
     spring.
 
     It has no input operators: a model carries it as the dynamics in a closed loop with a
-    function of their output (``model=linear``: piecewise linear, weights from zero). Its
-    evidence is the model's own free-run output bent at 10-85 % of its range (hinges
-    ``relu(y - c)``) and its square: a linear law fitted to a curved one leaves a residual
-    that follows how far, on which side, the output is from the middle of its range; the
-    distributed lags of the diagnosis let the dynamics carry it to the output.
+    function of their output (``model=linear``: piecewise linear, weights from zero, knots
+    ``model.feedback_knots``). Its evidence is the model's own free-run output's level over
+    its range under two power laws, ``sqrt`` and ``1.5`` (a linear law fitted to a curved
+    one leaves a residual that follows the curvature, over the whole range), a sample late
+    and smoothed by first-order filters (time constants of about 2 and 10 samples): what is
+    fed back reaches the output through the dynamics. A clip at the output (`Overflow`)
+    bends the output sharply at one level and at once; these smooth curves do not, so the
+    two are told apart (on simulated data; where the model's output rarely reaches the
+    clip, the margin is small).
     """
 
     name = "nonlinear_feedback"
     description = ("nonlinear feedback / level-dependent outflow (a static law of the "
                    "model's own output inside its dynamics)")
     block = "feedback"
-    fractions = np.array([0.1, 0.25, 0.4, 0.55, 0.7, 0.85])
+    #: power laws of the output's level over its range (an orifice's sqrt, a steeper one)
+    powers = (0.5, 1.5)
+    #: first-order smoothing of the law (time constants of about 2 and 10 samples)
+    poles = (0.6, 0.9)
 
     def features(self, u: np.ndarray, ctx: FeatureContext) -> np.ndarray:
         return np.zeros((len(u), 0))
@@ -214,5 +222,7 @@ class NonlinearFeedback(Effect):
         y = np.asarray(y_model, dtype=float).reshape(-1)
         width = max(high - low, 1e-12)
         level = (y - low) / width
-        hinges = [np.maximum(level - f, 0.0) for f in self.fractions]
-        return np.nan_to_num(np.column_stack([*hinges, (level - 0.5) ** 2]))
+        law = np.clip(level, 0.0, None)[:, None] ** np.asarray(self.powers)
+        law = np.vstack([np.zeros((1, law.shape[1])), law[:-1]])  # fed back: a sample late
+        smoothed = [signal.lfilter([1.0 - p], [1.0, -p], law, axis=0) for p in self.poles]
+        return np.nan_to_num(np.column_stack(smoothed))

@@ -231,6 +231,12 @@ class StateHysteresis(nn.Module):
             k: np.asarray(v).tolist() for k, v in self.bouc_wen.export().items()}}
 
 
+def knot_fractions(n_knots: int) -> np.ndarray:
+    """Where `StaticFeedback`'s knots sit in the output's range: ``n_knots`` evenly from 10 %
+    to 85 % (one knot: the middle)."""
+    return np.linspace(0.1, 0.85, n_knots) if n_knots > 1 else np.array([0.5])
+
+
 def _lag(dynamics: StableSections) -> int:
     """0 when the dynamics delay their input (a closed loop is causal as it is), else 1."""
     return 0 if int(dynamics.delay) > 0 else 1
@@ -248,16 +254,14 @@ class StaticFeedback(nn.Module):
     ``sum_k w_k relu(level - c_k)`` less its value at rest, over the dynamics' static gain
     (so ``w`` is in the output's own units: a slope ``s`` of ``phi`` lowers the static gain
     by ``1 + s``, whatever the data's units), with knots ``c_k`` spread over the training
-    output's range (``fractions`` of it, the output over its scale) and the weights ``w``
+    output's range (`knot_fractions` of it, the output over its scale) and the weights ``w``
     from zero, so the block starts as the dynamics alone; the linear part of the law is the
     dynamics' own. Simulated with the hysteretic force, if any, in one loop
     (`hysteresis_lab.blocks.feedback`)."""
 
-    fractions = (0.1, 0.25, 0.4, 0.55, 0.7, 0.85)
-
-    def __init__(self, low: float, high: float) -> None:
+    def __init__(self, low: float, high: float, n_knots: int = 6) -> None:
         super().__init__()
-        levels = [low + f * (high - low) for f in self.fractions]
+        levels = [low + f * (high - low) for f in knot_fractions(n_knots)]
         self.weights = nn.Parameter(torch.zeros(len(levels), dtype=torch.float64))
         self.register_buffer("levels", torch.tensor(levels, dtype=torch.float64))
 
@@ -346,6 +350,7 @@ class LinearModel(PhysicalChainModule):
         fs: float = 20_000.0,
         creep_time_constants_s: Sequence[float] = (0.1, 1.0, 10.0, 100.0),
         recording_repeats: int = 10,
+        feedback_knots: int = 6,
         objective: str = "simulation",
         lr: float = 0.002,
         **kwargs: Any,
@@ -361,6 +366,10 @@ class LinearModel(PhysicalChainModule):
             problems.append(f"model.order={order!r} (poles, >= 1)")
         if not (isinstance(delay, int) and delay >= 0):
             problems.append(f"model.delay={delay!r} (whole samples >= 0)")
+        if not (isinstance(feedback_knots, int) and not isinstance(feedback_knots, bool)
+                and 1 <= feedback_knots <= 50):
+            problems.append(f"model.feedback_knots={feedback_knots!r} (knots of the "
+                            "nonlinear feedback's law, a whole number from 1 to 50)")
         if objective != "simulation":
             problems.append(f"model.objective='{objective}' (it is fitted on the simulation "
                             "error only)")
@@ -391,7 +400,7 @@ class LinearModel(PhysicalChainModule):
         self.static_feedback: nn.ModuleList | None = None
         if "nonlinear_feedback" in effects:
             self.static_feedback = nn.ModuleList(
-                nn.ModuleList(StaticFeedback(low, high) for _ in range(n_in))
+                nn.ModuleList(StaticFeedback(low, high, feedback_knots) for _ in range(n_in))
                 for low, high in extremes)
 
     def _output_extremes(self, channel: int) -> tuple[float, float]:
