@@ -7,7 +7,6 @@ import lightning as L
 import numpy as np
 import pytest
 import torch
-from narx import datamodule_for, narx_data
 from scipy import signal
 
 from hysteresis_lab.analysis.diagnosis import diagnose, evidence_lags
@@ -18,6 +17,7 @@ from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.effects.augment import augment_splits, context_to_dict, feature_context
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.training import build_model
+from narx import datamodule_for, narx_data
 
 
 @pytest.mark.parametrize("lag", [0, 1])
