@@ -47,6 +47,10 @@ class Effect:
     description: ClassVar[str] = ""
     predictable: ClassVar[bool] = True
     block: ClassVar[str] = "network"
+    #: simpler effects whose evidence overlaps this one's: the diagnosis calls it
+    #: significant only when it is also significant beyond the signals of those the model
+    #: does not carry yet
+    beyond: ClassVar[tuple[str, ...]] = ()
 
     def features(self, u: np.ndarray, ctx: FeatureContext) -> np.ndarray:
         raise NotImplementedError

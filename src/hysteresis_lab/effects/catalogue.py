@@ -200,14 +200,18 @@ class NonlinearFeedback(Effect):
     leaves a residual that follows the curvature, over the whole range), a sample late and
     smoothed by first-order filters (time constants of about 2 and 10 samples): what is fed
     back reaches the output through the dynamics. A clip at the output (`Overflow`) bends
-    the output sharply at one level and at once; these smooth curves do not, so the two are
-    told apart on simulated data (by a few points of score: the margin is small).
+    the output sharply at one level and at once; these smooth curves do not. Where the two
+    overlap the clip is the simpler explanation: this effect is significant only where it is
+    also significant beyond the overflow's signals (`beyond`).
     """
 
     name = "nonlinear_feedback"
     description = ("nonlinear feedback / level-dependent outflow (a static law of the "
                    "model's own output inside its dynamics)")
     block = "feedback"
+    #: a clip at the output is the simpler explanation of a bent output: this effect is
+    #: significant only beyond it too
+    beyond = ("overflow",)
     #: powers of the output's distance from the middle of its range
     powers = (2, 3)
     #: first-order smoothing of the law (time constants of about 2 and 10 samples)
