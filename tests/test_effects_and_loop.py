@@ -26,7 +26,7 @@ from loop_notebook import check_loop_notebook
 
 FS = 2000.0
 CATALOGUE = {"hysteresis", "creep", "resonance", "rate", "drift", "saturation", "dead_zone",
-             "backlash", "overflow"}
+             "backlash", "overflow", "nonlinear_feedback"}
 
 
 def sines() -> list[Recording]:
@@ -475,7 +475,7 @@ def test_full_and_cold_refits_run_end_to_end(setting, tmp_path):
     assert report["roles"]["diagnosis"] == ["sine_5"] and report["roles"]["test"] == ["sine_20"]
     rounds = report["rounds"]
     added = rounds[0]["added"]
-    assert added in set(available_effects()) - {"drift", "overflow"}  # an input operator
+    assert added in set(available_effects()) - {"drift", "overflow", "nonlinear_feedback"}
     assert rounds[1]["effects"] == [added]
     loss = rounds[1]["refit_validation_loss"]
     # kept only when it beats its start in training and on the held-out validation stretch

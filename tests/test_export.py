@@ -74,10 +74,13 @@ CHAIN_CASES = {
     "linear": ({"name": "linear"}, 1, 1),
     "linear_effects": ({"name": "linear", "effects": ["saturation", "dead_zone", "backlash",
                                                       "hysteresis", "creep", "resonance",
-                                                      "overflow"]}, 1, 1),
+                                                      "nonlinear_feedback", "overflow"]}, 1, 1),
+    "linear_nonlinear_feedback": ({"name": "linear", "effects": ["nonlinear_feedback"]}, 1, 1),
     "linear_mimo": ({"name": "linear", "order": 3, "delay": 0}, 3, 2),
     "linear_mimo_effects": ({"name": "linear", "order": 2,
                              "effects": ["hysteresis", "creep", "overflow"]}, 2, 2),
+    "linear_mimo_feedback": ({"name": "linear", "order": 2, "delay": 0,
+                              "effects": ["nonlinear_feedback"]}, 2, 2),
 }
 
 

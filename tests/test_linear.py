@@ -73,7 +73,7 @@ def test_an_added_effect_block_starts_where_it_changes_nothing(tmp_path):
     plain = fit(build_model({"name": "linear"}, dm, trained_on={"fs": data.fs}), dm,
                 TRAINER.with_changes(max_epochs=1), tmp_path).model
     effects = ["saturation", "dead_zone", "backlash", "hysteresis", "creep", "resonance",
-               "overflow"]
+               "nonlinear_feedback", "overflow"]
     augmented, context = augment_splits(data, effects)
     dm_grown = WindowDataModule(augmented, scaling="paper")
     grown = build_model({"name": "linear", "effects": effects}, dm_grown,
@@ -92,6 +92,13 @@ def test_an_added_effect_block_starts_where_it_changes_nothing(tmp_path):
         assert max(np.max(np.abs(a - b)) for a, b in zip(after, before, strict=True)) > 1e-3, name
         with torch.no_grad():
             grown.input_blocks[0][name].weight.zero_()
+    with torch.no_grad():  # the static feedback closes a loop around the (resonant) dynamics
+        grown.static_feedback[0][0].weights.fill_(1e-5)
+    after = free_run(grown, augmented.test, dm.window)
+    change = max(np.max(np.abs(a - b)) for a, b in zip(after, before, strict=True))
+    assert 1e-6 < change < 1.0
+    with torch.no_grad():
+        grown.static_feedback[0][0].weights.zero_()
     with torch.no_grad():  # the output block acts after the dynamics: levels inside the range
         grown.overflow[0].levels.copy_(torch.tensor([-0.1, 0.1]))
         grown.overflow[0].weights.fill_(1.0)

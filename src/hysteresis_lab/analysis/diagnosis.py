@@ -16,12 +16,17 @@ A recording with several outputs (a MIMO system) counts as one recording per out
 each output gets coefficients of its own (one law per output, shared by the recordings).
 
 An output-side effect (``Effect.block == "output"``: overflow, output clipping) acts after the
-dynamics on what the model puts out, so its candidate signals come from the model's own
+dynamics on what the model puts out (a ``"feedback"`` one, a static law of the output fed back
+into the dynamics, is read the same way), so its candidate signals come from the model's own
 free-run output (``predictions``), not from the input: a model that does not clip overshoots
 where the system clips, and its residual follows those excesses. Their baseline also holds
 the model's output (a gain error is no overflow). An effect that also acts inside the
 dynamics (`Effect.state_evidence`: hysteresis in the feedback, as a Bouc–Wen restoring
-force) adds signals of the model's output to its input-side ones.
+force) adds signals of the model's output to its input-side ones. An effect whose evidence
+overlaps a simpler one's (`Effect.beyond`: a law in the feedback overlaps a clip at the
+output) is significant only when it is also significant beyond that one's signals (its score
+stays its own), unless the model already carries the simpler one: a clip is not named a
+feedback law.
 
 Each effect is tested on the recordings that can show it. An input-dependent effect: those
 whose input moves. An input-independent one (drift): those that hold the input constant — on
@@ -52,7 +57,7 @@ import numpy as np
 from scipy import stats
 
 from hysteresis_lab.data.recording import Recording
-from hysteresis_lab.effects.base import Effect, FeatureContext
+from hysteresis_lab.effects.base import MODEL_OUTPUT_BLOCKS, Effect, FeatureContext
 from hysteresis_lab.effects.registry import available_effects, get_effect
 
 log = logging.getLogger(__name__)
@@ -421,6 +426,7 @@ class _Evidence:
     model_outputs: list[np.ndarray] | None
     #: baseline designs and blocks per (tested recordings, output-side), built on first use
     baselines: dict[tuple, tuple[list[np.ndarray], list[_Block]]]
+    declared: tuple[str, ...] = ()  # the effects the model carries
 
 
 def diagnose(
@@ -473,7 +479,7 @@ def _prepare_evidence(
                  None if model_outputs is None else model_outputs[i])
         for i, (rec, res, hold) in enumerate(zip(recordings, residuals, held, strict=True))
     ]
-    return _Evidence(recordings, outputs, prepared, held, model_outputs, {})
+    return _Evidence(recordings, outputs, prepared, held, model_outputs, {}, tuple(declared))
 
 
 def _baseline(
@@ -516,7 +522,7 @@ def _signals_of(
 ) -> list[np.ndarray]:
     """The effect's candidate signals on each single-output series: from its input, or for
     an output-side effect from the model's output (plus the state-side ones from it)."""
-    if effect.block == "output":
+    if effect.block in MODEL_OUTPUT_BLOCKS:
         assert model_outputs is not None
         return _output_evidence(effect, model_outputs, outputs)
     raw = [effect.evidence(rec.u, context) for rec in recordings]
@@ -537,13 +543,31 @@ def effect_signals(
     (every output of a recording in turn). ``predictions``: the model's free run per
     recording, which an output-side effect's signals are read from."""
     effect = get_effect(name)
-    if effect.block == "output" and predictions is None:
+    if effect.block in MODEL_OUTPUT_BLOCKS and predictions is None:
         raise ValueError(f"effect '{name}' acts on the model's output: pass its free run.")
     singles, _, outputs = _one_output_each(recordings, [r.y for r in recordings])
     model_outputs = (
         None if predictions is None else _one_output_each(recordings, predictions)[1]
     )
     return _signals_of(effect, singles, outputs, model_outputs, context)
+
+
+def _effect_design(
+    effect: Effect, evidence: _Evidence, tested: tuple[int, ...], context: FeatureContext,
+    settings: DiagnosisSettings,
+) -> list[np.ndarray]:
+    """An effect's candidate signals on the ``tested`` recordings, lagged, weighted like the
+    residual and standardised (per output, or per recording for an input-independent one)."""
+    shown = [evidence.prepared[i] for i in tested]
+    # an input-independent trend gains nothing from delayed copies of itself
+    own_lags = settings.lags if effect.predictable else (0,)
+    lagged = [
+        _centre(_lagged_rows(signal, p.keep, own_lags)) * p.weight
+        for signal, p in zip(_raw_signals(effect, evidence, tested, context), shown, strict=True)
+    ]
+    groups = ([evidence.outputs[i] for i in tested] if effect.predictable
+              else list(range(len(tested))))
+    return _standardised(_in_groups(lagged, groups))
 
 
 def _score_effect(
@@ -555,26 +579,31 @@ def _score_effect(
     tested = tuple(i for i, h in enumerate(evidence.held) if h != effect.predictable)
     if not tested:
         return _not_tested(name, effect.description, effect.predictable)
-    if effect.block == "output" and evidence.model_outputs is None:
+    if effect.block in MODEL_OUTPUT_BLOCKS and evidence.model_outputs is None:
         return _not_tested(name, effect.description, True, why=(
             "acts on the model's output: no free-run prediction was given to read it from"
         ))
     shown = [evidence.prepared[i] for i in tested]
     shown_names = [evidence.recordings[i].name for i in tested]
-    base, base_blocks = _baseline(evidence, tested, effect.block == "output", settings)
-    # an input-independent trend gains nothing from delayed copies of itself
-    own_lags = settings.lags if effect.predictable else (0,)
-    evidence_signals = [
-        _centre(_lagged_rows(signal, p.keep, own_lags)) * p.weight
-        for signal, p in zip(_raw_signals(effect, evidence, tested, context), shown, strict=True)
-    ]
-    groups = ([evidence.outputs[i] for i in tested] if effect.predictable
-              else list(range(len(tested))))
-    signals = _standardised(_in_groups(evidence_signals, groups))
+    base, base_blocks = _baseline(evidence, tested, effect.block in MODEL_OUTPUT_BLOCKS, settings)
+    signals = _effect_design(effect, evidence, tested, context, settings)
     full = [np.column_stack([b, s]) for b, s in zip(base, signals, strict=True)]
     gains = _gains(base_blocks, _blocks(shown, full, settings.folds))
     significant, p_value, how = _verdict(gains, settings.test, settings.min_score,
                                          settings.alpha, shown_names)
+    simpler_names = [other for other in effect.beyond if other not in evidence.declared]
+    if simpler_names and significant:  # and beyond the simpler explanation's signals too
+        simpler = [_effect_design(get_effect(other), evidence, tested, context, settings)
+                   for other in simpler_names]
+        wider = [np.column_stack([b, *(d[i] for d in simpler)]) for i, b in enumerate(base)]
+        with_it = [np.column_stack([b, s]) for b, s in zip(wider, signals, strict=True)]
+        left = _gains(_blocks(shown, wider, settings.folds),
+                      _blocks(shown, with_it, settings.folds))
+        significant, p_left, _ = _verdict(left, settings.test, settings.min_score,
+                                          settings.alpha, shown_names)
+        p_value = max(p_value, p_left)
+        how += (f"; beyond the signals of {', '.join(simpler_names)} "
+                f"{100 * left.score:.1f} % (p = {p_left:.2g})")
     n_all = len(evidence.recordings)
     where = "" if len(tested) == n_all else (
         f" on the {len(tested)} of {n_all} recordings that "

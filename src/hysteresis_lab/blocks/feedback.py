@@ -1,10 +1,13 @@
-"""Linear dynamics with a Bouc–Wen restoring force in their feedback: the closed loop.
+"""Linear dynamics with a Bouc–Wen restoring force and a static nonlinearity in their
+feedback: the closed loop.
 
 Model (per sample ``t``, one row)::
 
     y[t] = sum_i b_i e[t-i] - sum_{i>=1} a_i y[t-i]        (the dynamics, direct form)
     h_c[t] = advance(h_c[t-1], y[t] - y[t-1])               (Bouc–Wen states of the output)
     e[t] = x[t] - wh sum_c h_c[t - lag] - wy y[t - lag]     (the restoring force fed back)
+           - phi(y[t - lag])                                (the static feedback)
+    phi(y) = sum_k w_k (relu(y - c_k) - relu(-c_k))         (piecewise linear, phi(0) = 0)
 
 as in the Bouc–Wen oscillator ``m y'' + c y' + k y + z(y) = u`` (``z`` a Bouc–Wen state driven
 by the displacement ``y``). The Bouc–Wen update is `hysteresis_lab.sim.bouc_wen.advance`
@@ -13,7 +16,8 @@ by the displacement ``y``). The Bouc–Wen update is `hysteresis_lab.sim.bouc_we
 delayed numerator (``b_0 = 0``) the loop is causal at ``lag = 0``; otherwise the force of the
 previous sample is fed back (``lag = 1``). The forward pass and its adjoint are numba kernels
 (float64) wrapped in a `torch.autograd.Function`: exact gradients w.r.t. the input, ``b, a``,
-``wh, wy`` and the Bouc–Wen parameters.
+``wh, wy``, the Bouc–Wen parameters and the static feedback's weights ``w`` and knots ``c``
+(none: both of length 0).
 """
 
 from __future__ import annotations
@@ -35,7 +39,7 @@ JIT = {"cache": True, "error_model": "numpy"}
 @numba.njit(**JIT)
 def feedback_states(
     x: np.ndarray, b: np.ndarray, a: np.ndarray, wh: float, wy: float, lag: int,
-    ba: np.ndarray, r1: np.ndarray, r2: np.ndarray,
+    ba: np.ndarray, r1: np.ndarray, r2: np.ndarray, w: np.ndarray, knots: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The closed loop from rest: outputs ``y`` (B, T), dynamics inputs ``e`` (B, T) and
     Bouc–Wen states ``h`` (B, T, C) for inputs ``x`` (B, T); ``a[0] = 1``."""
@@ -49,7 +53,7 @@ def feedback_states(
         y_prev = 0.0
         for t in range(n_t):
             if lag == 1:
-                e[r, t] = x[r, t] - wh * hc.sum() - wy * y_prev
+                e[r, t] = x[r, t] - wh * hc.sum() - wy * y_prev - _phi(y_prev, w, knots)
             acc = 0.0
             for i in range(b.shape[0]):
                 if t - i < 0:
@@ -68,17 +72,37 @@ def feedback_states(
             h[r, t, :] = hc
             y_prev = acc
             if lag == 0:
-                e[r, t] = x[r, t] - wh * hc.sum() - wy * acc
+                e[r, t] = x[r, t] - wh * hc.sum() - wy * acc - _phi(acc, w, knots)
     return y, e, h
+
+
+@numba.njit(**JIT)
+def _phi(y: float, w: np.ndarray, c: np.ndarray) -> float:
+    """The static feedback ``sum_k w_k (relu(y - c_k) - relu(-c_k))`` (zero at rest)."""
+    out = 0.0
+    for k in range(w.shape[0]):
+        out += w[k] * (max(y - c[k], 0.0) - max(-c[k], 0.0))
+    return out
+
+
+@numba.njit(**JIT)
+def _phi_slope(y: float, w: np.ndarray, c: np.ndarray) -> float:
+    """``d phi / d y`` (the right-hand slope at a knot)."""
+    out = 0.0
+    for k in range(w.shape[0]):
+        if y > c[k]:
+            out += w[k]
+    return out
 
 
 @numba.njit(**JIT)
 def feedback_backward(
     g: np.ndarray, y: np.ndarray, e: np.ndarray, h: np.ndarray, b: np.ndarray, a: np.ndarray,
     wh: float, wy: float, lag: int, ba: np.ndarray, r1: np.ndarray, r2: np.ndarray,
+    w: np.ndarray, knots: np.ndarray,
 ) -> tuple[np.ndarray, ...]:
     """Adjoint of `feedback_states`: ``g`` (B, T) = dL/dy; returns dL/d(x, b, a, wh, wy, ba,
-    r1, r2) (``wh, wy`` as 1-element arrays)."""
+    r1, r2, w, c) (``wh, wy`` as 1-element arrays)."""
     n_b, n_t = y.shape
     n_c = ba.shape[0]
     gx = np.zeros((n_b, n_t))
@@ -89,6 +113,8 @@ def feedback_backward(
     gba = np.zeros(n_c)
     gr1 = np.zeros(n_c)
     gr2 = np.zeros(n_c)
+    gw = np.zeros(w.shape[0])
+    gc = np.zeros(knots.shape[0])
     for r in range(n_b):
         # partial derivatives of every Bouc–Wen step: d h[t] / d h[t-1], d h[t] / d y[t]
         d_h = np.ones((n_t, n_c))
@@ -128,7 +154,7 @@ def feedback_backward(
                                  if t + 1 < n_t else 0.0)
             acc = g[r, t]
             if t + lag < n_t:  # y[t] is fed back into e[t + lag]
-                acc -= wy * g_e[t + lag]
+                acc -= (wy + _phi_slope(y[r, t], w, knots)) * g_e[t + lag]
             for i in range(1, a.shape[0]):
                 if t + i >= n_t:
                     break
@@ -158,35 +184,46 @@ def feedback_backward(
             if t - lag >= 0:
                 gwh[0] -= g_e[t] * h[r, t - lag, :].sum()
                 gwy[0] -= g_e[t] * y[r, t - lag]
+            y_fed = y[r, t - lag] if t - lag >= 0 else 0.0
+            for k in range(w.shape[0]):
+                gw[k] -= g_e[t] * (max(y_fed - knots[k], 0.0) - max(-knots[k], 0.0))
+                gc[k] += g_e[t] * w[k] * ((1.0 if y_fed > knots[k] else 0.0)
+                                          - (1.0 if knots[k] < 0.0 else 0.0))
             for c in range(n_c):
                 gba[c] += g_h[t, c] * d_p[t, c, 0]
                 gr1[c] += g_h[t, c] * d_p[t, c, 1]
                 gr2[c] += g_h[t, c] * d_p[t, c, 2]
-    return gx, gb, ga, gwh, gwy, gba, gr1, gr2
+    return gx, gb, ga, gwh, gwy, gba, gr1, gr2, gw, gc
 
 
 class _FeedbackFunction(torch.autograd.Function):
-    """``y (B, T)`` from ``x (B, T), b, a, wh, wy (), ba, r1, r2 (C,)`` and the int ``lag``."""
+    """``y (B, T)`` from ``x (B, T), b, a, wh, wy (), ba, r1, r2 (C,)``, the int ``lag`` and
+    the static feedback's ``w, c (K,)``."""
 
     @staticmethod
     def forward(ctx: Any, x: Tensor, b: Tensor, a: Tensor, wh: Tensor, wy: Tensor, ba: Tensor,
-                r1: Tensor, r2: Tensor, lag: int) -> Tensor:
-        x_, b_, a_, ba_, r1_, r2_ = (to_numpy64(t) for t in (x, b, a, ba, r1, r2))
+                r1: Tensor, r2: Tensor, lag: int, w: Tensor, c: Tensor) -> Tensor:
+        x_, b_, a_, ba_, r1_, r2_, w_, c_ = (to_numpy64(t) for t in (x, b, a, ba, r1, r2, w, c))
         weights = float(wh.detach()), float(wy.detach())
-        y, e, h = feedback_states(x_, b_, a_, *weights, lag, ba_, r1_, r2_)
-        ctx.saved = (y, e, h, b_, a_, *weights, lag, ba_, r1_, r2_)
+        y, e, h = feedback_states(x_, b_, a_, *weights, lag, ba_, r1_, r2_, w_, c_)
+        ctx.saved = (y, e, h, b_, a_, *weights, lag, ba_, r1_, r2_, w_, c_)
         return from_numpy(y, x)
 
     @staticmethod
     def backward(ctx: Any, g: Tensor) -> tuple[Tensor | None, ...]:
-        gx, gb, ga, gwh, gwy, gba, gr1, gr2 = feedback_backward(to_numpy64(g), *ctx.saved)
+        gx, gb, ga, gwh, gwy, gba, gr1, gr2, gw, gc = feedback_backward(to_numpy64(g),
+                                                                        *ctx.saved)
         grads = (gx, gb, ga, gwh.reshape(()), gwy.reshape(()), gba, gr1, gr2)
-        return (*(from_numpy(gr, g) for gr in grads), None)
+        return (*(from_numpy(gr, g) for gr in grads), None, from_numpy(gw, g),
+                from_numpy(gc, g))
 
 
 def closed_loop(
     x: Tensor, b: Tensor, a: Tensor, wh: Tensor, wy: Tensor, ba: Tensor, r1: Tensor,
-    r2: Tensor, lag: int,
+    r2: Tensor, lag: int, w: Tensor | None = None, c: Tensor | None = None,
 ) -> Tensor:
-    """`feedback_states`' output ``y`` (B, T), differentiable w.r.t. every tensor argument."""
-    return _FeedbackFunction.apply(x, b, a, wh, wy, ba, r1, r2, lag)
+    """`feedback_states`' output ``y`` (B, T), differentiable w.r.t. every tensor argument;
+    ``w, c``: the static feedback's weights and knots (None: none)."""
+    if w is None or c is None:
+        w = c = torch.zeros(0, dtype=torch.float64, device=x.device)
+    return _FeedbackFunction.apply(x, b, a, wh, wy, ba, r1, r2, lag, w, c)

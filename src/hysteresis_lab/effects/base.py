@@ -21,6 +21,10 @@ class FeatureContext:
     y_high: np.ndarray | None = None
 
 
+#: blocks whose evidence is read from the model's own free-run output (`Effect.output_evidence`)
+MODEL_OUTPUT_BLOCKS = ("output", "feedback")
+
+
 class Effect:
     """A physical effect: input operators computed from ``u`` (N x nu) -> (N x k).
 
@@ -34,13 +38,19 @@ class Effect:
     one weight per operator, and the network sees the corrected input) or ``"output"`` (it
     acts after the dynamics, on the model's own output: overflow, output clipping; it has no
     input operators, only models with an output block carry it, and the diagnosis reads its
-    evidence from the model's free-run output, `output_evidence`).
+    evidence from the model's free-run output, `output_evidence`) or ``"feedback"`` (a static
+    law of the model's own output fed back into its dynamics, a Lur'e system: read like
+    ``"output"``, carried only by models with such a loop).
     """
 
     name: ClassVar[str] = ""
     description: ClassVar[str] = ""
     predictable: ClassVar[bool] = True
     block: ClassVar[str] = "network"
+    #: simpler effects whose evidence overlaps this one's: the diagnosis calls it
+    #: significant only when it is also significant beyond the signals of those the model
+    #: does not carry yet
+    beyond: ClassVar[tuple[str, ...]] = ()
 
     def features(self, u: np.ndarray, ctx: FeatureContext) -> np.ndarray:
         raise NotImplementedError

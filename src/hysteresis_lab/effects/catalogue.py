@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+from scipy import signal
 
 from hysteresis_lab.effects.base import Effect, FeatureContext
 from hysteresis_lab.effects.operators import (
@@ -184,3 +185,47 @@ class Overflow(Effect):
         upper = [np.maximum(y - (low + f * width), 0.0) for f in self.fractions]
         lower = [np.minimum(y - (high - f * width), 0.0) for f in self.fractions]
         return np.nan_to_num(np.column_stack(upper + lower))
+
+
+class NonlinearFeedback(Effect):
+    """A static nonlinearity in the dynamics' feedback (a Lur'e system): what leaves or
+    restores the system depends on its own output level as no linear law does — a tank's
+    outflow through an orifice (Torricelli, ``sqrt`` of the level), a hardening or softening
+    spring.
+
+    It has no input operators: a model carries it as the dynamics in a closed loop with a
+    function of their output (``model=linear``: piecewise linear, weights from zero, knots
+    ``model.feedback_knots``). Its evidence is the model's own free-run output's distance
+    from the middle of its range, squared and cubed (a linear law fitted to a curved one
+    leaves a residual that follows the curvature, over the whole range), a sample late and
+    smoothed by first-order filters (time constants of about 2 and 10 samples): what is fed
+    back reaches the output through the dynamics. A clip at the output (`Overflow`) bends
+    the output sharply at one level and at once; these smooth curves do not. Where the two
+    overlap the clip is the simpler explanation: this effect is significant only where it is
+    also significant beyond the overflow's signals (`beyond`).
+    """
+
+    name = "nonlinear_feedback"
+    description = ("nonlinear feedback / level-dependent outflow (a static law of the "
+                   "model's own output inside its dynamics)")
+    block = "feedback"
+    #: a clip at the output is the simpler explanation of a bent output: this effect is
+    #: significant only beyond it too
+    beyond = ("overflow",)
+    #: powers of the output's distance from the middle of its range
+    powers = (2, 3)
+    #: first-order smoothing of the law (time constants of about 2 and 10 samples)
+    poles = (0.6, 0.9)
+
+    def features(self, u: np.ndarray, ctx: FeatureContext) -> np.ndarray:
+        return np.zeros((len(u), 0))
+
+    def output_evidence(self, y_model: np.ndarray, span: tuple[float, float]) -> np.ndarray:
+        low, high = span
+        y = np.asarray(y_model, dtype=float).reshape(-1)
+        width = max(high - low, 1e-12)
+        level = (y - low) / width
+        law = (level - 0.5)[:, None] ** np.asarray(self.powers)
+        law = np.vstack([np.zeros((1, law.shape[1])), law[:-1]])  # fed back: a sample late
+        smoothed = [signal.lfilter([1.0 - p], [1.0, -p], law, axis=0) for p in self.poles]
+        return np.nan_to_num(np.column_stack(smoothed))

@@ -182,7 +182,15 @@ class NarxModule(L.LightningModule, NetworkModel):
         self, effects: Sequence[str], feature_context: dict[str, Any] | None, effect_path: str
     ) -> list[str]:
         """Where each input channel enters: "base" (measured), "network", "linear" (the linear
-        effect path) or "input" (the input block of effects with ``block = "input"``)."""
+        effect path) or "input" (the input block of effects with ``block = "input"``). An
+        effect inside the dynamics' feedback (``block = "feedback"``) has no channel and no
+        place in a network: refused."""
+        looped = [name for name in effects if get_effect(name).block == "feedback"]
+        if looped:
+            raise ConfigError(
+                f"effects {looped} act in the dynamics' 'feedback' block, which "
+                f"{type(self).__name__} does not have (it has no channel for them). Fix: "
+                "model=linear carries them, or leave them out of model.effects.")
         if self.n_base_inputs == self.nu or feature_context is None:
             return ["base"] * self.nu
         routes = ["base"] * self.n_base_inputs

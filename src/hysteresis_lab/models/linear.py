@@ -3,6 +3,7 @@ by the effect catalogue.
 
     u_j -> [saturation] -> [dead zone] -> [backlash] -> [hysteresis] -> [creep] -> x_j
     y_o = [overflow_o](sum_j dynamics_oj(x_j) (+ [resonance_oj](x_j) in parallel) + offset_o)
+    dynamics_oj in a closed loop with [hysteresis] / [nonlinear_feedback] of its output
 
 Every input channel ``j`` has its own input blocks, every output ``o`` is a sum over the
 inputs of stable linear dynamics (one transfer function per input and output, so MIMO data
@@ -22,6 +23,11 @@ refit that adds an effect starts exactly from the model it grows:
   force of their output, weighted from zero (`StateHysteresis`; per output and input pair,
   each on its own part of the output). The loop refits the whole model when it adds it
   (``whole_refit_effects``, as for the dead zone);
+* ``nonlinear_feedback``: the dynamics in a closed loop with a static function of their
+  output level (a Lur'e system: a level-dependent outflow, a nonlinear spring;
+  `StaticFeedback`), piecewise linear with weights from zero; per output and input pair,
+  in the same loop as the hysteretic force when both are declared. The loop refits the
+  whole model when it adds it;
 * ``creep``: a first-order filter bank (the grey-box's block), weights from zero;
 * ``resonance``: a second-order section in parallel with the dynamics, numerator from zero;
 * ``overflow``: ``y - w_hi relu(y - c_hi) + w_lo relu(c_lo - y)`` on each output, after the
@@ -53,7 +59,7 @@ log = logging.getLogger(__name__)
 
 #: catalogue effects the linear model carries as blocks, in physical order
 LINEAR_EFFECTS = ("saturation", "dead_zone", "backlash", "hysteresis", "creep", "resonance",
-                  "overflow")
+                  "nonlinear_feedback", "overflow")
 
 
 class _Level(nn.Module):
@@ -179,16 +185,16 @@ class StateHysteresis(nn.Module):
         beta, gamma = bw.beta, bw.gamma
         return b, a, bw.alpha * bw.d, beta - gamma, beta + gamma
 
-    @staticmethod
-    def _lag(dynamics: StableSections) -> int:
-        """0 when the dynamics delay their input (the loop is causal as it is), else 1."""
-        return 0 if int(dynamics.delay) > 0 else 1
-
-    def forward(self, dynamics: StableSections, x: torch.Tensor) -> torch.Tensor:
-        """The closed loop's output (B, T) for the dynamics' input ``x`` (B, T)."""
+    def forward(self, dynamics: StableSections, x: torch.Tensor,
+                static: StaticFeedback | None = None, offset: torch.Tensor | None = None,
+                ) -> torch.Tensor:
+        """The closed loop's output (B, T) for the dynamics' input ``x`` (B, T); ``static``:
+        a static feedback in the same loop (its knots set by the output ``offset``)."""
         b, a, ba, r1, r2 = self._coefficients(dynamics)
+        w, knots = ((None, None) if static is None
+                    else (static.loop_weights(dynamics), static.knots(offset)))
         return closed_loop(x.double(), b, a, -self.weight, self.weight * self.bouc_wen.d, ba, r1,
-                           r2, self._lag(dynamics))
+                           r2, _lag(dynamics), w, knots)
 
     def state_names(self, dynamics: StableSections) -> list[str]:
         """The step's state: past dynamics' inputs ``e`` and outputs ``y``, Bouc–Wen ``h``."""
@@ -196,20 +202,24 @@ class StateHysteresis(nn.Module):
         return ([f"e{i}" for i in range(1, b.shape[0])] + [f"y{i}" for i in range(1, a.shape[0])]
                 + [f"h{c}" for c in range(self.n_channels)])
 
-    def step(self, dynamics: StableSections, x: torch.Tensor, state: StepState) -> torch.Tensor:
+    def step(self, dynamics: StableSections, x: torch.Tensor, state: StepState,
+             static: StaticFeedback | None = None, offset: torch.Tensor | None = None,
+             ) -> torch.Tensor:
         """One sample of `forward`: ``x`` (B,) -> ``y`` (B,); state: the past dynamics'
         inputs and outputs (newest first) and the Bouc–Wen states."""
         b, a, ba, r1, r2, weight, d = frozen(*self._coefficients(dynamics), self.weight,
                                              self.bouc_wen.d)
+        phi = _no_feedback if static is None else static.function(dynamics, offset)
         past_e = state.take(b.shape[0] - 1)
         past_y = state.take(a.shape[0] - 1)
         h = state.take(self.n_channels)
-        lag = self._lag(dynamics)
-        e = x - weight * (d * past_y[:, 0] - h.sum(dim=1)) if lag else torch.zeros_like(x)
+        lag = _lag(dynamics)
+        e = (x - weight * (d * past_y[:, 0] - h.sum(dim=1)) - phi(past_y[:, 0]) if lag
+             else torch.zeros_like(x))
         y = b[0] * e + past_e @ b[1:] - past_y @ a[1:]
         h = bouc_wen_advance(h, (y - past_y[:, 0])[:, None], ba[None], r1[None], r2[None])
         if not lag:
-            e = x - weight * (d * y - h.sum(dim=1))
+            e = x - weight * (d * y - h.sum(dim=1)) - phi(y)
         state.put(torch.cat([e[:, None], past_e[:, :-1]], dim=1))
         state.put(torch.cat([y[:, None], past_y[:, :-1]], dim=1))
         state.put(h)
@@ -219,6 +229,101 @@ class StateHysteresis(nn.Module):
         """The weight and the Bouc–Wen parameters."""
         return {"weight": float(self.weight.detach()), **{
             k: np.asarray(v).tolist() for k, v in self.bouc_wen.export().items()}}
+
+
+def knot_fractions(n_knots: int) -> np.ndarray:
+    """Where `StaticFeedback`'s knots sit in the output's range: ``n_knots`` evenly from 10 %
+    to 85 % (one knot: the middle)."""
+    return np.linspace(0.1, 0.85, n_knots) if n_knots > 1 else np.array([0.5])
+
+
+def _lag(dynamics: StableSections) -> int:
+    """0 when the dynamics delay their input (a closed loop is causal as it is), else 1."""
+    return 0 if int(dynamics.delay) > 0 else 1
+
+
+def _no_feedback(y: torch.Tensor) -> torch.Tensor:
+    return torch.zeros_like(y)
+
+
+class StaticFeedback(nn.Module):
+    """A static nonlinearity in the dynamics' feedback (a Lur'e system): the dynamics in a
+    closed loop with a function of their own output level, ``e = x - phi(y + offset)``,
+    ``y = dynamics(e)`` — an outflow that grows with the level as no linear law does
+    (Torricelli's ``sqrt``), a hardening or softening spring. ``phi`` is piecewise linear,
+    ``sum_k w_k relu(level - c_k)`` less its value at rest, over the dynamics' static gain
+    (so ``w`` is in the output's own units: a slope ``s`` of ``phi`` lowers the static gain
+    by ``1 + s``, whatever the data's units), with knots ``c_k`` spread over the training
+    output's range (`knot_fractions` of it, the output over its scale) and the weights ``w``
+    from zero, so the block starts as the dynamics alone; the linear part of the law is the
+    dynamics' own. Simulated with the hysteretic force, if any, in one loop
+    (`hysteresis_lab.blocks.feedback`)."""
+
+    def __init__(self, low: float, high: float, n_knots: int = 6) -> None:
+        super().__init__()
+        levels = [low + f * (high - low) for f in knot_fractions(n_knots)]
+        self.weights = nn.Parameter(torch.zeros(len(levels), dtype=torch.float64))
+        self.register_buffer("levels", torch.tensor(levels, dtype=torch.float64))
+
+    def knots(self, offset: torch.Tensor) -> torch.Tensor:
+        """The knots on the dynamics' output (the levels less the output ``offset``)."""
+        return self.levels - offset
+
+    def loop_weights(self, dynamics: StableSections) -> torch.Tensor:
+        """The weights over the dynamics' static gain ``b(1) / a(1)`` (kept at least
+        ``1e-6`` in size): what the loop feeds back into the dynamics' input."""
+        b, a = dynamics.polynomials()
+        gain = b.sum() / a.sum()
+        sign = torch.where(gain < 0, -1.0, 1.0).to(gain)
+        return self.weights / (sign * torch.clamp(gain.abs(), min=1e-6))
+
+    def function(self, dynamics: StableSections, offset: torch.Tensor) -> Any:
+        """``phi`` on the dynamics' output as the loop feeds it back, (B,) -> (B,), zero at
+        rest."""
+        weights, knots = frozen(self.loop_weights(dynamics), self.knots(offset))
+
+        def phi(y: torch.Tensor) -> torch.Tensor:
+            hinges = torch.relu(y[:, None] - knots) - torch.relu(-knots)
+            return hinges @ weights
+
+        return phi
+
+    def forward(self, dynamics: StableSections, x: torch.Tensor,
+                offset: torch.Tensor) -> torch.Tensor:
+        """The closed loop's output (B, T) for the dynamics' input ``x`` (B, T)."""
+        b, a = dynamics.polynomials()
+        none = torch.zeros(0, dtype=torch.float64, device=x.device)
+        zero = torch.zeros((), dtype=torch.float64, device=x.device)
+        return closed_loop(x.double(), b, a, zero, zero, none, none, none, _lag(dynamics),
+                           self.loop_weights(dynamics), self.knots(offset))
+
+    @staticmethod
+    def state_names(dynamics: StableSections) -> list[str]:
+        """The step's state: past dynamics' inputs ``e`` and outputs ``y``."""
+        b, a = dynamics.polynomials()
+        return [f"e{i}" for i in range(1, b.shape[0])] + [f"y{i}" for i in range(1, a.shape[0])]
+
+    def step(self, dynamics: StableSections, x: torch.Tensor, state: StepState,
+             offset: torch.Tensor) -> torch.Tensor:
+        """One sample of `forward`: ``x`` (B,) -> ``y`` (B,); state: the past dynamics'
+        inputs and outputs (newest first)."""
+        b, a = frozen(*dynamics.polynomials())
+        phi = self.function(dynamics, offset)
+        past_e = state.take(b.shape[0] - 1)
+        past_y = state.take(a.shape[0] - 1)
+        lag = _lag(dynamics)
+        e = x - phi(past_y[:, 0]) if lag else torch.zeros_like(x)
+        y = b[0] * e + past_e @ b[1:] - past_y @ a[1:]
+        if not lag:
+            e = x - phi(y)
+        state.put(torch.cat([e[:, None], past_e[:, :-1]], dim=1))
+        state.put(torch.cat([y[:, None], past_y[:, :-1]], dim=1))
+        return y
+
+    def export(self) -> dict[str, Any]:
+        """The weights and the levels of the knots (the output over its scale)."""
+        return {"weights": self.weights.detach().cpu().numpy().tolist(),
+                "levels": self.levels.cpu().numpy().tolist()}
 
 
 def _pairs(n_out: int, n_in: int, make: Any) -> nn.ModuleList:
@@ -232,8 +337,9 @@ class LinearModel(PhysicalChainModule):
     carried_effects = LINEAR_EFFECTS
     #: a dead zone takes a band off every input (a linear fit meets the lost output with a
     #: lower gain, which a block-only refit cannot give back); hysteresis closes a restoring
-    #: force around the dynamics: the loop refits the whole model when it adds either
-    whole_refit_effects = ("dead_zone", "hysteresis")
+    #: force around the dynamics, a nonlinear feedback a static law: the loop refits the
+    #: whole model when it adds any of them
+    whole_refit_effects = ("dead_zone", "hysteresis", "nonlinear_feedback")
 
     def __init__(
         self,
@@ -244,6 +350,7 @@ class LinearModel(PhysicalChainModule):
         fs: float = 20_000.0,
         creep_time_constants_s: Sequence[float] = (0.1, 1.0, 10.0, 100.0),
         recording_repeats: int = 10,
+        feedback_knots: int = 6,
         objective: str = "simulation",
         lr: float = 0.002,
         **kwargs: Any,
@@ -259,6 +366,10 @@ class LinearModel(PhysicalChainModule):
             problems.append(f"model.order={order!r} (poles, >= 1)")
         if not (isinstance(delay, int) and delay >= 0):
             problems.append(f"model.delay={delay!r} (whole samples >= 0)")
+        if not (isinstance(feedback_knots, int) and not isinstance(feedback_knots, bool)
+                and 1 <= feedback_knots <= 50):
+            problems.append(f"model.feedback_knots={feedback_knots!r} (knots of the "
+                            "nonlinear feedback's law, a whole number from 1 to 50)")
         if objective != "simulation":
             problems.append(f"model.objective='{objective}' (it is fitted on the simulation "
                             "error only)")
@@ -285,6 +396,11 @@ class LinearModel(PhysicalChainModule):
         if "hysteresis" in effects:
             self.state_hysteresis = nn.ModuleList(
                 nn.ModuleList(StateHysteresis(high - low) for _ in range(n_in))
+                for low, high in extremes)
+        self.static_feedback: nn.ModuleList | None = None
+        if "nonlinear_feedback" in effects:
+            self.static_feedback = nn.ModuleList(
+                nn.ModuleList(StaticFeedback(low, high, feedback_knots) for _ in range(n_in))
                 for low, high in extremes)
 
     def _output_extremes(self, channel: int) -> tuple[float, float]:
@@ -341,17 +457,46 @@ class LinearModel(PhysicalChainModule):
         xs = [self._input_path(v[..., j], j) for j in range(self.n_base_inputs)]
         outputs = []
         for o in range(self.ny):
-            if self.state_hysteresis is not None:  # the dynamics in a hysteretic loop
-                y = sum(self.state_hysteresis[o][j](self.dynamics[o][j], x)
-                        for j, x in enumerate(xs))
-            else:
-                y = sum(self.dynamics[o][j](x) for j, x in enumerate(xs))
+            y = sum(self._dynamics_path(o, j, x) for j, x in enumerate(xs))
             if self.resonance is not None:
                 y = y + sum(self.resonance[o][j](x) for j, x in enumerate(xs))
             if self.overflow is not None:  # on the output itself, offset included
                 y = self.overflow[o](y + self.offset[o]) - self.offset[o]
             outputs.append(y)
         return torch.stack(outputs, dim=-1)
+
+    def _dynamics_path(self, o: int, j: int, x: torch.Tensor) -> torch.Tensor:
+        """The dynamics of pair ``(o, j)`` on ``x`` (B, T), in a closed loop with the
+        hysteretic force and/or the static feedback where declared."""
+        dynamics = self.dynamics[o][j]
+        static = None if self.static_feedback is None else self.static_feedback[o][j]
+        if self.state_hysteresis is not None:
+            return self.state_hysteresis[o][j](dynamics, x, static, self.offset[o])
+        if static is not None:
+            return static(dynamics, x, self.offset[o])
+        return dynamics(x)
+
+    def _dynamics_step(self, o: int, j: int, x: torch.Tensor, state: StepState) -> torch.Tensor:
+        """One sample of `_dynamics_path`."""
+        dynamics = self.dynamics[o][j]
+        static = None if self.static_feedback is None else self.static_feedback[o][j]
+        offset = frozen(self.offset)[0][o]
+        if self.state_hysteresis is not None:
+            return self.state_hysteresis[o][j].step(dynamics, x, state, static, offset)
+        if static is not None:
+            return static.step(dynamics, x, state, offset)
+        return dynamics.step(x, state)
+
+    def _dynamics_state_names(self, o: int, j: int) -> list[str]:
+        """The state of `_dynamics_step` for pair ``(o, j)``."""
+        dynamics = self.dynamics[o][j]
+        if self.state_hysteresis is not None:
+            return [f"state_hysteresis{o}{j}.{part}"
+                    for part in self.state_hysteresis[o][j].state_names(dynamics)]
+        if self.static_feedback is not None:
+            return [f"static_feedback{o}{j}.{part}"
+                    for part in StaticFeedback.state_names(dynamics)]
+        return [f"dynamics{o}{j}.{part}" for part in dynamics.state_names()]
 
     def state_names(self) -> list[str]:
         """Per input: its blocks' states (backlash: the play output; hysteresis: previous
@@ -365,13 +510,7 @@ class LinearModel(PhysicalChainModule):
                 names += [f"input{j}.creep.{part}" for part in self.creep[j].state_names()]
         for o in range(self.ny):
             n_in = self.n_base_inputs
-            if self.state_hysteresis is not None:
-                names += [f"state_hysteresis{o}{j}.{part}" for j in range(n_in)
-                          for part in self.state_hysteresis[o][j].state_names(
-                              self.dynamics[o][j])]
-            else:
-                names += [f"dynamics{o}{j}.{part}" for j in range(n_in)
-                          for part in self.dynamics[o][j].state_names()]
+            names += [name for j in range(n_in) for name in self._dynamics_state_names(o, j)]
             if self.resonance is not None:
                 names += [f"resonance{o}{j}.{part}" for j in range(n_in)
                           for part in self.resonance[o][j].state_names()]
@@ -388,11 +527,7 @@ class LinearModel(PhysicalChainModule):
             xs.append(x)
         outputs = []
         for o in range(self.ny):  # the blocks in the order of `state_names`
-            if self.state_hysteresis is not None:
-                y = sum(self.state_hysteresis[o][j].step(self.dynamics[o][j], x, state)
-                        for j, x in enumerate(xs))
-            else:
-                y = sum(self.dynamics[o][j].step(x, state) for j, x in enumerate(xs))
+            y = sum(self._dynamics_step(o, j, x, state) for j, x in enumerate(xs))
             if self.resonance is not None:
                 y = y + sum(self.resonance[o][j].step(x, state) for j, x in enumerate(xs))
             if self.overflow is not None:
@@ -498,6 +633,9 @@ class LinearModel(PhysicalChainModule):
             if self.state_hysteresis is not None:
                 out["state_hysteresis"] = [[block.export() for block in row]
                                            for row in self.state_hysteresis]
+            if self.static_feedback is not None:
+                out["static_feedback"] = [[block.export() for block in row]
+                                          for row in self.static_feedback]
             if self.overflow is not None:
                 out["overflow"] = [{k: v.detach().cpu().numpy().tolist()
                                     for k, v in block.named_parameters()}

@@ -36,7 +36,7 @@ from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.effects.augment import feature_context, for_model
-from hysteresis_lab.effects.base import FeatureContext
+from hysteresis_lab.effects.base import MODEL_OUTPUT_BLOCKS, FeatureContext
 from hysteresis_lab.effects.registry import get_effect
 from hysteresis_lab.errors import ConfigError, DivergedError, HysteresisLabError
 from hysteresis_lab.evaluation.evaluate import scoring_start
@@ -350,7 +350,7 @@ def _choose_next_effect(run: _LoopRun, state: _LoopState, entry: dict[str, Any])
         return False
     entry["added"] = state.trying = top.effect
     state.tried.add(top.effect)
-    if get_effect(top.effect).block == "output":  # no input operators to compare
+    if get_effect(top.effect).block in MODEL_OUTPUT_BLOCKS:  # no input operators to compare
         log.info("'%s' added (it acts on the model's output)", top.effect)
         return True
     fit = run.data.fit
@@ -529,7 +529,9 @@ def _not_carried(
     carried = getattr(model.cls, "carried_effects", None)
 
     def carries(effect: str) -> bool:
-        return effect in carried if carried is not None else get_effect(effect).block != "output"
+        if carried is not None:
+            return effect in carried
+        return get_effect(effect).block not in MODEL_OUTPUT_BLOCKS
 
     return [d.effect for d in diagnosis
             if d.significant and d.predictable and d.effect not in tried
@@ -720,13 +722,14 @@ def _refit_loss(result: RunResult) -> float:
 def _refit_mode(refit: str, added: str | None, model_cls: type | None = None) -> str:
     """``refit``, except for an effect that enters through the input block (it changes what
     the fitted network sees, the corrected input) or acts on the output (the gain a fit
-    lowered to meet a clipped output comes back under the clip), or one the model class
+    lowered to meet a clipped output comes back under the clip) or in its feedback, or one
+    the model class
     names in ``whole_refit_effects`` (a dead zone ahead of linear dynamics, a restoring force
     in their feedback): the model refits whole."""
     if refit != "new_inputs" or added is None:
         return refit
     block = get_effect(added).block
-    if block in ("input", "output"):
+    if block in ("input", *MODEL_OUTPUT_BLOCKS):
         log.info("'%s' acts on the model's %s: the whole model refits", added, block)
         return "full"
     if added in getattr(model_cls, "whole_refit_effects", ()):
