@@ -160,7 +160,22 @@ class Backlash(Effect):
         )
 
 
-class Overflow(Effect):
+class _ReadFromModelOutput(Effect):
+    """An effect with no input operators whose evidence is the model's own free-run output
+    (`Effect.output_evidence`), placed on its training range."""
+
+    def features(self, u: np.ndarray, ctx: FeatureContext) -> np.ndarray:
+        return np.zeros((len(u), 0))
+
+    @staticmethod
+    def _on_range(y_model: np.ndarray, span: tuple[float, float]) -> tuple[np.ndarray, float,
+                                                                            float]:
+        """The output as a 1-D array, the range's low end and its width."""
+        low, high = span
+        return np.asarray(y_model, dtype=float).reshape(-1), low, max(high - low, 1e-12)
+
+
+class Overflow(_ReadFromModelOutput):
     """Output saturation / overflow: the output cannot pass a level (a tank overflows, a
     sensor or an amplifier stage clips), after the dynamics.
 
@@ -175,19 +190,15 @@ class Overflow(Effect):
     block = "output"
     fractions = np.array([0.7, 0.8, 0.9, 0.95])
 
-    def features(self, u: np.ndarray, ctx: FeatureContext) -> np.ndarray:
-        return np.zeros((len(u), 0))
-
     def output_evidence(self, y_model: np.ndarray, span: tuple[float, float]) -> np.ndarray:
-        low, high = span
-        y = np.asarray(y_model, dtype=float).reshape(-1)
-        width = max(high - low, 1e-12)
+        y, low, width = self._on_range(y_model, span)
+        high = low + width
         upper = [np.maximum(y - (low + f * width), 0.0) for f in self.fractions]
         lower = [np.minimum(y - (high - f * width), 0.0) for f in self.fractions]
         return np.nan_to_num(np.column_stack(upper + lower))
 
 
-class NonlinearFeedback(Effect):
+class NonlinearFeedback(_ReadFromModelOutput):
     """A static nonlinearity in the dynamics' feedback (a Lur'e system): what leaves or
     restores the system depends on its own output level as no linear law does — a tank's
     outflow through an orifice (Torricelli, ``sqrt`` of the level), a hardening or softening
@@ -217,13 +228,8 @@ class NonlinearFeedback(Effect):
     #: first-order smoothing of the law (time constants of about 2 and 10 samples)
     poles = (0.6, 0.9)
 
-    def features(self, u: np.ndarray, ctx: FeatureContext) -> np.ndarray:
-        return np.zeros((len(u), 0))
-
     def output_evidence(self, y_model: np.ndarray, span: tuple[float, float]) -> np.ndarray:
-        low, high = span
-        y = np.asarray(y_model, dtype=float).reshape(-1)
-        width = max(high - low, 1e-12)
+        y, low, width = self._on_range(y_model, span)
         level = (y - low) / width
         law = (level - 0.5)[:, None] ** np.asarray(self.powers)
         law = np.vstack([np.zeros((1, law.shape[1])), law[:-1]])  # fed back: a sample late
