@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import logging
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -198,9 +198,7 @@ class StateHysteresis(nn.Module):
 
     def state_names(self, dynamics: StableSections) -> list[str]:
         """The step's state: past dynamics' inputs ``e`` and outputs ``y``, Bouc–Wen ``h``."""
-        b, a = dynamics.polynomials()
-        return ([f"e{i}" for i in range(1, b.shape[0])] + [f"y{i}" for i in range(1, a.shape[0])]
-                + [f"h{c}" for c in range(self.n_channels)])
+        return _loop_state_names(dynamics) + [f"h{c}" for c in range(self.n_channels)]
 
     def step(self, dynamics: StableSections, x: torch.Tensor, state: StepState,
              static: StaticFeedback | None = None, offset: torch.Tensor | None = None,
@@ -210,20 +208,14 @@ class StateHysteresis(nn.Module):
         b, a, ba, r1, r2, weight, d = frozen(*self._coefficients(dynamics), self.weight,
                                              self.bouc_wen.d)
         phi = _no_feedback if static is None else static.function(dynamics, offset)
-        past_e = state.take(b.shape[0] - 1)
-        past_y = state.take(a.shape[0] - 1)
-        h = state.take(self.n_channels)
-        lag = _lag(dynamics)
-        e = (x - weight * (d * past_y[:, 0] - h.sum(dim=1)) - phi(past_y[:, 0]) if lag
-             else torch.zeros_like(x))
-        y = b[0] * e + past_e @ b[1:] - past_y @ a[1:]
-        h = bouc_wen_advance(h, (y - past_y[:, 0])[:, None], ba[None], r1[None], r2[None])
-        if not lag:
-            e = x - weight * (d * y - h.sum(dim=1)) - phi(y)
-        state.put(torch.cat([e[:, None], past_e[:, :-1]], dim=1))
-        state.put(torch.cat([y[:, None], past_y[:, :-1]], dim=1))
-        state.put(h)
-        return y
+
+        def force(y: torch.Tensor, h: torch.Tensor) -> torch.Tensor:
+            return weight * (d * y - h.sum(dim=1)) + phi(y)
+
+        def advance(h: torch.Tensor, dy: torch.Tensor) -> torch.Tensor:
+            return bouc_wen_advance(h, dy[:, None], ba[None], r1[None], r2[None])
+
+        return _loop_step(b, a, _lag(dynamics), x, state, force, self.n_channels, advance)
 
     def export(self) -> dict[str, Any]:
         """The weight and the Bouc–Wen parameters."""
@@ -244,6 +236,37 @@ def _lag(dynamics: StableSections) -> int:
 
 def _no_feedback(y: torch.Tensor) -> torch.Tensor:
     return torch.zeros_like(y)
+
+
+def _loop_state_names(dynamics: StableSections) -> list[str]:
+    """A closed loop's step state: past dynamics' inputs ``e`` and outputs ``y``."""
+    b, a = dynamics.polynomials()
+    return [f"e{i}" for i in range(1, b.shape[0])] + [f"y{i}" for i in range(1, a.shape[0])]
+
+
+def _loop_step(
+    b: torch.Tensor, a: torch.Tensor, lag: int, x: torch.Tensor, state: StepState,
+    force: Callable[[torch.Tensor, torch.Tensor | None], torch.Tensor],
+    n_hidden: int = 0,
+    advance: Callable[[torch.Tensor, torch.Tensor], torch.Tensor] | None = None,
+) -> torch.Tensor:
+    """One sample of the dynamics ``b, a`` in a closed loop, ``e = x - force(y_fed, h)``,
+    ``x`` (B,) -> ``y`` (B,); state: the past ``e`` and ``y`` (newest first), then
+    ``n_hidden`` states ``h`` of the force that ``advance(h, y - y_prev)`` moves on."""
+    past_e = state.take(b.shape[0] - 1)
+    past_y = state.take(a.shape[0] - 1)
+    h = state.take(n_hidden) if n_hidden else None
+    e = x - force(past_y[:, 0], h) if lag else torch.zeros_like(x)
+    y = b[0] * e + past_e @ b[1:] - past_y @ a[1:]
+    if advance is not None:
+        h = advance(h, y - past_y[:, 0])
+    if not lag:
+        e = x - force(y, h)
+    state.put(torch.cat([e[:, None], past_e[:, :-1]], dim=1))
+    state.put(torch.cat([y[:, None], past_y[:, :-1]], dim=1))
+    if h is not None:
+        state.put(h)
+    return y
 
 
 class StaticFeedback(nn.Module):
@@ -300,8 +323,7 @@ class StaticFeedback(nn.Module):
     @staticmethod
     def state_names(dynamics: StableSections) -> list[str]:
         """The step's state: past dynamics' inputs ``e`` and outputs ``y``."""
-        b, a = dynamics.polynomials()
-        return [f"e{i}" for i in range(1, b.shape[0])] + [f"y{i}" for i in range(1, a.shape[0])]
+        return _loop_state_names(dynamics)
 
     def step(self, dynamics: StableSections, x: torch.Tensor, state: StepState,
              offset: torch.Tensor) -> torch.Tensor:
@@ -309,16 +331,7 @@ class StaticFeedback(nn.Module):
         inputs and outputs (newest first)."""
         b, a = frozen(*dynamics.polynomials())
         phi = self.function(dynamics, offset)
-        past_e = state.take(b.shape[0] - 1)
-        past_y = state.take(a.shape[0] - 1)
-        lag = _lag(dynamics)
-        e = x - phi(past_y[:, 0]) if lag else torch.zeros_like(x)
-        y = b[0] * e + past_e @ b[1:] - past_y @ a[1:]
-        if not lag:
-            e = x - phi(y)
-        state.put(torch.cat([e[:, None], past_e[:, :-1]], dim=1))
-        state.put(torch.cat([y[:, None], past_y[:, :-1]], dim=1))
-        return y
+        return _loop_step(b, a, _lag(dynamics), x, state, lambda y, _h: phi(y))
 
     def export(self) -> dict[str, Any]:
         """The weights and the levels of the knots (the output over its scale)."""
