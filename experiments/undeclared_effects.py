@@ -10,7 +10,8 @@ nonlinear blocks (Bouc–Wen hysteresis, creep) are switched off, so the effect 
 the only one beyond linear dynamics (amplifier, delay, first bending mode). Rate dependence
 modulates the Bouc–Wen loop, so there the hysteresis stays on and the start declares it.
 Everything else is the loop's default but ``loop.max_rounds=1``: only round 0's diagnosis
-and the refit that adds its choice are judged here. The drift case also
+and the refit it leads to are judged here (the loop tries the significant effects best first
+and keeps the first refit that wins on held-out validation; `judged_refit`). The drift case also
 diagnoses a 10 s recording that holds the input at 0 V (``data.splits.test_hold_s=10
 data.diagnose=[hold_10s]``): on a moving input a trend cannot be told apart from slow
 input-driven error.
@@ -122,6 +123,14 @@ def verdict(row: dict) -> str:
     return "FAIL: " + "; ".join(failures) if failures else "PASS"
 
 
+def judged_refit(rounds: list[dict]) -> dict:
+    """The refit that round 0's diagnosis led to: the loop tries its significant effects best
+    first, dropping each refit that loses on held-out validation, and keeps the first that
+    wins; that one is judged, or, where none won, the first (rejected) refit."""
+    refits = rounds[1:]
+    return next((r for r in refits if not r.get("rejected")), refits[0])
+
+
 def _why_not_refitted(first: dict, report: dict) -> str:
     if first.get("not_carried"):
         return f"model=linear has no block for {first['not_carried']}"
@@ -156,9 +165,12 @@ def run_case(name: str, root: Path, rounds: int) -> dict:
         "before": {t: m["rmse_free_run"] for t, m in first["tests"].items()},
     }
     if len(report["rounds"]) > 1 and first.get("added"):
-        after = report["rounds"][1]
+        after = judged_refit(report["rounds"])
         refit = after.get("rejected_refit", after) if after.get("rejected") else after
         row["rejected"] = bool(after.get("rejected"))
+        row["kept_effect"] = (after["effects"] or [None])[-1] if not row["rejected"] else None
+        row["tried"] = [r["rejected"] if r.get("rejected") else r["effects"][-1]
+                        for r in report["rounds"][1:] if r["effects"]]
         row["after"] = {t: m["rmse_free_run"] for t, m in refit["tests"].items()}
         # a rejected refit claims no gain: the last model stands
         row["change_pct"] = (change_pct(first, after) if not after.get("rejected")
@@ -214,7 +226,9 @@ def table(rows: list[dict]) -> str:
         "simulator's hysteresis and creep off but where under test (rate: hysteresis on), "
         "so each case has one effect beyond linear dynamics; default loop settings but "
         "`loop.max_rounds=1` (round 0's "
-        "diagnosis and its refit are what is judged). Rule: named as the top significant "
+        "diagnosis and the refit it leads to are what is judged: the loop tries the "
+        "significant effects best first and keeps the first refit that wins on held-out "
+        "validation). Rule: named as the top significant "
         "effect where its own output holds ≥ 5 % (`loop.min_score`) of the round-0 "
         "diagnosis residual; the refit takes at least half the ceiling off every test "
         "where the effect acts (> 0.05 µm RMS); no other test > 5 % worse; drift named, "
@@ -232,6 +246,9 @@ def table(rows: list[dict]) -> str:
         top = (f"{r['top']} ({100 * r['top_score']:.1f} %)" if r["significant"]
                else "none significant")
         kept = ("–" if "after" not in r else "no (rejected)" if r["rejected"] else "yes")
+        dropped = [e for e in r.get("tried", []) if e != r.get("kept_effect")]
+        if r.get("kept_effect") and dropped:
+            kept = f"yes: {r['kept_effect']} ({', '.join(dropped)} dropped)"
         lines.append(
             f"| {r['case']} | {top} | {'/'.join(r['expected'])} "
             f"{100 * r['expected_score']:.1f} % | {100 * r['effect_share_max']:.1f} % "

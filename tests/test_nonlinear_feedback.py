@@ -131,10 +131,15 @@ def test_the_knots_spread_over_the_output_range():
     np.testing.assert_allclose(levels, low + np.array([0.1, 0.475, 0.85]) * (high - low))
 
 
-def test_a_network_model_refuses_it():
+@pytest.mark.parametrize("model", ["ffnn", "subnet", "svm"])
+@pytest.mark.parametrize(("effect", "block"), [("nonlinear_feedback", "'feedback' block"),
+                                               ("overflow", "'output' block")])
+def test_a_network_model_refuses_it(effect, block, model):
+    """Effects on the model's own output have no channel into a network: refused, not
+    silently dropped."""
     splits = narx_data(n=300)
-    augmented, context = augment_splits(splits, ["nonlinear_feedback"])
-    with pytest.raises(ConfigError, match="'feedback' block"):
-        build_model({"name": "ffnn", "effects": ["nonlinear_feedback"]},
-                    datamodule_for("ffnn", augmented), feature_context=context_to_dict(context),
+    augmented, context = augment_splits(splits, [effect])
+    with pytest.raises(ConfigError, match=block):
+        build_model({"name": model, "effects": [effect]},
+                    datamodule_for(model, augmented), feature_context=context_to_dict(context),
                     n_base_inputs=1)

@@ -8,11 +8,15 @@ from pathlib import Path
 SCRIPT = Path(__file__).resolve().parents[1] / "experiments" / "undeclared_effects.py"
 
 
-def _verdict(row: dict) -> str:
+def _script():
     spec = importlib.util.spec_from_file_location("undeclared_effects", SCRIPT)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
-    return module.verdict(row)
+    return module
+
+
+def _verdict(row: dict) -> str:
+    return _script().verdict(row)
 
 
 def _row(share: float, ceilings: dict[str, float]) -> dict:
@@ -33,3 +37,15 @@ def test_an_effect_the_diagnosis_cannot_see_is_no_pass():
     is a failure."""
     assert _verdict(_row(0.001, {"sine_0.1Hz": 98.0})).startswith("n/a")
     assert _verdict(_row(0.5, {"sine_0.1Hz": 1.0})).startswith("FAIL")
+
+
+def test_the_refit_judged_is_the_first_the_loop_keeps():
+    """Round 0 adds hysteresis, which loses on held-out data; the loop then tries backlash and
+    keeps it: the backlash refit is what round 0's diagnosis led to. Where every refit lost,
+    the first one tried is shown (as rejected)."""
+    judged = _script().judged_refit
+    start = {"effects": []}
+    dropped = {"effects": ["hysteresis"], "rejected": "hysteresis"}
+    kept = {"effects": ["backlash"]}
+    assert judged([start, dropped, kept]) is kept
+    assert judged([start, dropped, {"effects": ["backlash"], "rejected": "backlash"}]) is dropped

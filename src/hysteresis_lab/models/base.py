@@ -44,6 +44,7 @@ from hysteresis_lab.models.settings import (
     TrainingSettings,
     as_effect_names,
     check_channels,
+    refuse_output_effects,
 )
 
 log = logging.getLogger(__name__)
@@ -183,14 +184,9 @@ class NarxModule(L.LightningModule, NetworkModel):
     ) -> list[str]:
         """Where each input channel enters: "base" (measured), "network", "linear" (the linear
         effect path) or "input" (the input block of effects with ``block = "input"``). An
-        effect inside the dynamics' feedback (``block = "feedback"``) has no channel and no
-        place in a network: refused."""
-        looped = [name for name in effects if get_effect(name).block == "feedback"]
-        if looped:
-            raise ConfigError(
-                f"effects {looped} act in the dynamics' 'feedback' block, which "
-                f"{type(self).__name__} does not have (it has no channel for them). Fix: "
-                "model=linear carries them, or leave them out of model.effects.")
+        effect on the model's own output (``block = "output"``, after the dynamics, or
+        ``"feedback"``, inside them) has no channel and no place in a network: refused."""
+        refuse_output_effects(effects, type(self).__name__)
         if self.n_base_inputs == self.nu or feature_context is None:
             return ["base"] * self.nu
         routes = ["base"] * self.n_base_inputs

@@ -348,11 +348,12 @@ class LinearModel(PhysicalChainModule):
     """Stable linear dynamics with the declared effects' blocks (see the module docstring)."""
 
     carried_effects = LINEAR_EFFECTS
-    #: a dead zone takes a band off every input (a linear fit meets the lost output with a
-    #: lower gain, which a block-only refit cannot give back); hysteresis closes a restoring
-    #: force around the dynamics, a nonlinear feedback a static law: the loop refits the
-    #: whole model when it adds any of them
-    whole_refit_effects = ("dead_zone", "hysteresis", "nonlinear_feedback")
+    #: a dead zone takes a band off every input and a backlash its play off every reversal (a
+    #: linear fit meets the lost output with a lower gain and a lag, which a block-only refit
+    #: cannot give back); hysteresis closes a restoring force around the dynamics, a
+    #: nonlinear feedback a static law: the loop refits the whole model when it adds any of
+    #: them
+    whole_refit_effects = ("dead_zone", "backlash", "hysteresis", "nonlinear_feedback")
 
     def __init__(
         self,

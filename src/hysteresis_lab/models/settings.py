@@ -11,7 +11,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from hysteresis_lab.effects.registry import check_effects
+from hysteresis_lab.effects.base import MODEL_OUTPUT_BLOCKS
+from hysteresis_lab.effects.registry import check_effects, get_effect
 from hysteresis_lab.errors import ConfigError
 
 LR_SCHEDULES = ("cosine", "plateau", "none")
@@ -147,3 +148,17 @@ def check_objective(
 def as_effect_names(effects: Sequence[str]) -> tuple[str, ...]:
     """``effects`` as a tuple of names (a Hydra ListConfig or list in, a tuple out)."""
     return tuple(str(name) for name in effects)
+
+
+def refuse_output_effects(effects: Sequence[str], model_class: str) -> None:
+    """Refuse effects that act on the model's own output (``block = "output"``, after the
+    dynamics, or ``"feedback"``, inside them): a network has no channel for them, and
+    dropping them silently would train a model without what was declared."""
+    on_output = {name: get_effect(name).block for name in effects
+                 if get_effect(name).block in MODEL_OUTPUT_BLOCKS}
+    if on_output:
+        blocks = " and ".join(repr(b) for b in sorted(set(on_output.values())))
+        raise ConfigError(
+            f"effects {list(on_output)} act in the model's {blocks} block, which "
+            f"{model_class} does not have (it has no channel for them). Fix: model=linear "
+            "carries them, or leave them out of model.effects.")

@@ -23,6 +23,7 @@ import torch
 
 from hysteresis_lab.data.windows import WindowSpec, assemble
 from hysteresis_lab.models.base import NarxModule
+from hysteresis_lab.models.settings import refuse_output_effects
 
 
 class StateSpaceModule(NarxModule):
@@ -55,7 +56,9 @@ class StateSpaceModule(NarxModule):
     def _channel_routes(
         self, effects: Sequence[str], feature_context: dict[str, Any] | None, effect_path: str
     ) -> list[str]:
-        """Every input channel, measured or effect operator, is an input of the state model."""
+        """Every input channel, measured or effect operator, is an input of the state model
+        (effects on the model's own output have none: refused)."""
+        refuse_output_effects(effects, type(self).__name__)
         return ["base"] * self.nu
 
     def _old_input_positions(self, name: str, old_nu: int) -> torch.Tensor | None:

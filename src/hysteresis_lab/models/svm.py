@@ -32,6 +32,7 @@ from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.kernels.interface import FlatKernel, FreeRunKernel
 from hysteresis_lab.kernels.svm import SVMKernel
 from hysteresis_lab.models.interface import EstimatorModel
+from hysteresis_lab.models.settings import refuse_output_effects
 
 log = logging.getLogger(__name__)
 
@@ -75,6 +76,7 @@ class SVMModel(EstimatorModel):
             raise ConfigError(
                 f"unknown SVM strategy '{strategy}'. Fix: model.strategy=one of {list(STRATEGIES)}."
             )
+        refuse_output_effects(effects, "the SVM")
         if C <= 0 or gamma <= 0 or degree < 1:
             raise ConfigError(
                 f"SVM needs C > 0, gamma > 0 and degree >= 1 (got C={C}, gamma={gamma}, "
