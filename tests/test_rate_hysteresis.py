@@ -115,3 +115,28 @@ def test_a_fit_recovers_the_rate_gain() -> None:
 
     optimiser.step(closure)
     assert float(cell.rate_gain.detach()) == pytest.approx(0.5, abs=0.05)
+
+
+def test_rate_alone_brings_the_cell_and_the_loop_refits_whole() -> None:
+    """``effects=[rate]`` builds the rate-dependent input cell (no feedback force), at no
+    effect; the loop refits the whole model when it adds ``rate`` (the fitted ``alpha``
+    shares the loop width with the gain)."""
+    from hysteresis_lab.data.datamodules import WindowDataModule
+    from hysteresis_lab.effects.augment import augment_splits, context_to_dict
+    from hysteresis_lab.models.linear import LinearModel
+    from hysteresis_lab.sim.default_dataset import make_default_dataset
+    from hysteresis_lab.training import build_model
+    from hysteresis_lab.workflows.loop import _refit_mode
+
+    data = make_default_dataset(effects={}, n_train=2000, test_frequencies=(10.0,),
+                                max_test_samples=500, val_samples=0)
+    augmented, context = augment_splits(data, ["rate"])
+    model = build_model({"name": "linear", "effects": ["rate"]},
+                        WindowDataModule(augmented, scaling="paper"), trained_on={"fs": data.fs},
+                        feature_context=context_to_dict(context), n_base_inputs=1)
+    cell = model.input_blocks[0]["hysteresis"]
+    assert float(cell.rate_gain.detach()) == 0.0 and float(cell.weight.detach()) == 0.0
+    amplitude = model._input_amplitude(0)
+    assert float(cell.rate_step) == pytest.approx(2 * np.pi * amplitude / 200)
+    assert model.state_hysteresis is None
+    assert _refit_mode("new_inputs", "rate", LinearModel) == "full"

@@ -57,7 +57,7 @@ class _BoucWenFunction(torch.autograd.Function):
     def forward(ctx: Any, v: Tensor, v0: Tensor, h0: Tensor, a: Tensor, r1: Tensor,
                 r2: Tensor, m: Tensor | None = None) -> Tensor:
         arrays = [to_numpy64(t) for t in (v, v0, h0, a, r1, r2)]
-        factor = np.empty((v.shape[0], 0)) if m is None else to_numpy64(m)
+        factor = None if m is None else to_numpy64(m)
         hs = bw_states(*arrays, factor)
         ctx.arrays = arrays
         ctx.factor = factor
@@ -92,8 +92,7 @@ def bouc_wen_free_run(
     h0_ = np.zeros((v.shape[0], n_c)) if h0 is None else np.asarray(h0, float).reshape(
         v.shape[0], n_c)
     v0_ = np.zeros(v.shape[0]) if v0 is None else np.asarray(v0, float).reshape(v.shape[0])
-    hs = bw_states(v, v0_, h0_, alpha_ * d, beta_ - gamma_, beta_ + gamma_,
-                   np.empty((v.shape[0], 0)))
+    hs = bw_states(v, v0_, h0_, alpha_ * d, beta_ - gamma_, beta_ + gamma_, None)
     return d * v - hs.sum(axis=2)
 
 

@@ -147,8 +147,10 @@ class HysteresisCell(nn.Module):
         """``rate_step`` for an input of ``amplitude`` (scaled units): ``2 pi amplitude / 200``."""
         return 2.0 * np.pi * amplitude / 200.0
 
-    def _alpha_factor(self, dv: torch.Tensor, gain: torch.Tensor,
+    @staticmethod
+    def _alpha_factor(dv: torch.Tensor, gain: torch.Tensor,
                       rate_step: torch.Tensor) -> torch.Tensor:
+        """The factor of ``alpha`` for input steps ``dv`` (never below zero)."""
         return torch.clamp(1.0 + gain * dv.abs() / rate_step, min=0.0)
 
     def forward(self, v: torch.Tensor) -> torch.Tensor:
