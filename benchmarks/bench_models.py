@@ -52,8 +52,8 @@ def bench(name: str, device: str, epochs: int) -> dict[str, float]:
     model = build_model(cfg, dm, trained_on={"fs": dm.fs})
     row: dict[str, float] = {}
     if name in SIMULATION_TRAINED:
-        settings = {"max_epochs": epochs, "accelerator": device, "devices": 1,
-                    "enable_progress_bar": False, "enable_model_summary": False}
+        settings = TrainerSettings(max_epochs=epochs, accelerator=device, devices=1,
+                                   enable_progress_bar=False, enable_model_summary=False)
         with tempfile.TemporaryDirectory() as folder:
             result = fit(model, dm, settings, Path(folder))
         row["epoch_s"] = result.train_seconds / epochs

@@ -72,8 +72,8 @@ def test_an_added_effect_block_starts_where_it_changes_nothing(tmp_path):
     L.seed_everything(0)
     plain = fit(build_model({"name": "linear"}, dm, trained_on={"fs": data.fs}), dm,
                 TRAINER.with_changes(max_epochs=1), tmp_path).model
-    effects = ["saturation", "dead_zone", "backlash", "hysteresis", "creep", "resonance",
-               "nonlinear_feedback", "overflow"]
+    effects = ["saturation", "dead_zone", "backlash", "hysteresis", "rate", "creep",
+               "resonance", "nonlinear_feedback", "overflow"]
     augmented, context = augment_splits(data, effects)
     dm_grown = WindowDataModule(augmented, scaling="paper")
     grown = build_model({"name": "linear", "effects": effects}, dm_grown,
@@ -83,7 +83,8 @@ def test_an_added_effect_block_starts_where_it_changes_nothing(tmp_path):
     for a, b in zip(free_run(plain, data.test, dm.window),
                     free_run(grown, augmented.test, dm.window), strict=True):
         np.testing.assert_allclose(a, b, atol=1e-9)
-    assert set(grown._new_entries) >= {"creep.0.weights", "input_blocks.0.hysteresis.weight"}
+    assert set(grown._new_entries) >= {"creep.0.weights", "input_blocks.0.hysteresis.weight",
+                                       "input_blocks.0.hysteresis.rate_gain"}
     before = free_run(grown, augmented.test, dm.window)
     for name in ("saturation", "dead_zone", "backlash", "hysteresis"):  # each block is in the
         with torch.no_grad():                                          # chain: weighted, it acts
@@ -92,6 +93,16 @@ def test_an_added_effect_block_starts_where_it_changes_nothing(tmp_path):
         assert max(np.max(np.abs(a - b)) for a, b in zip(after, before, strict=True)) > 1e-3, name
         with torch.no_grad():
             grown.input_blocks[0][name].weight.zero_()
+    cell = grown.input_blocks[0]["hysteresis"]
+    with torch.no_grad():  # the rate gain widens the weighted cell's loop on fast inputs
+        cell.weight.fill_(0.5)
+        weighted = free_run(grown, augmented.test, dm.window)
+        cell.rate_gain.fill_(2.0)
+    after = free_run(grown, augmented.test, dm.window)
+    assert max(np.max(np.abs(a - b)) for a, b in zip(after, weighted, strict=True)) > 1e-3
+    with torch.no_grad():
+        cell.weight.zero_()
+        cell.rate_gain.zero_()
     with torch.no_grad():  # the static feedback closes a loop around the (resonant) dynamics
         grown.static_feedback[0][0].weights.fill_(1e-5)
     after = free_run(grown, augmented.test, dm.window)

@@ -6,6 +6,10 @@ an input moving linearly between samples), written with ``a = alpha * d``,
 ``r2 = beta + gamma`` (moving with it). ``_advance_grad`` also returns
 the partial derivatives of the new state, from which the backward pass runs the recursion in
 reverse (reverse-mode differentiation of the exact update, no smoothing).
+
+Both kernels take a per-sample factor ``m`` (B, T) of ``a`` (rate-dependent hysteresis: the
+step into sample ``k`` runs with ``a * m[b, k]``), or None for ``a`` as it is (numba compiles
+that case on its own, without the factor's branches).
 """
 
 from __future__ import annotations
@@ -60,11 +64,12 @@ def _advance_grad(
 @numba.njit(**JIT)
 def bw_states(
     v: np.ndarray, v0: np.ndarray, h0: np.ndarray, a: np.ndarray, r1: np.ndarray,
-    r2: np.ndarray,
+    r2: np.ndarray, m: np.ndarray | None,
 ) -> np.ndarray:
     """States ``h`` (B, T, C) of ``C`` parallel elements for inputs ``v`` (B, T).
 
-    ``v0`` (B,): the input before the first sample; ``h0`` (B, C): the states there.
+    ``v0`` (B,): the input before the first sample; ``h0`` (B, C): the states there; ``m``:
+    the per-sample factor of ``a`` (B, T), or None.
     """
     n_b, n_t = v.shape
     n_c = a.shape[0]
@@ -77,7 +82,11 @@ def bw_states(
                 dv = v[b, k] - v_prev
                 if dv != 0.0:
                     s = 1.0 if dv > 0.0 else -1.0
-                    h = advance(h, abs(dv), s, a[c], r1[c], r2[c])
+                    if m is None:  # noqa: SIM108 - an if on a None argument: numba prunes it
+                        a_k = a[c]
+                    else:
+                        a_k = a[c] * m[b, k]
+                    h = advance(h, abs(dv), s, a_k, r1[c], r2[c])
                 out[b, k, c] = h
                 v_prev = v[b, k]
     return out
@@ -86,9 +95,11 @@ def bw_states(
 @numba.njit(**JIT)
 def bw_backward(
     v: np.ndarray, v0: np.ndarray, h0: np.ndarray, hs: np.ndarray, a: np.ndarray,
-    r1: np.ndarray, r2: np.ndarray, g: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Adjoint of `bw_states`: ``g`` (B, T, C) = dL/dh; returns dL/d(v, v0, h0, a, r1, r2)."""
+    r1: np.ndarray, r2: np.ndarray, m: np.ndarray | None, g: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+           np.ndarray]:
+    """Adjoint of `bw_states`: ``g`` (B, T, C) = dL/dh; returns dL/d(v, v0, h0, a, r1, r2, m)
+    (dL/dm is (B, 0) without a factor)."""
     n_b, n_t = v.shape
     n_c = a.shape[0]
     dv = np.zeros((n_b, n_t))
@@ -97,6 +108,10 @@ def bw_backward(
     da = np.zeros(n_c)
     dr1 = np.zeros(n_c)
     dr2 = np.zeros(n_c)
+    if m is None:  # noqa: SIM108 - as in bw_states
+        dm = np.zeros((n_b, 0))
+    else:
+        dm = np.zeros((n_b, n_t))
     for b in range(n_b):
         for c in range(n_c):
             mu = 0.0  # dL/dh_k, accumulated backwards
@@ -108,10 +123,18 @@ def bw_backward(
                     continue
                 h_prev = h0[b, c] if k == 0 else hs[b, k - 1, c]
                 s = 1.0 if step > 0.0 else -1.0
+                if m is None:  # noqa: SIM108 - as in bw_states
+                    a_k = a[c]
+                else:
+                    a_k = a[c] * m[b, k]
                 _, d_h, d_x, d_a, d_r1, d_r2 = _advance_grad(
-                    h_prev, abs(step), s, a[c], r1[c], r2[c]
+                    h_prev, abs(step), s, a_k, r1[c], r2[c]
                 )
-                da[c] += mu * d_a
+                if m is None:
+                    da[c] += mu * d_a
+                else:
+                    da[c] += mu * d_a * m[b, k]
+                    dm[b, k] += mu * d_a * a[c]
                 dr1[c] += mu * d_r1
                 dr2[c] += mu * d_r2
                 dv[b, k] += mu * s * d_x
@@ -121,4 +144,4 @@ def bw_backward(
                     dv[b, k - 1] -= mu * s * d_x
                 mu *= d_h
             dh0[b, c] = mu
-    return dv, dv0, dh0, da, dr1, dr2
+    return dv, dv0, dh0, da, dr1, dr2, dm

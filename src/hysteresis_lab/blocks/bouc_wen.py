@@ -23,6 +23,7 @@ gamma = 0.006 with U = 100 V, Y = 20 µm become d = 1.15, alpha = 0.32, beta = 2
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -49,22 +50,27 @@ def bouc_wen_scaled_params(
 
 
 class _BoucWenFunction(torch.autograd.Function):
-    """``h (B, T, C)`` from ``v (B, T), v0 (B,), h0 (B, C), a, r1, r2 (C,)``."""
+    """``h (B, T, C)`` from ``v (B, T), v0 (B,), h0 (B, C), a, r1, r2 (C,)`` and, optionally,
+    a per-sample factor ``m (B, T)`` of ``a`` (rate-dependent hysteresis)."""
 
     @staticmethod
     def forward(ctx: Any, v: Tensor, v0: Tensor, h0: Tensor, a: Tensor, r1: Tensor,
-                r2: Tensor) -> Tensor:
+                r2: Tensor, m: Tensor | None = None) -> Tensor:
         arrays = [to_numpy64(t) for t in (v, v0, h0, a, r1, r2)]
-        hs = bw_states(*arrays)
+        factor = None if m is None else to_numpy64(m)
+        hs = bw_states(*arrays, factor)
         ctx.arrays = arrays
+        ctx.factor = factor
+        ctx.has_factor = m is not None
         ctx.hs = hs
         return from_numpy(hs, v)
 
     @staticmethod
-    def backward(ctx: Any, g: Tensor) -> tuple[Tensor, ...]:
+    def backward(ctx: Any, g: Tensor) -> tuple[Tensor | None, ...]:
         v, v0, h0, a, r1, r2 = ctx.arrays
-        grads = bw_backward(v, v0, h0, ctx.hs, a, r1, r2, to_numpy64(g))
-        return tuple(from_numpy(gr, g) for gr in grads)
+        *grads, dm = bw_backward(v, v0, h0, ctx.hs, a, r1, r2, ctx.factor, to_numpy64(g))
+        return (*(from_numpy(gr, g) for gr in grads),
+                from_numpy(dm, g) if ctx.has_factor else None)
 
 
 def bouc_wen_free_run(
@@ -86,7 +92,7 @@ def bouc_wen_free_run(
     h0_ = np.zeros((v.shape[0], n_c)) if h0 is None else np.asarray(h0, float).reshape(
         v.shape[0], n_c)
     v0_ = np.zeros(v.shape[0]) if v0 is None else np.asarray(v0, float).reshape(v.shape[0])
-    hs = bw_states(v, v0_, h0_, alpha_ * d, beta_ - gamma_, beta_ + gamma_)
+    hs = bw_states(v, v0_, h0_, alpha_ * d, beta_ - gamma_, beta_ + gamma_, None)
     return d * v - hs.sum(axis=2)
 
 
@@ -144,12 +150,15 @@ class BoucWen(nn.Module):
         return self.beta * GAMMA_RATIO_MAX * torch.tanh(self.raw_gamma.double())
 
     def forward(
-        self, v: Tensor, h0: Tensor | None = None, v0: Tensor | None = None
+        self, v: Tensor, h0: Tensor | None = None, v0: Tensor | None = None,
+        alpha_factor: Tensor | None = None,
     ) -> tuple[Tensor, Tensor]:
         """``x`` (B, T) and the last states (B,) (``(B, C)`` when ``n_channels > 1``).
 
         ``h0``: states before the first sample (default 0, at rest); ``v0``: the input there
-        (default 0). Computed in float64, returned in ``v``'s dtype.
+        (default 0); ``alpha_factor`` (B, T): the step into each sample runs with ``alpha``
+        times it (rate-dependent hysteresis; >= 0), differentiable. Computed in float64,
+        returned in ``v``'s dtype.
         """
         n_b = v.shape[0]
         v64 = v.double()
@@ -159,8 +168,9 @@ class BoucWen(nn.Module):
             else v0.double().reshape(n_b)
         d, beta, gamma = self.d, self.beta, self.gamma
         a = self.alpha * d
+        factor = None if alpha_factor is None else alpha_factor.double().reshape(v64.shape)
         hs = _BoucWenFunction.apply(v64, v0_, h0_, a.to(v.device), (beta - gamma).to(v.device),
-                                    (beta + gamma).to(v.device))
+                                    (beta + gamma).to(v.device), factor)
         x = d.to(v.device) * v64 - hs.sum(dim=2)
         h_last = hs[:, -1, :]
         if self.n_channels == 1:
@@ -170,13 +180,20 @@ class BoucWen(nn.Module):
     def state_names(self) -> list[str]:
         return ["v_prev"] + [f"h{c}" for c in range(self.n_channels)]
 
-    def step(self, v: Tensor, state: StepState) -> Tensor:
-        """One sample ``v`` (B,) -> ``x`` (B,); state: the previous input, then ``h_c``."""
+    def step(
+        self, v: Tensor, state: StepState,
+        alpha_factor: Callable[[Tensor], Tensor] | None = None,
+    ) -> Tensor:
+        """One sample ``v`` (B,) -> ``x`` (B,); state: the previous input, then ``h_c``.
+
+        ``alpha_factor``: the factor of ``alpha`` for this step from the input step
+        ``v - v_prev`` (B,) -> (B,) (`forward`'s per sample)."""
         v_prev = state.take(1)[:, 0]
         h = state.take(self.n_channels)
         d, beta, gamma = self.d, self.beta, self.gamma
         d, a, r1, r2 = frozen(d, self.alpha * d, beta - gamma, beta + gamma)
-        h = bouc_wen_advance(h, (v - v_prev)[:, None], a[None], r1[None], r2[None])
+        a = a[None] if alpha_factor is None else a[None] * alpha_factor(v - v_prev)[:, None]
+        h = bouc_wen_advance(h, (v - v_prev)[:, None], a, r1[None], r2[None])
         state.put(v[:, None])
         state.put(h)
         return d * v - h.sum(dim=1)

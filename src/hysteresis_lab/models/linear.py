@@ -23,6 +23,10 @@ refit that adds an effect starts exactly from the model it grows:
   force of their output, weighted from zero (`StateHysteresis`; per output and input pair,
   each on its own part of the output). The loop refits the whole model when it adds it
   (``whole_refit_effects``, as for the dead zone);
+* ``rate``: the input's hysteresis cell rate-dependent, its Bouc–Wen ``alpha`` per sample
+  ``alpha (1 + k |dv| / rate_step)`` with ``k`` from zero (`HysteresisCell`; declared
+  without ``hysteresis`` it brings the cell, weight from zero, and no feedback force). The
+  loop refits the whole model when it adds it;
 * ``nonlinear_feedback``: the dynamics in a closed loop with a static function of their
   output level (a Lur'e system: a level-dependent outflow, a nonlinear spring;
   `StaticFeedback`), piecewise linear with weights from zero; per output and input pair,
@@ -58,8 +62,8 @@ from hysteresis_lab.models.physical_chain import PhysicalChainModule
 log = logging.getLogger(__name__)
 
 #: catalogue effects the linear model carries as blocks, in physical order
-LINEAR_EFFECTS = ("saturation", "dead_zone", "backlash", "hysteresis", "creep", "resonance",
-                  "nonlinear_feedback", "overflow")
+LINEAR_EFFECTS = ("saturation", "dead_zone", "backlash", "hysteresis", "rate", "creep",
+                  "resonance", "nonlinear_feedback", "overflow")
 
 
 class _Level(nn.Module):
@@ -117,15 +121,45 @@ class Backlash(_Level):
 
 class HysteresisCell(nn.Module):
     """``v - w h(v)``: the Bouc–Wen state ``h`` (`hysteresis_lab.blocks.BoucWen`) subtracted
-    with a weight from zero."""
+    with a weight from zero.
 
-    def __init__(self) -> None:
+    With ``rate_step`` (effect ``rate``) the hysteresis is rate-dependent: the step into each
+    sample runs with ``alpha * max(1 + k |dv| / rate_step, 0)`` (``dv`` the input step, the
+    simulator's ``alpha (1 + gain |dv/dt| / rate_ref)`` per sample), so loops widen with the
+    input's rate. ``k`` is learnable and starts at 0 (the plain cell); ``rate_step`` is fixed
+    from the training input's scale: the steepest step of a sine of the training input's
+    amplitude with 200 samples per period (at the simulator's 20 kHz and ±100 V: its
+    ``rate_ref``, 62,832 V/s, a 100 Hz sine)."""
+
+    def __init__(self, rate_step: float | None = None) -> None:
         super().__init__()
         self.bouc_wen = BoucWen(**bouc_wen_scaled_params(1.0, 0.32, 0.02, 0.006, 100.0, 100.0))
         self.weight = nn.Parameter(torch.zeros((), dtype=torch.float64))
+        self.rate_gain: nn.Parameter | None = None
+        if rate_step is not None:
+            if not rate_step > 0:
+                raise ValueError(f"rate_step must be > 0 (got {rate_step})")
+            self.rate_gain = nn.Parameter(torch.zeros((), dtype=torch.float64))
+            self.register_buffer("rate_step", torch.tensor(float(rate_step), dtype=torch.float64))
+
+    @staticmethod
+    def rate_step_for(amplitude: float) -> float:
+        """``rate_step`` for an input of ``amplitude`` (scaled units): ``2 pi amplitude / 200``."""
+        return 2.0 * np.pi * amplitude / 200.0
+
+    @staticmethod
+    def _alpha_factor(dv: torch.Tensor, gain: torch.Tensor,
+                      rate_step: torch.Tensor) -> torch.Tensor:
+        """The factor of ``alpha`` for input steps ``dv`` (never below zero)."""
+        return torch.clamp(1.0 + gain * dv.abs() / rate_step, min=0.0)
 
     def forward(self, v: torch.Tensor) -> torch.Tensor:
-        x, _ = self.bouc_wen(v)
+        factor = None
+        if self.rate_gain is not None:
+            v64 = v.double()
+            dv = torch.diff(v64, dim=-1, prepend=torch.zeros_like(v64[..., :1]))
+            factor = self._alpha_factor(dv, self.rate_gain, self.rate_step)
+        x, _ = self.bouc_wen(v, alpha_factor=factor)
         h = self.bouc_wen.d * v - x
         return v - self.weight * h
 
@@ -135,7 +169,14 @@ class HysteresisCell(nn.Module):
     def step(self, v: torch.Tensor, state: StepState) -> torch.Tensor:
         """One sample (B,) -> (B,); state: the Bouc–Wen cell's."""
         d, weight = frozen(self.bouc_wen.d, self.weight)
-        return v - weight * (d * v - self.bouc_wen.step(v, state))
+        factor = None
+        if self.rate_gain is not None:
+            gain, rate_step = frozen(self.rate_gain, self.rate_step)
+
+            def factor(dv: torch.Tensor) -> torch.Tensor:
+                return self._alpha_factor(dv, gain, rate_step)
+
+        return v - weight * (d * v - self.bouc_wen.step(v, state, factor))
 
 
 class Overflow(nn.Module):
@@ -351,9 +392,10 @@ class LinearModel(PhysicalChainModule):
     #: a dead zone takes a band off every input and a backlash its play off every reversal (a
     #: linear fit meets the lost output with a lower gain and a lag, which a block-only refit
     #: cannot give back); hysteresis closes a restoring force around the dynamics, a
-    #: nonlinear feedback a static law: the loop refits the whole model when it adds any of
-    #: them
-    whole_refit_effects = ("dead_zone", "backlash", "hysteresis", "nonlinear_feedback")
+    #: nonlinear feedback a static law; a rate-dependent loop shares out the loop width the
+    #: cell's ``alpha`` was fitted to at the training input's rates (``alpha`` must fall as
+    #: the rate gain grows): the loop refits the whole model when it adds any of them
+    whole_refit_effects = ("dead_zone", "backlash", "hysteresis", "rate", "nonlinear_feedback")
 
     def __init__(
         self,
@@ -429,13 +471,15 @@ class LinearModel(PhysicalChainModule):
 
     @staticmethod
     def _input_blocks(effects: Sequence[str], amplitude: float) -> nn.ModuleDict:
-        """One input channel's blocks, in physical order."""
+        """One input channel's blocks, in physical order (``rate``: the hysteresis cell
+        rate-dependent)."""
         blocks = nn.ModuleDict()
+        rate_step = HysteresisCell.rate_step_for(amplitude) if "rate" in effects else None
         for name, block in (("saturation", lambda: Saturation(0.9 * amplitude)),
                             ("dead_zone", lambda: DeadZone(0.05 * amplitude)),
                             ("backlash", lambda: Backlash(0.05 * amplitude)),
-                            ("hysteresis", HysteresisCell)):
-            if name in effects:
+                            ("hysteresis", lambda: HysteresisCell(rate_step))):
+            if name in effects or (name == "hysteresis" and rate_step is not None):
                 blocks[name] = block()
         return blocks
 
