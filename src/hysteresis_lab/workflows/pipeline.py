@@ -457,8 +457,10 @@ def _reused_fit(
 def _trained_on(data: DatasetSplits) -> dict[str, Any]:
     """What a model keeps of its training data to refuse data it cannot score: the sampling
     rate (its lags span a fixed number of samples) and the physical units (its scaler works
-    in them)."""
-    return {"fs": data.fs, **{f"{k}_units": v for k, v in data.units.items()}}
+    in them); and whether every recording starts from one shared unknown state (only where the
+    data set says so, so other models keep the settings they had)."""
+    shared = {"shared_initial_state": True} if data.shared_initial_state else {}
+    return {"fs": data.fs, **{f"{k}_units": v for k, v in data.units.items()}, **shared}
 
 
 def _check_evaluation_settings(
