@@ -12,7 +12,6 @@ from hysteresis_lab.effects.operators import (
     play_operators,
     rate,
     resonator_bank,
-    spill_states,
 )
 
 
@@ -159,47 +158,6 @@ class Backlash(Effect):
                 np.ascontiguousarray(x), self.fractions * ctx.u_amplitude[i]
             ),
         )
-
-
-class StorageOverflow(Effect):
-    """Overflow of an internal storage: the input fills an unmeasured storage (an upper tank,
-    a reservoir, an integrating stage) that cannot rise above its rim, and what it spills
-    does not reach the measured output (or only in part).
-
-    Its operators are the spills of first-order storages filled by the input, from empty
-    (`hysteresis_lab.effects.operators.spill_states`), in the input's units (the spill over
-    the storage's rate): storages of 3 time constants from 2 samples to an eighth of the
-    longest training recording, each with its rim at 40, 60 and 80 % of the input's
-    amplitude. Unlike a clip of the input (saturation) or of the output (overflow) a full
-    storage holds its level at the rim and drains from there, so what it loses depends on
-    the input's past. A model takes it in through the input block (``model=linear``: the
-    storages with learned rates and rims, ``v - sum_m w_m spill_m``, weights from zero).
-    """
-
-    name = "storage_overflow"
-    description = "overflow of an internal storage (spill of first-order storages of the input)"
-    block = "input"
-    fractions = np.array([0.4, 0.6, 0.8])
-    n_time_constants = 3
-
-    def time_constants(self, ctx: FeatureContext) -> np.ndarray:
-        """The storages' time constants in samples."""
-        slowest = max(ctx.duration_s * ctx.fs / 8.0, 2.0)
-        return np.geomspace(2.0, slowest, self.n_time_constants)
-
-    def storages(self, ctx: FeatureContext, channel: int) -> tuple[np.ndarray, np.ndarray]:
-        """Rates and rims (in the input's units) of input ``channel``'s storages."""
-        rates = 1.0 - np.exp(-1.0 / self.time_constants(ctx))
-        rims = self.fractions * ctx.u_amplitude[channel]
-        return np.repeat(rates, len(rims)), np.tile(rims, len(rates))
-
-    def features(self, u: np.ndarray, ctx: FeatureContext) -> np.ndarray:
-        def make(x: np.ndarray, i: int) -> np.ndarray:
-            rates, rims = self.storages(ctx, i)
-            spill, _ = spill_states(np.ascontiguousarray(x, dtype=float)[None], rates, rims)
-            return spill[0] / rates
-
-        return _per_input(u, make)
 
 
 class _ReadFromModelOutput(Effect):

@@ -48,32 +48,6 @@ def play_operators(u: np.ndarray, thresholds: np.ndarray) -> np.ndarray:
     return out
 
 
-@numba.njit(cache=True, error_model="numpy")
-def spill_states(v: np.ndarray, alpha: np.ndarray,
-                 rim: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Spills (B, T, M) and levels (B, T, M) of first-order storages filled by ``v`` (B, T) at
-    the rates ``alpha`` (M,) up to their rims ``rim`` (M,), every row from empty storages:
-    ``pre = s + alpha (v - s)``, ``spill = relu(pre - rim)``, ``s = pre - spill``
-    (`hysteresis_lab.blocks.spill`)."""
-    n_b, n_t = v.shape
-    n_m = alpha.shape[0]
-    spill = np.zeros((n_b, n_t, n_m))
-    level = np.zeros((n_b, n_t, n_m))
-    for r in range(n_b):
-        for m in range(n_m):
-            s = 0.0
-            for t in range(n_t):
-                pre = s + alpha[m] * (v[r, t] - s)
-                over = pre - rim[m]
-                if over > 0.0:
-                    spill[r, t, m] = over
-                    s = rim[m]
-                else:
-                    s = pre
-                level[r, t, m] = s
-    return spill, level
-
-
 def lowpass_bank(u: np.ndarray, fs: float, time_constants_s: np.ndarray) -> np.ndarray:
     """Unit-gain first-order low-passes of ``u`` (1-D), one column per time constant."""
     columns = []

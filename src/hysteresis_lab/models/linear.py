@@ -1,8 +1,7 @@
 """`linear`: stable linear dynamics from the inputs to the outputs, grown into a physical model
 by the effect catalogue.
 
-    u_j -> [saturation] -> [dead zone] -> [backlash] -> [hysteresis] -> [storage overflow]
-        -> [creep] -> x_j
+    u_j -> [saturation] -> [dead zone] -> [backlash] -> [hysteresis] -> [creep] -> x_j
     y_o = [overflow_o](sum_j dynamics_oj(x_j) (+ [resonance_oj](x_j) in parallel) + offset_o)
     dynamics_oj in a closed loop with [hysteresis] / [nonlinear_feedback] of its output
 
@@ -19,9 +18,6 @@ refit that adds an effect starts exactly from the model it grows:
 
 * ``saturation``: ``v - w (v - clip(v, ±c))``, amplifier clipping ahead of the actuator;
 * ``dead_zone``: ``v - w clip(v, ±c)``; ``backlash``: ``v + w (play_c(v) - v)``;
-* ``storage_overflow``: ``v - sum_m w_m spill_m(v)``, the spills of first-order storages
-  filled by the input that hold their level at a rim (an upper tank that overflows;
-  `StorageSpill`), rates and rims learned from the catalogue's grid;
 * ``hysteresis``: ``v - w h(v)``, ``h`` the Bouc–Wen state (the grey-box's cell), and
   inside the dynamics' feedback: the dynamics in a closed loop with a Bouc–Wen restoring
   force of their output, weighted from zero (`StateHysteresis`; per output and input pair,
@@ -53,19 +49,17 @@ from torch import nn
 from hysteresis_lab.blocks import BoucWen, CreepBank, bouc_wen_scaled_params, play
 from hysteresis_lab.blocks.feedback import closed_loop
 from hysteresis_lab.blocks.sections import StableSections, arx_least_squares
-from hysteresis_lab.blocks.spill import storage_spill
 from hysteresis_lab.blocks.step import StepState, bouc_wen_advance, frozen, play_step
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.effects.augment import context_from_dict
-from hysteresis_lab.effects.catalogue import StorageOverflow
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.physical_chain import PhysicalChainModule
 
 log = logging.getLogger(__name__)
 
 #: catalogue effects the linear model carries as blocks, in physical order
-LINEAR_EFFECTS = ("saturation", "dead_zone", "backlash", "hysteresis", "storage_overflow",
-                  "creep", "resonance", "nonlinear_feedback", "overflow")
+LINEAR_EFFECTS = ("saturation", "dead_zone", "backlash", "hysteresis", "creep", "resonance",
+                  "nonlinear_feedback", "overflow")
 
 
 class _Level(nn.Module):
@@ -142,39 +136,6 @@ class HysteresisCell(nn.Module):
         """One sample (B,) -> (B,); state: the Bouc–Wen cell's."""
         d, weight = frozen(self.bouc_wen.d, self.weight)
         return v - weight * (d * v - self.bouc_wen.step(v, state))
-
-
-class StorageSpill(nn.Module):
-    """``v - sum_m w_m spill_m / alpha_m``: the input less what first-order storages filled by
-    it spill over their rims (`hysteresis_lab.blocks.spill`), over each storage's rate (the
-    input that did not reach its level), so ``w_m = 1`` takes all of it away: an unmeasured
-    storage ahead of the dynamics (an upper tank) that overflows and loses the spill. The
-    rates ``alpha_m`` (``sigmoid`` of raw values) and rims start at ``rates`` and ``rims`` (the
-    input over its scale), the weights at zero."""
-
-    def __init__(self, rates: np.ndarray, rims: np.ndarray) -> None:
-        super().__init__()
-        rates = np.clip(np.asarray(rates, dtype=float), 1e-6, 1.0 - 1e-6)
-        self.raw_rates = nn.Parameter(torch.as_tensor(np.log(rates) - np.log1p(-rates)))
-        self.rims = nn.Parameter(torch.as_tensor(np.asarray(rims, dtype=float)))
-        self.weights = nn.Parameter(torch.zeros(len(rates), dtype=torch.float64))
-
-    def forward(self, v: torch.Tensor) -> torch.Tensor:
-        alpha = torch.sigmoid(self.raw_rates)
-        spill = storage_spill(v.double(), alpha, self.rims)
-        return v - (spill / alpha) @ self.weights
-
-    def state_names(self) -> list[str]:
-        return [f"level{m}" for m in range(self.weights.shape[0])]
-
-    def step(self, v: torch.Tensor, state: StepState) -> torch.Tensor:
-        """One sample (B,) -> (B,); state: the storages' levels."""
-        alpha, rims, weights = frozen(torch.sigmoid(self.raw_rates), self.rims, self.weights)
-        level = state.take(weights.shape[0])
-        pre = level + alpha * (v[:, None] - level)
-        spill = torch.relu(pre - rims)
-        state.put(pre - spill)
-        return v - (spill / alpha) @ weights
 
 
 class Overflow(nn.Module):
@@ -432,8 +393,7 @@ class LinearModel(PhysicalChainModule):
             )
         n_in = self.n_base_inputs
         self.input_blocks = nn.ModuleList(
-            self._input_blocks(effects, self._input_amplitude(j), self._storages(j))
-            for j in range(n_in))
+            self._input_blocks(effects, self._input_amplitude(j)) for j in range(n_in))
         self.creep = nn.ModuleList(CreepBank(fs, creep_time_constants_s) for _ in range(n_in)) \
             if "creep" in effects else None
         self.dynamics = _pairs(ny, n_in, lambda: StableSections(order))
@@ -467,16 +427,13 @@ class LinearModel(PhysicalChainModule):
         return float(ctx.y_low[channel]) / scale, float(ctx.y_high[channel]) / scale
 
     @staticmethod
-    def _input_blocks(effects: Sequence[str], amplitude: float,
-                      storages: tuple[np.ndarray, np.ndarray]) -> nn.ModuleDict:
-        """One input channel's blocks, in physical order (``storages``: the storage
-        overflow's starting rates and rims)."""
+    def _input_blocks(effects: Sequence[str], amplitude: float) -> nn.ModuleDict:
+        """One input channel's blocks, in physical order."""
         blocks = nn.ModuleDict()
         for name, block in (("saturation", lambda: Saturation(0.9 * amplitude)),
                             ("dead_zone", lambda: DeadZone(0.05 * amplitude)),
                             ("backlash", lambda: Backlash(0.05 * amplitude)),
-                            ("hysteresis", HysteresisCell),
-                            ("storage_overflow", lambda: StorageSpill(*storages))):
+                            ("hysteresis", HysteresisCell)):
             if name in effects:
                 blocks[name] = block()
         return blocks
@@ -489,19 +446,6 @@ class LinearModel(PhysicalChainModule):
             section.numerators.zero_()
             section.raw_denominators[:, 1] = 2.0
         return section
-
-    def _storages(self, channel: int) -> tuple[np.ndarray, np.ndarray]:
-        """The storage overflow's starting rates and rims (the input over its scale) for an
-        input channel: the catalogue effect's grid (`StorageOverflow.storages`); time
-        constants of 2 to 200 samples without a record of the training data."""
-        context = self.hparams.get("feature_context")
-        effect = StorageOverflow()
-        if context is None:
-            rates = np.repeat(1.0 - np.exp(-1.0 / np.geomspace(2.0, 200.0, 3)), 3)
-            return rates, np.tile(effect.fractions, 3) * self._input_amplitude(channel)
-        rates, rims = effect.storages(context_from_dict(context), channel)
-        scale = float(self.u_scale[channel])
-        return rates, rims / scale if scale > 0 else rims
 
     def _input_amplitude(self, channel: int) -> float:
         """A measured input's amplitude over its scale (for the levels of input blocks)."""

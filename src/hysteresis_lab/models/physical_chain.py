@@ -24,14 +24,12 @@ from typing import Any
 
 import numpy as np
 import torch
-
 from torch import nn
 
 from hysteresis_lab.blocks.step import StepState, frozen
 from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.base import NarxModule
-
 
 #: the shortest burn-in to the learned shared initial state (samples)
 BURN_IN_MIN = 100
