@@ -82,7 +82,7 @@ CHAIN_CASES = {
                                                       "hysteresis", "creep", "resonance",
                                                       "nonlinear_feedback", "overflow"]}, 1, 1),
     "linear_nonlinear_feedback": ({"name": "linear", "effects": ["nonlinear_feedback"]}, 1, 1),
-    "linear_shared_start": ({"name": "linear", "effects": ["hysteresis", "nonlinear_feedback",
+    "linear_shared_start": ({"name": "linear", "effects": ["backlash", "nonlinear_feedback",
                                                           "overflow"]}, 1, 1),
     "greybox_shared_start": ({"name": "greybox"}, 1, 1),
     "linear_mimo": ({"name": "linear", "order": 3, "delay": 0}, 3, 2),

@@ -24,11 +24,13 @@ def test_a_shared_initial_state_is_learned_only_where_the_data_say_so():
     assert "shared_initial_state" not in _trained_on(_splits(False))
     trained_on = _trained_on(_splits(True))
     assert trained_on["shared_initial_state"] is True
+    assert trained_on["burn_in_samples"] == max(r.n_samples for r in _splits(True).train)
     splits = _splits(True)
     dm = datamodule_for("linear", splits)
     model = build_model({"name": "linear"}, dm, trained_on=trained_on)
     rest = build_model({"name": "linear"}, dm, trained_on={"fs": 100.0})
     assert rest.start_input is None and model.start_input is not None
+    assert int(model.burn_in) == trained_on["burn_in_samples"]
     rec = splits.train[0]
     model.initialise_from_data(rec.u[:, 0], rec.y[:, 0], rec.fs)  # dynamics with memory
     rest.load_state_dict({k: v for k, v in model.state_dict().items()

@@ -31,8 +31,8 @@ from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.base import NarxModule
 
-#: the shortest burn-in to the learned shared initial state (samples)
-BURN_IN_MIN = 100
+#: the burn-in to the learned shared initial state (samples) when the data do not say
+BURN_IN_DEFAULT = 1000
 
 
 class PhysicalChainModule(NarxModule):
@@ -56,14 +56,12 @@ class PhysicalChainModule(NarxModule):
             self._learn_initial_state()
 
     def _learn_initial_state(self) -> None:
-        """``start_input`` from the training inputs' mean (over their scales), the burn-in as
-        long as the longest training recording (`hysteresis_lab.effects.FeatureContext`)."""
+        """``start_input`` from the training inputs' mean (over their scales), the burn-in
+        as long as the longest training recording (``trained_on["burn_in_samples"]``)."""
         n = self.n_base_inputs
-        context = self.hparams.get("feature_context") or {}
-        samples = float(context.get("duration_s") or 0.0) * float(context.get("fs") or 0.0)
-        mean = (self.u_offset[:n] / self.u_scale[:n]).double()
-        self.start_input = nn.Parameter(mean.clone())
-        self.register_buffer("burn_in", torch.tensor(max(int(round(samples)), BURN_IN_MIN)))
+        samples = (self.hparams.get("trained_on") or {}).get("burn_in_samples")
+        self.start_input = nn.Parameter((self.u_offset[:n] / self.u_scale[:n]).double().clone())
+        self.register_buffer("burn_in", torch.tensor(int(samples or BURN_IN_DEFAULT)))
 
     def _channel_routes(
         self, effects: Sequence[str], feature_context: dict[str, Any] | None, effect_path: str
@@ -143,8 +141,8 @@ class PhysicalChainModule(NarxModule):
         return y, steps.next_state()
 
     def simulate_scaled(self, u: torch.Tensor, y_initial: torch.Tensor) -> torch.Tensor:
-        """Training's free run: from rest at the first sample (``y_initial`` is not needed);
-        predictions of samples first_target..T-1."""
+        """Training's free run: from rest (or the learned shared initial state) at the first
+        sample (``y_initial`` is not needed); predictions of samples first_target..T-1."""
         return self.simulate_full(u)[:, self.window.first_target :]
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
