@@ -319,6 +319,7 @@ def cascaded_tanks(root: str | Path | None = None) -> DatasetSplits:
         train=[rec("uEst", "yEst", "tanks_estimation")],
         test=[rec("uVal", "yVal", "tanks_test")],
         n_init=50,
+        shared_initial_state=True,  # SOURCE.md: the same unknown state for estimation and test
         metadata={
             "reference": reference,
             "reference_units": "V",

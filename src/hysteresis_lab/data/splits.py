@@ -16,7 +16,10 @@ class DatasetSplits:
     ``val`` may be empty: the DataModule then draws validation windows at random from
     ``train``. ``n_init`` is the number of samples at the start of each test recording that
     a model may use to initialise its state and that are excluded from scoring (the official
-    benchmarks' state-initialisation window).
+    benchmarks' state-initialisation window). ``shared_initial_state``: the protocol says every
+    recording starts from one and the same unknown state (not rest), which a model that
+    simulates from a state may learn on the training recordings and start every recording
+    from (`hysteresis_lab.models.physical_chain`).
     """
 
     name: str
@@ -24,6 +27,7 @@ class DatasetSplits:
     test: list[Recording]
     val: list[Recording] = field(default_factory=list)
     n_init: int = 0
+    shared_initial_state: bool = False
     metadata: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:

@@ -108,7 +108,9 @@ def export_chain_step(model: PhysicalChainModule, path: Path | str, opset: int =
     units), outputs ``y`` (B, ny, the output at the sample of ``u``) and ``next_state``, all
     float64 with a dynamic batch axis. The state at rest (zero input, as every recording
     starts) is zeros; its columns are ``model.state_names()``, stored in the file's metadata
-    as ``state_names`` (JSON). Stepping from zeros over a recording gives the model's free run.
+    as ``state_names`` (JSON). Stepping from ``initial_state`` (metadata, JSON: zeros, or the
+    learned shared initial state, `PhysicalChainModule.initial_state`) over a recording gives
+    the model's free run.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -133,8 +135,9 @@ def export_chain_step(model: PhysicalChainModule, path: Path | str, opset: int =
             dynamic_axes={name: {0: "batch"} for name in ("state", "u", "y", "next_state")},
             opset_version=opset, dynamo=False,
         )
+    start = model.initial_state().tolist()
     _add_metadata(path, {"state_names": json.dumps(names), "state_at_rest": "zeros",
-                         "model": type(model).__name__})
+                         "initial_state": json.dumps(start), "model": type(model).__name__})
     log.info("exported the simulation step of %s (%d states) to %s", type(model).__name__,
              len(names), path)
     return path

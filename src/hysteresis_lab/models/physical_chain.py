@@ -8,6 +8,13 @@ is ``chain(v) + offset`` with ``v`` the measured inputs over their scales (zero 
 Subclasses build their blocks (and an ``offset`` parameter) and implement `chain`, and for
 the exported simulation step (`step_physical`, `hysteresis_lab.models.export`) `chain_step`
 and `state_names`: the same chain one sample at a time on a flat state, zero at rest.
+
+Where the data set says every recording starts from one shared unknown state
+(`DatasetSplits.shared_initial_state`, the cascaded tanks), the model learns it: every
+recording is simulated after a burn-in of ``start_input`` held constant (a learned input per
+channel, from the training inputs' mean) for as long as the longest training recording, so
+it starts where the chain settles for that input (the steady state a system left alone at a
+constant input reaches) instead of at rest. `initial_state` is that state for the step.
 """
 
 from __future__ import annotations
@@ -17,11 +24,15 @@ from typing import Any
 
 import numpy as np
 import torch
+from torch import nn
 
 from hysteresis_lab.blocks.step import StepState, frozen
 from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.base import NarxModule
+
+#: the burn-in to the learned shared initial state (samples) when the data do not say
+BURN_IN_DEFAULT = 1000
 
 
 class PhysicalChainModule(NarxModule):
@@ -36,6 +47,21 @@ class PhysicalChainModule(NarxModule):
     #: stopped at 0.56 of 1 and the dynamics bent to make up for it
     new_block_lr_factor = 10.0
     predicts_from_outputs = False
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        #: the learned input the shared initial state settles at (None: from rest)
+        self.start_input: nn.Parameter | None = None
+        if (self.hparams.get("trained_on") or {}).get("shared_initial_state"):
+            self._learn_initial_state()
+
+    def _learn_initial_state(self) -> None:
+        """``start_input`` from the training inputs' mean (over their scales), the burn-in
+        as long as the longest training recording (``trained_on["burn_in_samples"]``)."""
+        n = self.n_base_inputs
+        samples = (self.hparams.get("trained_on") or {}).get("burn_in_samples")
+        self.start_input = nn.Parameter((self.u_offset[:n] / self.u_scale[:n]).double().clone())
+        self.register_buffer("burn_in", torch.tensor(int(samples or BURN_IN_DEFAULT)))
 
     def _channel_routes(
         self, effects: Sequence[str], feature_context: dict[str, Any] | None, effect_path: str
@@ -69,9 +95,31 @@ class PhysicalChainModule(NarxModule):
         return self.offset - (self.y_offset / self.y_scale).double()
 
     def simulate_full(self, u_scaled: torch.Tensor) -> torch.Tensor:
-        """Scaled inputs (B, T, nu) -> scaled outputs (B, T, ny), every row from rest."""
-        x = self.chain(self._physical_input(u_scaled))
+        """Scaled inputs (B, T, nu) -> scaled outputs (B, T, ny), every row from rest (or
+        from the learned shared initial state: after the burn-in)."""
+        v = self._physical_input(u_scaled)
+        if self.start_input is None:
+            x = self.chain(v)
+        else:
+            n_burn = int(self.burn_in)
+            held = self.start_input.to(v).expand(v.shape[0], n_burn, -1)
+            x = self.chain(torch.cat([held, v], dim=1))[:, n_burn:]
         return (x + self._output_offset()).to(u_scaled.dtype)
+
+    def initial_state(self) -> torch.Tensor:
+        """The step's state (nx,) where every recording starts: zeros (rest), or with a
+        learned shared initial state the state after the burn-in (`step_physical` held at
+        ``start_input`` in physical units)."""
+        state = torch.zeros(1, len(self.state_names()), dtype=torch.float64,
+                            device=self.u_scale.device)
+        if self.start_input is None:
+            return state[0]
+        n = self.n_base_inputs
+        with torch.no_grad():
+            u = (self.start_input.double() * self.u_scale[:n].double())[None]
+            for _ in range(int(self.burn_in)):
+                _, state = self.step_physical(state, u)
+        return state[0]
 
     def step_physical(
         self, state: torch.Tensor, u: torch.Tensor
@@ -79,7 +127,8 @@ class PhysicalChainModule(NarxModule):
         """The simulation step in physical units, float64: ``(state (B, nx), measured inputs
         u (B, n_base_inputs)) -> (outputs y (B, ny) at the sample of u, next state)``; the
         state at rest is zero (`state_names` has its layout). Stepping it over a recording
-        from zeros reproduces `simulate_full`."""
+        from `initial_state` (zeros unless the model learned a shared initial state)
+        reproduces `simulate_full`."""
         n = self.n_base_inputs
         u_offset, u_scale, u_rest, y_offset, y_scale, y_add = frozen(
             self.u_offset[:n].double(), self.u_scale[:n].double(),
@@ -92,8 +141,8 @@ class PhysicalChainModule(NarxModule):
         return y, steps.next_state()
 
     def simulate_scaled(self, u: torch.Tensor, y_initial: torch.Tensor) -> torch.Tensor:
-        """Training's free run: from rest at the first sample (``y_initial`` is not needed);
-        predictions of samples first_target..T-1."""
+        """Training's free run: from rest (or the learned shared initial state) at the first
+        sample (``y_initial`` is not needed); predictions of samples first_target..T-1."""
         return self.simulate_full(u)[:, self.window.first_target :]
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
