@@ -160,13 +160,25 @@ SM_ITERATIONS = 10
 
 
 def stable_denominator(a: np.ndarray) -> np.ndarray:
-    """``a`` with every pole outside the unit circle reflected inside it (as
-    `StableSections.set_transfer_function` does)."""
+    """``a`` with every pole outside the unit circle reflected inside it (the first step of
+    `StableSections.set_transfer_function`)."""
     poles = np.roots(a)
     if not len(poles):
         return np.asarray(a, dtype=float)
     poles = np.where(np.abs(poles) > 1.0, 1.0 / np.conj(poles), poles)
     return np.real(np.poly(poles))
+
+
+def slowest_rate(a: np.ndarray) -> float:
+    """The slowest mode of the denominator ``a`` as `StableSections` holds it (poles reflected
+    inside the unit circle, at most `MAX_RADIUS`): ``min |ln p|`` over its poles, in radians
+    per sample (``inf`` without poles)."""
+    poles = np.roots(stable_denominator(a)).astype(complex)
+    poles = poles[np.abs(poles) > 0.0]
+    if not len(poles):
+        return np.inf
+    poles = np.where(np.abs(poles) > MAX_RADIUS, poles * MAX_RADIUS / np.abs(poles), poles)
+    return float(np.min(np.abs(np.log(poles))))
 
 
 def free_run_error(
@@ -192,7 +204,8 @@ def steiglitz_mcbride(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The Steiglitz–McBride fit: `arx_least_squares` again on inputs and outputs
     prefiltered by ``1 / a`` of the previous fit (stabilised), ``iterations`` times from the
-    ARX fit; the iterate whose free run (`free_run_error`) is closest to ``y`` is returned.
+    ARX fit; the iterate whose free run (`free_run_error`) is closest to ``y`` is returned
+    (the ARX fit where no prefiltered data stay finite).
     Plain ARX minimises the equation error, which weighs the free-run error by ``|a|``: on
     data sampled far above their band it can put the poles the data barely excite (a mode
     above the input band, seen only in start transients) far from where the free run wants
