@@ -66,11 +66,12 @@ log = logging.getLogger(__name__)
 #: the Steiglitz–McBride fit replaces the ARX start only below this share of its free-run
 #: error variance on the training recordings: a gross gain says ARX misplaced poles; a
 #: modest one is what fitting the free run of these same recordings gives anyway (near the
-#: unit circle on the cascaded tanks, 15 % of ARX's error there, a worse start on the test)
+#: unit circle on the cascaded tanks, under half of ARX's error there, a worse start on
+#: the test)
 OUTPUT_ERROR_REPLACES_AT = 0.01
 #: ... and only where its slowest mode is at least this share of the ARX fit's slowest
 #: (`slowest_rate`): slower dynamics are slow effects (creep, drift) read into the start,
-#: which the creep block carries where the loop finds them; from a start holding them the
+#: which the loop names itself (the creep block carries creep); from a start holding them the
 #: loop's creep refit did worse (simulator creep diagnosed on a 1 Hz sine: its 0.1 Hz test
 #: 0.121 instead of 0.053 um after the refit)
 SLOWEST_MODE_SHARE = 0.5
