@@ -153,3 +153,79 @@ def arx_least_squares(
     numerators = theta[na:-1].reshape(-1, nb)
     b = np.hstack([np.zeros((len(numerators), nk)), numerators])
     return (b[0] if single else b), a
+
+
+#: Steiglitz–McBride iterations of `steiglitz_mcbride`
+SM_ITERATIONS = 10
+
+
+def stable_denominator(a: np.ndarray) -> np.ndarray:
+    """``a`` with every pole outside the unit circle reflected inside it (the first step of
+    `StableSections.set_transfer_function`)."""
+    poles = np.roots(a)
+    if not len(poles):
+        return np.asarray(a, dtype=float)
+    poles = np.where(np.abs(poles) > 1.0, 1.0 / np.conj(poles), poles)
+    return np.real(np.poly(poles))
+
+
+def slowest_rate(a: np.ndarray) -> float:
+    """The slowest mode of the denominator ``a`` as `StableSections` holds it (poles reflected
+    inside the unit circle, at most `MAX_RADIUS`): ``min |ln p|`` over its poles, in radians
+    per sample (``inf`` without poles)."""
+    poles = np.roots(stable_denominator(a)).astype(complex)
+    poles = poles[np.abs(poles) > 0.0]
+    if not len(poles):
+        return np.inf
+    poles = np.where(np.abs(poles) > MAX_RADIUS, poles * MAX_RADIUS / np.abs(poles), poles)
+    return float(np.min(np.abs(np.log(poles))))
+
+
+def free_run_error(
+    u: Sequence[np.ndarray], y: Sequence[np.ndarray], b: np.ndarray, a: np.ndarray
+) -> float:
+    """Variance of the free-run error of ``b / a`` (shapes as `arx_least_squares` gives
+    them) from rest over the recordings ``u``, ``y``; the mean is left out (an output offset
+    is fitted apart). ``inf`` where the run does not stay finite."""
+    b2 = np.atleast_2d(b)
+    errors = []
+    for u_rec, y_rec in zip(u, y, strict=True):
+        u2 = np.asarray(u_rec, dtype=float).reshape(len(u_rec), -1)
+        run = sum(signal.lfilter(b2[j], a, u2[:, j]) for j in range(u2.shape[1]))
+        errors.append(np.asarray(y_rec, dtype=float).reshape(-1) - run)
+    with np.errstate(all="ignore"):
+        error = float(np.var(np.concatenate(errors)))
+    return error if np.isfinite(error) else np.inf
+
+
+def steiglitz_mcbride(
+    u: np.ndarray | Sequence[np.ndarray], y: np.ndarray | Sequence[np.ndarray], na: int,
+    nb: int, nk: int = 1, iterations: int = SM_ITERATIONS,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The Steiglitz–McBride fit: `arx_least_squares` again on inputs and outputs
+    prefiltered by ``1 / a`` of the previous fit (stabilised), ``iterations`` times from the
+    ARX fit; the iterate whose free run (`free_run_error`) is closest to ``y`` is returned
+    (the ARX fit where no prefiltered data stay finite).
+    Plain ARX minimises the equation error, which weighs the free-run error by ``|a|``: on
+    data sampled far above their band it can put the poles the data barely excite (a mode
+    above the input band, seen only in start transients) far from where the free run wants
+    them; the prefiltered fit weighs the free-run error itself. Same arguments and shapes as
+    `arx_least_squares`."""
+    us = [u] if isinstance(u, np.ndarray) else list(u)
+    ys = [y] if isinstance(y, np.ndarray) else list(y)
+    b, a = arx_least_squares(us, ys, na, nb, nk)
+    best = (np.inf, b, a)
+    for _ in range(iterations):
+        prefilter = stable_denominator(a)
+        with np.errstate(all="ignore"):
+            u_f = [signal.lfilter([1.0], prefilter, np.asarray(x, dtype=float), axis=0)
+                   for x in us]
+            y_f = [signal.lfilter([1.0], prefilter, np.asarray(x, dtype=float), axis=0)
+                   for x in ys]
+        if not all(np.all(np.isfinite(x)) for x in (*u_f, *y_f)):
+            break
+        b, a = arx_least_squares(u_f, y_f, na, nb, nk)
+        error = free_run_error(us, ys, b, stable_denominator(a))
+        if error < best[0]:
+            best = (error, b, a)
+    return best[1], best[2]
