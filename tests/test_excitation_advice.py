@@ -20,8 +20,11 @@ from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.effects.augment import feature_context
 from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.run_folder import LoopFolder
 from hysteresis_lab.signals import multisine, sine
 from hysteresis_lab.sim.default_dataset import make_default_dataset
+from hysteresis_lab.trainer import TrainerSettings
+from hysteresis_lab.workflows.loop import LoopSettings, run_loop
 from hysteresis_lab.workflows.loop_advice import excitation_advice
 from hysteresis_lab.workflows.loop_data import loop_data
 from hysteresis_lab.workflows.loop_report import loop_markdown
@@ -155,3 +158,30 @@ def test_no_advice_where_the_identification_data_drive_the_operators_as_the_test
     rec = _recorded(sine(2.0, fs=2000.0, n_periods=2), "sine")
     context = feature_context([rec])
     assert recommend_recordings("saturation", [rec], [rec], [rec], context) is None
+
+
+def test_the_loop_reports_the_recordings_to_add(tmp_path):
+    """Round 0 of the loop on short simulator records with the amplifier clipping: the 1 s
+    validation multisine passes 70 V a few times, the 10 and 100 Hz test sines every cycle.
+    The clipping's score reaches loop.min_score without significance, and the report (JSON,
+    page, log) says which sines to add, nothing else changed."""
+    spec = DataSpec.from_config(hl.compose("data=default", *CLIPPING).data)
+    effects = {"hysteresis": {"enabled": False}, "creep": {"enabled": False},
+               "saturation": {"enabled": True}}
+    data = make_default_dataset(effects=effects, n_train=8000, test_frequencies=(10.0, 100.0),
+                                max_test_samples=3000, val_samples=20000)
+    trainer = TrainerSettings(max_epochs=5, accelerator="cpu", devices=1,
+                              enable_progress_bar=False, enable_model_summary=False)
+    report = run_loop({"name": "linear", "effects": [], "lr": 0.02}, spec, trainer, data,
+                      tmp_path, LoopSettings(max_rounds=0), use_tensorboard=False)
+    first = report["rounds"][0]
+    score = next(d for d in first["diagnosis"] if d["effect"] == "saturation")
+    assert score["score"] >= 0.05 and not score["significant"]
+    advice = {a["effect"]: a for a in first["under_excited"]}["saturation"]
+    assert advice["identification"] > UNDER_EXCITED_RATIO
+    assert advice["override"][0].startswith("data.splits.train_sines=")
+    page = LoopFolder(tmp_path).report_md.read_text()
+    assert f"rerun with: `{' '.join(advice['override'])}`" in page
+    unjudged = {d["effect"] for d in first["diagnosis"] if d["tested"] and d["predictable"]
+                and not d["significant"] and d["score"] >= 0.05}
+    assert {a["effect"] for a in first["under_excited"]} <= unjudged
