@@ -136,10 +136,10 @@ def _why_not_refitted(first: dict, report: dict) -> str:
 
 
 def recommended_recordings(report: dict, expected: tuple[str, ...]) -> list[str] | None:
-    """The overrides round 0's report recommends for the case's effect (else for the first
-    effect it could not judge; None: it recommends none)."""
-    advice = report["rounds"][0].get("under_excited") or []
-    advice = [a for a in advice if a["effect"] in expected] or advice
+    """The overrides round 0's report recommends for the case's effect (None: it could judge
+    the effect, or recommends no override)."""
+    advice = [a for a in report["rounds"][0].get("under_excited") or []
+              if a["effect"] in expected]
     return advice[0].get("override") if advice else None
 
 

@@ -52,6 +52,7 @@ def test_a_rerun_with_the_recommended_recordings_says_so_and_the_first_row_stand
         {"effect": "saturation", "override": override}]}]}
     assert script.recommended_recordings(report, ("saturation",)) == override
     assert script.recommended_recordings({"rounds": [{}]}, ("saturation",)) is None
+    assert script.recommended_recordings(report, ("creep",)) is None  # not the case's effect
     first = {"verdict": "FAIL: not named as the top significant effect", "recommends": override,
              "added_recordings": []}
     cell = script._verdict_cell(first)

@@ -137,14 +137,22 @@ def _ratio(value: float | None) -> str:
     return "moves only on the tests" if value is None else f"{value:.3g}x"
 
 
+def _tests(driving: Sequence[str], n_tests: int) -> str:
+    """The tests that drive the operators: all of them, or their names."""
+    if len(driving) == n_tests > 1:
+        return f"all {n_tests} tests"
+    return f"the tests {', '.join(driving)}"
+
+
 def _sentence(
     advice: RecordingAdvice, score: EffectScore, override: list[str] | None, data: LoopData,
     u_units: str,
 ) -> str:
     """What the report and the log say: not judged, why, and what to record."""
+    n_tests = len(data.fit.test)
     why = (
         f"'{advice.effect}' not judged for lack of excitation: score {score.score:.3f} reaches "
-        f"loop.min_score but p = {score.p_value:.4g}; the tests ({', '.join(advice.driving)}) "
+        f"loop.min_score but p = {score.p_value:.4g}; {_tests(advice.driving, n_tests)} "
         f"drive its operators {_ratio(advice.identification)} as hard (RMS) as the "
         f"identification data and {_ratio(advice.diagnosis)} as the diagnosis recordings "
         f"(above {UNDER_EXCITED_RATIO:g}x)"
