@@ -28,6 +28,7 @@ from hysteresis_lab.workflows.loop import LoopSettings, run_loop
 from hysteresis_lab.workflows.loop_advice import excitation_advice
 from hysteresis_lab.workflows.loop_data import loop_data
 from hysteresis_lab.workflows.loop_report import loop_markdown
+from loop_notebook import check_loop_notebook
 
 #: the simulator with the amplifier's clipping the one effect beyond linear dynamics
 CLIPPING = ("data.effects.hysteresis.enabled=false", "data.effects.creep.enabled=false",
@@ -182,6 +183,7 @@ def test_the_loop_reports_the_recordings_to_add(tmp_path):
     assert advice["override"][0].startswith("data.splits.train_sines=")
     page = LoopFolder(tmp_path).report_md.read_text()
     assert f"rerun with: `{' '.join(advice['override'])}`" in page
+    check_loop_notebook(tmp_path)
     unjudged = {d["effect"] for d in first["diagnosis"] if d["tested"] and d["predictable"]
                 and not d["significant"] and d["score"] >= 0.05}
     assert {a["effect"] for a in first["under_excited"]} <= unjudged
