@@ -3,8 +3,8 @@
 One section per round: the fit, the before/after on the test recordings and the validation
 decision (a refit), the residual evidence (figures beside the report, the ranked
 diagnosis), the effects the data could not judge for lack of excitation with the recordings
-to add for them, the effect added and why, and its operators' excitation; then the result and the
-data roles. Everything is read from ``loop_report.json``'s document, so the page and the
+to add for them, the effect added and why, and its operators' excitation; then the result
+and the data roles. Everything is read from ``loop_report.json``'s document, so the page and the
 JSON cannot disagree; the figures are drawn from what a round already computed (no model
 runs).
 """
