@@ -3,6 +3,8 @@ clipping amplifier, which the validation multisine barely reaches and every test
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -116,7 +118,17 @@ def test_recorded_data_get_a_sentence_on_what_to_record():
     # the held-out ends of the added recordings reach the clipping as the tests do
     assert advice["diagnosis_after"] <= UNDER_EXCITED_RATIO
     assert "Record inputs of ±1 V peak in 1-10 Hz" in advice["advice"]
-    assert "as extra data.train files" in advice["advice"]
+    assert "as extra data.train files (the loop validates and diagnoses on the last" in (
+        advice["advice"])
+    # where data.diagnose names a recording that barely clips, some of them go there
+    quiet = _recorded(sine(3.0, fs=2000.0, amplitude=0.5, n_periods=2), "quiet")
+    spec = DataSpec.from_config(hl.compose("data=csv", "data.train=run.csv",
+                                           "data.diagnose=[quiet]").data)
+    named = loop_data(dataclasses.replace(splits, test=[*tests, quiet]), spec, 0.25)
+    (advice,) = excitation_advice([UNJUDGED], named, spec, feature_context(named.fit.train),
+                                  0.05, 0.25)
+    assert advice["val_hz"] and f"those at {advice['val_hz'][0]:g}" in advice["advice"]
+    assert "in data.diagnose (the recordings the diagnosis reads)" in advice["advice"]
 
 
 def test_the_report_page_says_what_to_add(clipping_advice):

@@ -63,7 +63,7 @@ def excitation_advice(
     ``holdout``: ``loop.holdout``, the share of each training recording held out where the
     data set has no validation recordings."""
     fit = data.fit
-    held = holdout if _holds_out(data) else None
+    held = holdout if _holds_out(data) and not data_spec.diagnose else None
     make_sine = _sine_maker(fit.test[0].fs) if fit.test and fit.test[0].nu == 1 else None
     advice = []
     for score in unjudged_effects(diagnosis, min_score):
@@ -76,7 +76,8 @@ def excitation_advice(
         override = (simulator_override(found, data_spec) if is_simulator(data_spec) else None)
         entry = {**found.to_dict(), "score": score.score, "p_value": score.p_value,
                  "override": override,
-                 "advice": _sentence(found, score, override, data, fit.test[0].u_units)}
+                 "advice": _sentence(found, score, override, _where(data, data_spec),
+                                     len(fit.test), fit.test[0].u_units)}
         log.warning("%s", entry["advice"])
         advice.append(entry)
     return advice
@@ -134,28 +135,36 @@ def simulator_override(advice: RecordingAdvice, data_spec: DataSpec) -> list[str
 
 
 def _ratio(value: float | None) -> str:
-    return "moves only on the tests" if value is None else f"{value:.3g}x"
+    return "never moved there" if value is None else f"{value:.3g}x"
 
 
 def _tests(driving: Sequence[str], n_tests: int) -> str:
     """The tests that drive the operators: all of them, or their names."""
     if len(driving) == n_tests > 1:
         return f"all {n_tests} tests"
-    return f"the tests {', '.join(driving)}"
+    return f"the test recordings ({', '.join(driving)})"
+
+
+def _where(data: LoopData, data_spec: DataSpec) -> str:
+    """Which recordings the diagnosis reads: ``"diagnose"`` (named in data.diagnose),
+    ``"holdout"`` (the ends of the training recordings) or ``"val"``."""
+    if data_spec.diagnose:
+        return "diagnose"
+    return "holdout" if _holds_out(data) else "val"
 
 
 def _sentence(
-    advice: RecordingAdvice, score: EffectScore, override: list[str] | None, data: LoopData,
-    u_units: str,
+    advice: RecordingAdvice, score: EffectScore, override: list[str] | None, where: str,
+    n_tests: int, u_units: str,
 ) -> str:
-    """What the report and the log say: not judged, why, and what to record."""
-    n_tests = len(data.fit.test)
+    """What the report and the log say: not judged, why, and what to record (``where``: see
+    `_where`; ``n_tests``: how many test recordings there are)."""
     why = (
         f"'{advice.effect}' not judged for lack of excitation: score {score.score:.3f} reaches "
         f"loop.min_score but p = {score.p_value:.4g}; {_tests(advice.driving, n_tests)} "
-        f"drive its operators {_ratio(advice.identification)} as hard (RMS) as the "
-        f"identification data and {_ratio(advice.diagnosis)} as the diagnosis recordings "
-        f"(above {UNDER_EXCITED_RATIO:g}x)"
+        f"drive its operators beyond the identification data ({_ratio(advice.identification)}"
+        f" RMS) and the diagnosis recordings ({_ratio(advice.diagnosis)}; above "
+        f"{UNDER_EXCITED_RATIO:g}x the data show too little of it)"
     )
     after = ""
     if advice.identification_after is not None:
@@ -168,13 +177,18 @@ def _sentence(
     peak = "/".join(f"{a:.3g}" for a in advice.amplitude)
     low, high = advice.band_hz
     sines = _hz([*advice.train_hz, *advice.val_hz])
-    what = (f"record inputs of ±{peak} {u_units} peak in {low:g}-{high:g} Hz, as the tests "
+    band = f"at {low:g} Hz" if low == high else f"in {low:g}-{high:g} Hz"
+    what = (f"record inputs of ±{peak} {u_units} peak {band}, as the tests "
             f"that drive it, at frequencies of their own"
             + (f" (e.g. sines at {sines} Hz)" if sines else ""))
-    where = (" and pass them as extra data.train files (the loop validates and diagnoses on "
-             "the last loop.holdout of each)" if _holds_out(data) else
-             " and pass them as extra data.train files, and some (those at "
-             f"{_hz(advice.val_hz) or 'other frequencies'} Hz) as data.val or data.diagnose "
-             "files, so that the diagnosis sees the effect")
-    return f"{why}. {what[0].upper()}{what[1:]}{where}{after}"
+    some = f"those at {_hz(advice.val_hz) or 'other frequencies'} Hz"
+    place = {
+        "holdout": " and pass them as extra data.train files (the loop validates and diagnoses "
+                   "on the last loop.holdout of each)",
+        "val": f" and pass them as extra data.train files, and {some} as data.val files (the "
+               "loop validates and diagnoses on those)",
+        "diagnose": f" and pass them as extra data.train files, and {some} in data.diagnose "
+                    "(the recordings the diagnosis reads)",
+    }[where] if advice.val_hz or where == "holdout" else " and pass them as extra data.train files"
+    return f"{why}. {what[0].upper()}{what[1:]}{place}{after}"
 
