@@ -287,17 +287,22 @@ def _run_and_keep(name: str, root: Path, rounds: int, recommended: bool) -> None
     """Run case ``name`` (its first run reused with ``recommended`` where kept) and keep its
     row; with ``recommended`` also the rerun with the recordings its report names."""
     first = root / name / "row.json"
-    if not (recommended and first.is_file()):
+    kept = first.is_file() and "recommends" in json.loads(first.read_text())
+    if not (recommended and kept):  # (a row from before the advice is run again)
         log.info("case %s ...", name)
         _keep(run_case(name, root, rounds), first)
+    rerun = root / f"{name}+recommended" / "row.json"
+    extra = json.loads(first.read_text()).get("recommends")
+    if rerun.is_file() and json.loads(rerun.read_text())["added_recordings"] != extra:
+        rerun.unlink()  # a rerun with what the first run's report no longer recommends
+    if not extra:
+        if recommended:
+            log.info("case %s: its report recommends no recordings", name)
+        return
     if not recommended:
         return
-    extra = json.loads(first.read_text()).get("recommends")
-    if not extra:
-        log.info("case %s: its report recommends no recordings", name)
-        return
     log.info("case %s with the recommended recordings %s ...", name, extra)
-    _keep(run_case(name, root, rounds, tuple(extra)), root / f"{name}+recommended" / "row.json")
+    _keep(run_case(name, root, rounds, tuple(extra)), rerun)
 
 
 def _keep(row: dict, path: Path) -> None:
