@@ -3,6 +3,8 @@
     python experiments/undeclared_effects.py                        # all cases, then the table
     python experiments/undeclared_effects.py --cases creep          # one case (rows are kept)
     python experiments/undeclared_effects.py --table-only           # the table from kept rows
+    python experiments/undeclared_effects.py --cases saturation --recommended  # and again with
+                                                   # the recordings its first run's report names
 
 For each case the simulator switches one effect on that the start model does not declare.
 The start is the loop's own, ``model=linear effects=[]``; the simulator's always-on
@@ -26,6 +28,11 @@ the top significant effect (or its catalogue stand-in); the refit takes at least
 ceiling off where the effect acts; no other test more than 5 % worse; an input-independent
 effect (drift) named and no gain claimed for it. Each case's row is kept as JSON under
 ``--root``; the table of all kept rows goes to ``docs/results/undeclared_effects.md``.
+
+Where round 0 could not judge an effect for lack of excitation, the loop's report names the
+recordings to add (``under_excited``: simulator overrides). ``--recommended`` runs such a
+case again with them added, nothing else changed, into ``<root>/<case>+recommended``; its
+row follows the first run's, whose verdict stands.
 """
 
 from __future__ import annotations
@@ -74,15 +81,15 @@ MIN_SCORE = 0.05  # loop.min_score's default
 HELD_PCT = 10.0
 
 
-def command_for(name: str, rounds: int) -> list[str]:
-    """The hysteresis-lab-loop command of case ``name``."""
+def command_for(name: str, rounds: int, extra: tuple[str, ...] = ()) -> list[str]:
+    """The hysteresis-lab-loop command of case ``name`` (``extra``: data overrides added)."""
     block, declared, _ = CASES[name]
     off = [f"data.effects.{b}.enabled=false" for b in NONLINEAR
            if b != block and b not in declared]
     start = [f"model.effects=[{','.join(declared)}]"] if declared else []
     return [
         "hysteresis-lab-loop", *start, *off,
-        f"data.effects.{block}.enabled=true", *CASE_DATA.get(name, []),
+        f"data.effects.{block}.enabled=true", *CASE_DATA.get(name, []), *extra,
         f"loop.max_rounds={rounds}", *QUIET,
     ]
 
@@ -137,11 +144,20 @@ def _why_not_refitted(first: dict, report: dict) -> str:
     return first.get("note", "no refit")
 
 
-def run_case(name: str, root: Path, rounds: int) -> dict:
-    """Run one case's loop (fresh) and read its row."""
+def recommended_recordings(report: dict, expected: tuple[str, ...]) -> list[str] | None:
+    """The overrides round 0's report recommends for the case's effect (None: it could judge
+    the effect, or recommends no override)."""
+    advice = [a for a in report["rounds"][0].get("under_excited") or []
+              if a["effect"] in expected]
+    return advice[0].get("override") if advice else None
+
+
+def run_case(name: str, root: Path, rounds: int, extra: tuple[str, ...] = ()) -> dict:
+    """Run one case's loop (fresh) and read its row; ``extra``: the recordings recommended
+    by its first run (their row is the case's ``+recommended`` one)."""
     block, _, expected = CASES[name]
-    folder = root / name
-    command = command_for(name, rounds)
+    folder = root / (f"{name}+recommended" if extra else name)
+    command = command_for(name, rounds, extra)
     try:
         report, seconds = run_fresh_loop(command[1:], folder)
     except RuntimeError as exc:
@@ -152,7 +168,9 @@ def run_case(name: str, root: Path, rounds: int) -> dict:
     scores = {d["effect"]: d["score"] for d in first["diagnosis"]}
     shares = effect_share(folder, block, 0)
     row = {
-        "case": name, "block": block, "expected": list(expected),
+        "case": f"{name} + recommended recordings" if extra else name,
+        "block": block, "expected": list(expected), "added_recordings": list(extra),
+        "recommends": recommended_recordings(report, expected),
         "command": " ".join(command),
         "commit": commit_stamp(REPO, ("src", "experiments")),
         "date": f"{datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M}",
@@ -183,7 +201,26 @@ def run_case(name: str, root: Path, rounds: int) -> dict:
     row["ceiling_pct"] = {r["test"]: r["max_cut_pct"] for r in acting}
     row["effect_size_um"] = {r["test"]: r["effect_size_um"] for r in acting}
     row["verdict"] = verdict(row)
+    if extra:
+        row["verdict"] = _with_recommended(row["verdict"])
     return row
+
+
+def _with_recommended(plain: str) -> str:
+    """A rerun's verdict says that it ran with the recommended recordings."""
+    head, _, rest = plain.partition(":")
+    said = f"{head} with the recommended recordings"
+    return f"{said}:{rest}" if rest else said
+
+
+def _verdict_cell(row: dict) -> str:
+    """The verdict, and the recordings the report recommends (a first run's)."""
+    if row.get("recommends") and not row.get("added_recordings"):
+        return (f"{row['verdict']}; not judged for lack of excitation, the report "
+                f"recommends `{' '.join(row['recommends'])}`")
+    if row.get("added_recordings"):
+        return f"{row['verdict']} (added: `{' '.join(row['added_recordings'])}`)"
+    return row["verdict"]
 
 
 def _tests_cell(row: dict) -> str:
@@ -235,7 +272,10 @@ def table(rows: list[dict]) -> str:
         "no gain claimed; an effect below 5 % of the residual whose own output is < 10 % of "
         "every test's error (its ceiling) is held by the start: nothing to name, PASS. "
         "Free-run RMSE in µm; 'after' is the refit's, also when the loop "
-        "rejected it (then the loop claims no gain).",
+        "rejected it (then the loop claims no gain). Where round 0 could not judge an effect "
+        "for lack of excitation its report names recordings to add; a '+ recommended "
+        "recordings' row is the case run again with them (`--recommended`), nothing else "
+        "changed, below the first run's row, whose verdict stands.",
         "",
         "| case | top significant (score) | expected's score | effect share of residual "
         "| tests where it acts: before → after (refit; ceiling) | worst other test "
@@ -252,12 +292,39 @@ def table(rows: list[dict]) -> str:
         lines.append(
             f"| {r['case']} | {top} | {'/'.join(r['expected'])} "
             f"{100 * r['expected_score']:.1f} % | {100 * r['effect_share_max']:.1f} % "
-            f"| {_tests_cell(r)} | {_others_cell(r)} | {kept} | {r['verdict']} |"
+            f"| {_tests_cell(r)} | {_others_cell(r)} | {kept} | {_verdict_cell(r)} |"
         )
     lines += ["", "Per case: command, commit, date, wall time:", ""]
     lines += [f"- {r['case']}: `{r['command']}` at {r['commit']}, {r['date']} UTC, "
               f"{r['seconds']:.0f} s" for r in rows]
     return "\n".join(lines) + "\n"
+
+
+def _run_and_keep(name: str, root: Path, rounds: int, recommended: bool) -> None:
+    """Run case ``name`` (its first run reused with ``recommended`` where kept) and keep its
+    row; with ``recommended`` also the rerun with the recordings its report names."""
+    first = root / name / "row.json"
+    kept = first.is_file() and "recommends" in json.loads(first.read_text())
+    if not (recommended and kept):  # (a row from before the advice is run again)
+        log.info("case %s ...", name)
+        _keep(run_case(name, root, rounds), first)
+    rerun = root / f"{name}+recommended" / "row.json"
+    extra = json.loads(first.read_text()).get("recommends")
+    if rerun.is_file() and json.loads(rerun.read_text())["added_recordings"] != extra:
+        rerun.unlink()  # a rerun with what the first run's report no longer recommends
+    if not extra:
+        if recommended:
+            log.info("case %s: its report recommends no recordings", name)
+        return
+    if not recommended:
+        return
+    log.info("case %s with the recommended recordings %s ...", name, extra)
+    _keep(run_case(name, root, rounds, tuple(extra)), rerun)
+
+
+def _keep(row: dict, path: Path) -> None:
+    path.write_text(json.dumps(row, indent=1))
+    log.info("%s", json.dumps(row, indent=1))
 
 
 def main() -> None:
@@ -267,16 +334,17 @@ def main() -> None:
     parser.add_argument("--root", type=Path, default=REPO / "outputs" / "undeclared")
     parser.add_argument("--table-only", action="store_true",
                         help="write the table from the rows kept under --root")
+    parser.add_argument("--recommended", action="store_true",
+                        help="run each case again with the recordings its first run's report "
+                        "recommends (the first run is reused when its row is kept)")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     if not args.table_only:
         for name in args.cases:
-            log.info("case %s ...", name)
-            row = run_case(name, args.root, args.rounds)
-            (args.root / name / "row.json").write_text(json.dumps(row, indent=1))
-            log.info("%s", json.dumps(row, indent=1))
-    rows = [json.loads((args.root / n / "row.json").read_text()) for n in CASES
-            if (args.root / n / "row.json").is_file()]
+            _run_and_keep(name, args.root, args.rounds, args.recommended)
+    rows = [json.loads(path.read_text()) for n in CASES
+            for path in (args.root / n / "row.json", args.root / f"{n}+recommended" / "row.json")
+            if path.is_file()]
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text(table(rows))
     log.info("wrote %s", OUT)

@@ -64,6 +64,8 @@ def check_loop_notebook(run: Path) -> dict[str, Any]:
             assert "### Residual evidence" in section
         if entry["added"]:
             assert "added" in figures and f"added_{entry['added']}" in figures["added"]
+        for advice in entry.get("under_excited", []):  # recordings to add, as the JSON says
+            assert advice["advice"] in subsection(section, "Not judged: recordings to add")
         for path in figures.values():
             assert f"]({path})" in section  # linked from its own round's section
             assert_png(run / path)

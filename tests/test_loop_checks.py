@@ -116,8 +116,10 @@ def test_ceiling_scores_round_0_and_the_effects_own_output(loop_run):
 def test_refit_choice_refuses_training_sines_and_measured_data():
     simulator = {"effects": {}, "splits": {
         "_target_": "hysteresis_lab.sim.default_dataset.make_default_dataset",
-        "train_sines": [30.0]}}
-    with pytest.raises(ConfigError, match="training sines"):
+        "train_sines": [30.0], "val_sines": [3.2]}}
+    with pytest.raises(ConfigError, match=r"\[30.0\] Hz are training or validation sines"):
         check_splits(simulator, [30.0, 70.0])
+    with pytest.raises(ConfigError, match=r"\[3.2\] Hz are training or validation sines"):
+        check_splits(simulator, [3.2, 70.0])
     with pytest.raises(ConfigError, match="simulator"):
         check_splits({"splits": {}}, [30.0])

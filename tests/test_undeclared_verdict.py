@@ -49,3 +49,24 @@ def test_the_refit_judged_is_the_first_the_loop_keeps():
     kept = {"effects": ["backlash"]}
     assert judged([start, dropped, kept]) is kept
     assert judged([start, dropped, {"effects": ["backlash"], "rejected": "backlash"}]) is dropped
+
+
+def test_a_rerun_with_the_recommended_recordings_says_so_and_the_first_row_stands():
+    """Saturation not judged on the validation multisine: the first run's row keeps its FAIL
+    and shows the recordings its report recommends; the rerun's verdict names them."""
+    script = _script()
+    override = ["data.splits.train_sines=[0.32,22]", "data.splits.val_sines=[3.2]"]
+    report = {"rounds": [{"under_excited": [
+        {"effect": "dead_zone", "override": ["data.splits.train_sines=[7]"]},
+        {"effect": "saturation", "override": override}]}]}
+    assert script.recommended_recordings(report, ("saturation",)) == override
+    assert script.recommended_recordings({"rounds": [{}]}, ("saturation",)) is None
+    assert script.recommended_recordings(report, ("creep",)) is None  # not the case's effect
+    first = {"verdict": "FAIL: not named as the top significant effect", "recommends": override,
+             "added_recordings": []}
+    cell = script._verdict_cell(first)
+    assert cell.startswith("FAIL: not named") and " ".join(override) in cell
+    assert script._with_recommended("PASS") == "PASS with the recommended recordings"
+    assert script._with_recommended("FAIL: > 5 % worse on ['sine_1Hz']") == (
+        "FAIL with the recommended recordings: > 5 % worse on ['sine_1Hz']")
+    assert script.command_for("saturation", 1, tuple(override))[-5:-3] == override

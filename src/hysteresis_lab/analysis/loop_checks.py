@@ -215,11 +215,12 @@ def check_splits(data_cfg: dict[str, Any], frequencies: list[float]) -> DatasetS
             "the refit-choice check needs a loop run on the simulator (data=default): measured "
             "data have no extra recordings to check against."
         )
-    used = {float(f) for f in splits_cfg.get("train_sines") or []}
+    used = {float(f) for key in ("train_sines", "val_sines") for f in splits_cfg.get(key) or []}
     clash = sorted(used & set(frequencies))
     if clash:
         raise ConfigError(
-            f"{clash} Hz are training sines of this run. Fix: check frequencies without them."
+            f"{clash} Hz are training or validation sines of this run. Fix: check frequencies "
+            "without them."
         )
     splits_cfg = {**splits_cfg, "test_frequencies": frequencies, "test_hold_s": 0}
     return build_splits({**data_cfg, "splits": splits_cfg})

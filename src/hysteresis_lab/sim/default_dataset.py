@@ -20,6 +20,7 @@ log = logging.getLogger(__name__)
 
 HOLD_STREAM = 1  # seed stream of the hold recording (apart from the sines' seeds)
 VAL_STREAM = 2  # seed stream of the validation multisine
+VAL_SINES_STREAM = 3  # seed stream of the validation sines
 TEST_FREQUENCIES_HZ = (0.1, 1, 10, 50, 100, 150, 200, 250, 300, 400, 450, 500)
 
 
@@ -27,7 +28,8 @@ def sine_name(frequency: float) -> str:
     return f"sine_{frequency:g}Hz"
 
 
-def _sine_signal(frequency: float, fs: float, amplitude: float) -> np.ndarray:
+def sine_signal(frequency: float, fs: float, amplitude: float) -> np.ndarray:
+    """A test or added sine's input: two periods (one below 1 Hz), from rest."""
     return sine(frequency, fs=fs, amplitude=amplitude, n_periods=1.0 if frequency < 1.0 else 2.0)
 
 
@@ -50,6 +52,42 @@ def _validation_multisine(
     return simulate_recording(u, fs, config, seed=int(noise_seed), name="multisine_validation")
 
 
+def _validation_sines(
+    frequencies: Sequence[float], fs: float, amplitude: float, config: PositionerConfig,
+    seed: int,
+) -> list[Recording]:
+    """Validation sines at ``frequencies`` (their own noise stream)."""
+    seeds = np.random.default_rng((seed, VAL_SINES_STREAM)).integers(
+        0, 2**31, size=len(frequencies))
+    return [
+        simulate_recording(sine_signal(float(f), fs, amplitude), fs, config, seed=int(s),
+                           name=f"val_{sine_name(float(f))}")
+        for f, s in zip(frequencies, seeds, strict=True)
+    ]
+
+
+def _check_added_sines(
+    train_sines: Sequence[float], val_sines: Sequence[float], test_frequencies: Sequence[float]
+) -> None:
+    """Added sines are at frequencies of their own: no test's, none in both added sets."""
+    tests, train, val = (set(map(float, f)) for f in (test_frequencies, train_sines, val_sines))
+    for name, added in (("train_sines", train), ("val_sines", val)):
+        overlap = sorted(added & tests)
+        if overlap:
+            raise ConfigError(
+                f"{name} {overlap} Hz are also test frequencies: that would train or validate "
+                f"on test data. Fix: choose data.splits.{name} between the test frequencies."
+            )
+    both = sorted(train & val)
+    if both:
+        raise ConfigError(
+            f"{both} Hz are both train_sines and val_sines: validation would repeat training "
+            "inputs. Fix: give each added sine one role."
+        )
+    if len(val) != len(val_sines):
+        raise ConfigError(f"val_sines {list(val_sines)} repeats a frequency. Fix: list each once.")
+
+
 def make_default_dataset(
     effects: Mapping[str, Any] | DictConfig | None = None,
     seed: int = 0,
@@ -62,6 +100,7 @@ def make_default_dataset(
     train_sine_amplitude: float | None = None,
     test_hold_s: float = 0.0,
     val_samples: int = 0,
+    val_sines: Sequence[float] = (),
 ) -> DatasetSplits:
     """Multisine (500 lines, 0-500 Hz, ±amplitude, ``n_train`` samples) and sine test sets.
 
@@ -76,7 +115,10 @@ def make_default_dataset(
     ``val_samples`` > 0 adds a validation recording: a second realisation of the multisine
     (same spectrum and amplitude, other random phases, its own noise) of that many samples.
     The multisine is periodic, so a random split of its windows (``val_samples=0``, the
-    study's protocol) validates on inputs the model trained on.
+    study's protocol) validates on inputs the model trained on. ``val_sines`` adds sines at
+    other frequencies (of ``train_sine_amplitude``) to the validation set: what the loop
+    validates and diagnoses on besides the validation multisine (its report recommends them
+    where the multisine barely drives an effect the tests drive).
     """
     if isinstance(effects, DictConfig):
         effects = OmegaConf.to_container(effects, resolve=True)  # type: ignore[assignment]
@@ -95,12 +137,7 @@ def make_default_dataset(
             f"test_hold_s={test_hold_s} s must be >= 0. "
             "Fix: data.splits.test_hold_s=0 (no hold recording) or a duration, e.g. 10."
         )
-    overlap = sorted(set(map(float, train_sines)) & set(map(float, test_frequencies)))
-    if overlap:
-        raise ConfigError(
-            f"train_sines {overlap} Hz are also test frequencies: that would train on test data. "
-            "Fix: choose training sines between the test frequencies."
-        )
+    _check_added_sines(train_sines, val_sines, test_frequencies)
     config = PositionerConfig.from_dict(effects)
     n_tests = len(test_frequencies)
     seeds = np.random.default_rng(seed).integers(0, 2**31, size=2 + n_tests + len(train_sines))
@@ -108,11 +145,11 @@ def make_default_dataset(
     train = [simulate_recording(u_train, fs, config, seed=int(seeds[1]), name="multisine")]
     for frequency, rec_seed in zip(train_sines, seeds[2 + n_tests :], strict=True):
         name = f"train_{sine_name(float(frequency))}"
-        u = _sine_signal(float(frequency), fs, train_sine_amplitude or amplitude)
+        u = sine_signal(float(frequency), fs, train_sine_amplitude or amplitude)
         train.append(simulate_recording(u, fs, config, seed=int(rec_seed), name=name))
     tests = []
     for frequency, rec_seed in zip(test_frequencies, seeds[2 : 2 + n_tests], strict=True):
-        u = _sine_signal(frequency, fs, amplitude)
+        u = sine_signal(frequency, fs, amplitude)
         if max_test_samples:
             u = u[:max_test_samples]
         tests.append(
@@ -121,6 +158,7 @@ def make_default_dataset(
     if test_hold_s > 0:
         tests.append(_hold_recording(test_hold_s, fs, config, seed, max_test_samples))
     val = [_validation_multisine(val_samples, fs, amplitude, config, seed)] if val_samples else []
+    val += _validation_sines(val_sines, fs, train_sine_amplitude or amplitude, config, seed)
     return DatasetSplits(
         name="default",
         train=train,

@@ -47,6 +47,7 @@ from hysteresis_lab.models.base import NarxModule
 from hysteresis_lab.models.spec import ModelSpec
 from hysteresis_lab.run_folder import LoopFolder, RunFolder
 from hysteresis_lab.trainer import TrainerSettings
+from hysteresis_lab.workflows.loop_advice import excitation_advice
 from hysteresis_lab.workflows.loop_data import LoopData, Stretch, loop_data
 from hysteresis_lab.workflows.loop_report import loop_markdown, start_label, write_round_figures
 from hysteresis_lab.workflows.pipeline import RunResult, evaluation_device, train_and_evaluate
@@ -163,6 +164,8 @@ class _LoopRun:
     judge: Callable[[RunResult], HeldOut]
     folder: LoopFolder
     use_tensorboard: bool
+    #: the data config (the advice on recordings to add names its overrides)
+    data_spec: DataSpec
 
 
 @dataclass
@@ -218,6 +221,7 @@ def run_loop(
         judge=functools.partial(held_out, data=data, device=evaluation_device(trainer)),
         folder=LoopFolder(output_dir),
         use_tensorboard=use_tensorboard,
+        data_spec=data_spec,
     )
     state = _LoopState(effects=list(start["effects"]))
     try:
@@ -323,6 +327,10 @@ def _fit_round_and_decide(
             run.use_tensorboard, number,
         )
         entry["diagnosis"] = [d.to_dict() for d in state.diagnosis]
+        advice = excitation_advice(state.diagnosis, run.data, run.data_spec, run.context,
+                                   settings.min_score, settings.holdout)
+        if advice:
+            entry["under_excited"] = advice
         entry["figures"] = {
             "diagnostics": run.folder.relative(round_dir / DIAGNOSTICS_FIGURE)}
     return entry, True

@@ -2,8 +2,9 @@
 
 One section per round: the fit, the before/after on the test recordings and the validation
 decision (a refit), the residual evidence (figures beside the report, the ranked
-diagnosis), the effect added and why, and its operators' excitation; then the result and the
-data roles. Everything is read from ``loop_report.json``'s document, so the page and the
+diagnosis), the effects the data could not judge for lack of excitation with the recordings
+to add for them, the effect added and why, and its operators' excitation; then the result
+and the data roles. Everything is read from ``loop_report.json``'s document, so the page and the
 JSON cannot disagree; the figures are drawn from what a round already computed (no model
 runs).
 """
@@ -111,6 +112,8 @@ def _round_section(report: Mapping[str, Any], number: int, unit: str) -> list[st
         lines += ["", "### Validation decision", "", *_decision_lines(r, unit)]
     if r.get("diagnosis"):
         lines += ["", "### Residual evidence", "", *_evidence_lines(r, report["roles"])]
+    if r.get("under_excited"):
+        lines += ["", "### Not judged: recordings to add", "", *_advice_lines(r)]
     if decision is None and not r.get("diagnosis"):
         return lines  # a start that diverges: nothing was diagnosed
     lines += ["", "### Effect added" if decision is None or decision["kept"]
@@ -242,6 +245,17 @@ def _added_lines(report: Mapping[str, Any], number: int) -> list[str]:
     if figure:
         lines += ["", f"![the residual and what '{r['added']}' reproduces of it]({figure})", ""]
     lines += _excitation_lines(r)
+    return lines
+
+
+def _advice_lines(r: Mapping[str, Any]) -> list[str]:
+    """Effects the round's data could not judge for lack of excitation, and the recordings
+    that would show them (`hysteresis_lab.workflows.loop_advice`)."""
+    lines = []
+    for entry in r["under_excited"]:
+        lines.append(f"- {entry['advice']}")
+        if entry.get("override"):
+            lines.append(f"  - rerun with: `{' '.join(entry['override'])}`")
     return lines
 
 
