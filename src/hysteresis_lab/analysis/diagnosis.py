@@ -43,12 +43,13 @@ not twice its evidence; not on the model's output) adds its signals through ``1 
 lags give the numerator) and is tested against a baseline that also holds the input and
 declared operators through it (so a linear dynamics error stays in the baseline). Effects
 linear in the input (resonance, creep) are themselves a change of the dynamics and keep the
-plain baseline. The rows within `SETTLE_FACTOR` settling times of the slowest pole of the start
-are dropped for every effect: a recording that starts with a jump from rest has a start
-transient that can outweigh the rest of the residual, and filters of the input started from rest
-(the resonance's) fit it whatever its cause. The cost: an effect that shows only in that start
-transient (a mode far above the band of a band-limited input) is no longer seen. Measured in
-docs/loop.md ("Diagnosis through the model's dynamics").
+plain baseline. For every effect the first rows of each residual are dropped, `SETTLE_FACTOR`
+times as many as the slowest pole takes to decay to 1 % (`_settling`): a recording that starts
+with a jump from rest has a start transient that can outweigh the rest of the residual, and
+filters of the input started from rest (the resonance's) fit it whatever its cause. The cost:
+an effect that shows only in that start transient (a mode far above the band of a
+band-limited input) is no longer seen. Without ``predictions``, or where the fit is unstable,
+nothing changes. Measured in docs/loop.md ("Diagnosis through the model's dynamics").
 
 Significance: a one-sided Wilcoxon signed-rank test that the held-out block gains are positive
 (spurious signals make held-out predictions worse, not better). ``test="pooled"`` (the
