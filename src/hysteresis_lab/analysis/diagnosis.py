@@ -263,6 +263,9 @@ def _model_dynamics(
                      "the evidence does not pass through it", name)
             return none
         found[name] = a
+        log.info("diagnosis through the model's dynamics: output %s, slowest pole |p| = %.4f, "
+                 "the first %d samples of each residual left out", name,
+                 float(np.max(np.abs(np.roots(a)))), _settling(a))
     return [found[rec.y_names[0]] for rec in recordings]
 
 
@@ -531,7 +534,8 @@ class _Evidence:
     prepared: list[_Prepared]
     held: list[bool]  # whether each holds the input constant
     model_outputs: list[np.ndarray] | None
-    #: baseline designs and blocks per (tested recordings, output-side), built on first use
+    #: baseline designs and blocks per (tested recordings, output-side, through the model's
+    #: dynamics), built on first use
     baselines: dict[tuple, tuple[list[np.ndarray], list[_Block]]]
     declared: tuple[str, ...] = ()  # the effects the model carries
     #: per series, the denominator of the model's own dynamics (`_model_dynamics`), or None
@@ -747,7 +751,8 @@ def _score_effect(
     )
     text = (
         f"{effect.description}: explains {100 * gains.score:.1f} % of the residual variance "
-        f"of held-out blocks beyond the input and the declared effects{where} "
+        f"of held-out blocks beyond the input and the declared effects{where}"
+        f"{' (also through the model dynamics)' if through else ''} "
         f"({how}; {len(base_blocks)} blocks: p = {p_value:.2g})"
     )
     log.info("%s", text)
