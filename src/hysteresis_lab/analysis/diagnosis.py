@@ -34,6 +34,23 @@ a moving input a trend per recording cannot be told apart from slow input-driven
 creep transient, a slow hysteresis error) and held out it takes up whichever is there. With no
 such recording the effect is reported as not tested, with what to record.
 
+``through_dynamics`` (opt-in, off by default): a missing input-side block leaves a residual
+of about G(q)·Δ(u), G the model's dynamics; through a lightly damped mode that ring lasts far
+longer than the regression's lags. With it, an ARX fit of the model's own free run
+(``predictions``) on the baseline signals gives the denominator of its dynamics
+(`_model_dynamics`), and every nonlinear input-side effect (its evidence of twice the input is
+not twice its evidence; not on the model's output) adds its signals through ``1 / A(q)`` (the
+lags give the numerator) and is tested against a baseline that also holds the input and
+declared operators through it (so a linear dynamics error stays in the baseline). Effects
+linear in the input (resonance, creep) are themselves a change of the dynamics and keep the
+plain baseline. For every effect the first rows of each residual are dropped, `SETTLE_FACTOR`
+times as many as the slowest pole takes to decay to 1 % (`_settling`): a recording that starts
+with a jump from rest has a start transient that can outweigh the rest of the residual, and
+filters of the input started from rest (the resonance's) fit it whatever its cause. The cost:
+an effect that shows only in that start transient (a mode far above the band of a
+band-limited input) is no longer seen. Without ``predictions``, or where the fit is unstable,
+nothing changes. Measured in docs/loop.md ("Diagnosis through the model's dynamics").
+
 Significance: a one-sided Wilcoxon signed-rank test that the held-out block gains are positive
 (spurious signals make held-out predictions worse, not better). ``test="pooled"`` (the
 default) tests all blocks of all recordings at once and asks the mean gain to reach
@@ -54,8 +71,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy import stats
+from scipy import signal, stats
 
+from hysteresis_lab.blocks.sections import arx_least_squares
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.effects.base import MODEL_OUTPUT_BLOCKS, Effect, FeatureContext
 from hysteresis_lab.effects.registry import available_effects, get_effect
@@ -70,6 +88,11 @@ TESTS = ("pooled", "per_recording")
 BLOCKS_PER_RECORDING = 20
 #: fewer nonzero block gains than this give no signed-rank test (p = 1)
 MIN_RANKED_BLOCKS = 6
+#: orders of the ARX fit of the model's own dynamics (denominator, input lags; `_model_dynamics`)
+DYNAMICS_ORDER = (4, 8)
+#: the start skipped: this many times the samples the slowest pole of the model's dynamics
+#: takes to decay to 1 % (so to 1e-6)
+SETTLE_FACTOR = 3
 
 
 @dataclass
@@ -111,6 +134,9 @@ class _Prepared:
     #: the model's free run (lagged, de-meaned, scaled), in the baseline of output-side
     #: effects only (None: not given)
     model_output: np.ndarray | None = None
+    #: the baseline signals through the model's dynamics (lagged, de-meaned, scaled), in the
+    #: baseline of nonlinear input-side effects only (None: no dynamics; `_model_dynamics`)
+    through: np.ndarray | None = None
 
 
 @dataclass
@@ -153,25 +179,94 @@ def _prepare(
     lags: Sequence[int],
     held: bool = False,
     model_output: np.ndarray | None = None,
+    dynamics: np.ndarray | None = None,
 ) -> _Prepared:
     """``held``: the input is constant, so the baseline has nothing to regress on and gets no
     columns (de-meaned, they would be round-off, which standardising would blow up).
     ``model_output``: the model's free run, which joins the baseline of output-side effects
-    (a gain or level error of the model's output is no overflow)."""
+    (a gain or level error of the model's output is no overflow). ``dynamics``: the
+    denominator of the model's own dynamics (`_model_dynamics`): the rows within its settling
+    time of the start are dropped and the baseline signals also enter through it."""
     e_all = np.asarray(residual, dtype=float)[:, 0]  # one output's (see `_one_output_each`)
     keep = np.flatnonzero(np.isfinite(e_all))
+    if dynamics is not None and len(keep):
+        keep = keep[keep >= keep[0] + min(_settling(dynamics), len(keep) // 2)]
     keep = keep[:: max(1, len(keep) // max_points)]
     e = _centre(e_all[keep])
     weight = 1.0 / (float(np.sqrt(e @ e)) or 1.0)
     if held:
         return _Prepared(e * weight, np.empty((len(keep), 0)), keep, weight)
-    base = [recording.u] + [get_effect(name).features(recording.u, context) for name in declared]
-    design = _centre(_lagged_rows(np.column_stack(base), keep, lags))
+    base = np.column_stack(
+        [recording.u] + [get_effect(name).features(recording.u, context) for name in declared])
+    design = _centre(_lagged_rows(base, keep, lags))
+    through = None
+    if dynamics is not None:
+        through = _centre(_lagged_rows(_through_dynamics(base, dynamics), keep, lags)) * weight
     output = None
     if model_output is not None:
         y_model = np.nan_to_num(np.asarray(model_output, dtype=float).reshape(len(e_all), -1))
         output = _centre(_lagged_rows(y_model, keep, lags)) * weight
-    return _Prepared(e * weight, design * weight, keep, weight, output)
+    return _Prepared(e * weight, design * weight, keep, weight, output, through)
+
+
+def _through_dynamics(x: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """The columns of ``x`` (less their first row: at rest before the start) through the
+    all-pole filter ``1 / a``; the regression's lags give it its numerator."""
+    x = np.asarray(x, dtype=float).reshape(len(x), -1)
+    return signal.lfilter([1.0], a, x - x[:1], axis=0)
+
+
+def _settling(a: np.ndarray) -> int:
+    """Samples the start transient of the dynamics ``1 / a`` takes to die out (to 1e-6):
+    `SETTLE_FACTOR` times the slowest pole's decay to 1 %."""
+    radius = float(np.max(np.abs(np.roots(a)))) if len(a) > 1 else 0.0
+    if radius <= 1e-12:
+        return 0
+    return int(np.ceil(SETTLE_FACTOR * np.log(0.01) / np.log(radius)))
+
+
+def _model_dynamics(
+    recordings: Sequence[Recording],
+    residuals: Sequence[np.ndarray],
+    model_outputs: Sequence[np.ndarray] | None,
+    held: Sequence[bool],
+    context: FeatureContext,
+    declared: Sequence[str],
+) -> list[np.ndarray | None]:
+    """Per single-output series, the denominator of the model's own dynamics: a least-squares
+    ARX fit (`DYNAMICS_ORDER`) of its free run on the baseline signals (the input and the
+    declared operators), from the rows its residual is scored on, pooled over the series of
+    that output that move the input. None everywhere when there is no free run, an output
+    has no such series, or a fit is unstable."""
+    none: list[np.ndarray | None] = [None] * len(recordings)
+    if model_outputs is None:
+        return none
+    na, nb = DYNAMICS_ORDER
+    fits: dict[str, tuple[list[np.ndarray], list[np.ndarray]]] = {}
+    for k, (rec, e, y) in enumerate(zip(recordings, residuals, model_outputs, strict=True)):
+        scored = np.flatnonzero(np.isfinite(np.asarray(e, dtype=float).reshape(-1)))
+        if held[k] or len(scored) <= 2 * (na + nb):
+            continue
+        base = np.column_stack(
+            [rec.u] + [get_effect(name).features(rec.u, context) for name in declared])
+        inputs, outputs = fits.setdefault(rec.y_names[0], ([], []))
+        inputs.append(base[scored[0]:])
+        outputs.append(np.nan_to_num(np.asarray(y, dtype=float).reshape(-1)[scored[0]:]))
+    names = {rec.y_names[0] for rec in recordings}
+    if not fits or set(fits) != names:
+        return none
+    found = {}
+    for name, (inputs, outputs) in fits.items():
+        _, a = arx_least_squares(inputs, outputs, na=na, nb=nb, nk=0)
+        if not np.all(np.isfinite(a)) or np.max(np.abs(np.roots(a))) >= 1.0:
+            log.info("diagnosis: the ARX fit of the model's dynamics of output %s is unstable; "
+                     "the evidence does not pass through it", name)
+            return none
+        found[name] = a
+        log.info("diagnosis through the model's dynamics: output %s, slowest pole |p| = %.4f, "
+                 "the first %d samples of each residual left out", name,
+                 float(np.max(np.abs(np.roots(a)))), _settling(a))
+    return [found[rec.y_names[0]] for rec in recordings]
 
 
 def evidence_lags(nb: int) -> tuple[int, ...]:
@@ -370,6 +465,18 @@ def _not_tested(
     return EffectScore(name, 0.0, 1.0, False, evidence, predictable, tested=False)
 
 
+def _passes_dynamics(effect: Effect, u: np.ndarray, context: FeatureContext) -> bool:
+    """Whether the effect's evidence also enters through the model's dynamics: a nonlinear
+    operator of the input (its evidence of twice the input is not twice its evidence; ``u``
+    one recording's input) that acts ahead of the dynamics (not on the model's output). An
+    effect linear in the input (a resonance, creep) is itself a change of the dynamics: the
+    filtered baseline would take it up."""
+    if not effect.predictable or effect.block in MODEL_OUTPUT_BLOCKS:
+        return False
+    once, twice = effect.evidence(u, context), effect.evidence(2.0 * u, context)
+    return not np.allclose(twice, 2.0 * once, rtol=1e-6, atol=1e-9 * np.max(np.abs(once)))
+
+
 def _has_state_evidence(effect: Effect) -> bool:
     """Whether the effect also acts inside the dynamics (`Effect.state_evidence`)."""
     return type(effect).state_evidence is not Effect.state_evidence
@@ -399,7 +506,9 @@ def _output_evidence(
 class DiagnosisSettings:
     """How `diagnose` tests: the significance rule (``min_score``, ``alpha``, ``test``, one
     of `TESTS`), the held-out blocks (``folds``), the subsampling (``max_points``) and the
-    sample delays of the distributed-lag regression (``lags``, see `evidence_lags`)."""
+    sample delays of the distributed-lag regression (``lags``, see `evidence_lags`);
+    ``through_dynamics``: the start skipped and the evidence also through the model's own
+    dynamics (see the module docstring)."""
 
     min_score: float = 0.05
     alpha: float = 0.01
@@ -407,6 +516,7 @@ class DiagnosisSettings:
     max_points: int = 20_000
     lags: tuple[int, ...] = (0,)
     test: str = "pooled"
+    through_dynamics: bool = False
 
     def __post_init__(self) -> None:
         if not self.lags or min(self.lags) < 0:
@@ -424,9 +534,12 @@ class _Evidence:
     prepared: list[_Prepared]
     held: list[bool]  # whether each holds the input constant
     model_outputs: list[np.ndarray] | None
-    #: baseline designs and blocks per (tested recordings, output-side), built on first use
+    #: baseline designs and blocks per (tested recordings, output-side, through the model's
+    #: dynamics), built on first use
     baselines: dict[tuple, tuple[list[np.ndarray], list[_Block]]]
     declared: tuple[str, ...] = ()  # the effects the model carries
+    #: per series, the denominator of the model's own dynamics (`_model_dynamics`), or None
+    dynamics: list[np.ndarray | None] | None = None
 
 
 def diagnose(
@@ -442,14 +555,18 @@ def diagnose(
     lags: Sequence[int] = (0,),
     test: str = "pooled",
     predictions: list[np.ndarray] | None = None,
+    through_dynamics: bool = False,
 ) -> list[EffectScore]:
     """Score every candidate effect not yet declared; best first. ``lags``: delays (samples)
     with which the baseline and the input-dependent candidates enter (see `evidence_lags`);
     ``test``: how significance is tested, one of `TESTS` (see the module docstring);
     ``predictions``: the model's free-run output per recording (``residuals`` is the
     measurement minus it), the evidence of output-side effects (without it they are
-    reported as not tested)."""
-    settings = DiagnosisSettings(min_score, alpha, folds, max_points, tuple(lags), test)
+    reported as not tested); ``through_dynamics``: drop the start transient and pass the
+    input-side evidence through the model's own dynamics, read from ``predictions`` (see
+    the module docstring; off by default)."""
+    settings = DiagnosisSettings(min_score, alpha, folds, max_points, tuple(lags), test,
+                                 through_dynamics)
     if settings.test == "per_recording":
         settings = replace(settings, folds=max(settings.folds, BLOCKS_PER_RECORDING))
     names = [n for n in (candidates or available_effects()) if n not in declared]
@@ -474,24 +591,34 @@ def _prepare_evidence(
     )
     recordings, residuals, outputs = _one_output_each(recordings, residuals)
     held = [_holds_input(rec, context) for rec in recordings]
+    dynamics = (
+        _model_dynamics(recordings, residuals, model_outputs, held, context, declared)
+        if settings.through_dynamics else [None] * len(recordings)
+    )
     prepared = [
         _prepare(rec, res, context, declared, settings.max_points, settings.lags, hold,
-                 None if model_outputs is None else model_outputs[i])
+                 None if model_outputs is None else model_outputs[i], dynamics[i])
         for i, (rec, res, hold) in enumerate(zip(recordings, residuals, held, strict=True))
     ]
-    return _Evidence(recordings, outputs, prepared, held, model_outputs, {}, tuple(declared))
+    return _Evidence(recordings, outputs, prepared, held, model_outputs, {}, tuple(declared),
+                     dynamics)
 
 
 def _baseline(
-    evidence: _Evidence, tested: tuple[int, ...], output_side: bool, settings: DiagnosisSettings
+    evidence: _Evidence, tested: tuple[int, ...], output_side: bool, settings: DiagnosisSettings,
+    through: bool = False,
 ) -> tuple[list[np.ndarray], list[_Block]]:
     """The baseline design (the input and the declared effects; for an output-side effect
-    also the model's output) of the ``tested`` recordings and its held-out blocks."""
-    key = (tested, output_side)
+    also the model's output; ``through``: also those signals through the model's dynamics)
+    of the ``tested`` recordings and its held-out blocks."""
+    key = (tested, output_side, through)
     if key not in evidence.baselines:
         shown = [evidence.prepared[i] for i in tested]
         columns = [p.base if not output_side or p.model_output is None
                    else np.column_stack([p.base, p.model_output]) for p in shown]
+        if through:
+            columns = [np.column_stack([c, p.through]) for c, p in zip(columns, shown,
+                                                                        strict=True)]
         base = _standardised(_in_groups(columns, [evidence.outputs[i] for i in tested]))
         evidence.baselines[key] = base, _blocks(shown, base, settings.folds)
         if settings.test == "per_recording" and not output_side:
@@ -554,16 +681,22 @@ def effect_signals(
 
 def _effect_design(
     effect: Effect, evidence: _Evidence, tested: tuple[int, ...], context: FeatureContext,
-    settings: DiagnosisSettings,
+    settings: DiagnosisSettings, through: bool = False,
 ) -> list[np.ndarray]:
     """An effect's candidate signals on the ``tested`` recordings, lagged, weighted like the
-    residual and standardised (per output, or per recording for an input-independent one)."""
+    residual and standardised (per output, or per recording for an input-independent one);
+    ``through``: its input-side ones also through the model's dynamics."""
     shown = [evidence.prepared[i] for i in tested]
     # an input-independent trend gains nothing from delayed copies of itself
     own_lags = settings.lags if effect.predictable else (0,)
+    raw = _raw_signals(effect, evidence, tested, context)
+    if through:
+        raw = [np.column_stack([r, _through_dynamics(
+                   effect.evidence(evidence.recordings[i].u, context), evidence.dynamics[i])])
+               for r, i in zip(raw, tested, strict=True)]
     lagged = [
-        _centre(_lagged_rows(signal, p.keep, own_lags)) * p.weight
-        for signal, p in zip(_raw_signals(effect, evidence, tested, context), shown, strict=True)
+        _centre(_lagged_rows(x, p.keep, own_lags)) * p.weight
+        for x, p in zip(raw, shown, strict=True)
     ]
     groups = ([evidence.outputs[i] for i in tested] if effect.predictable
               else list(range(len(tested))))
@@ -585,15 +718,22 @@ def _score_effect(
         ))
     shown = [evidence.prepared[i] for i in tested]
     shown_names = [evidence.recordings[i].name for i in tested]
-    base, base_blocks = _baseline(evidence, tested, effect.block in MODEL_OUTPUT_BLOCKS, settings)
-    signals = _effect_design(effect, evidence, tested, context, settings)
+    through = (evidence.dynamics is not None
+               and all(evidence.dynamics[i] is not None for i in tested)
+               and _passes_dynamics(effect, evidence.recordings[tested[0]].u, context))
+    base, base_blocks = _baseline(evidence, tested, effect.block in MODEL_OUTPUT_BLOCKS, settings,
+                                  through)
+    signals = _effect_design(effect, evidence, tested, context, settings, through)
     full = [np.column_stack([b, s]) for b, s in zip(base, signals, strict=True)]
     gains = _gains(base_blocks, _blocks(shown, full, settings.folds))
     significant, p_value, how = _verdict(gains, settings.test, settings.min_score,
                                          settings.alpha, shown_names)
     simpler_names = [other for other in effect.beyond if other not in evidence.declared]
     if simpler_names and significant:  # and beyond the simpler explanation's signals too
-        simpler = [_effect_design(get_effect(other), evidence, tested, context, settings)
+        simpler = [_effect_design(get_effect(other), evidence, tested, context, settings,
+                                  through and _passes_dynamics(
+                                      get_effect(other), evidence.recordings[tested[0]].u,
+                                      context))
                    for other in simpler_names]
         wider = [np.column_stack([b, *(d[i] for d in simpler)]) for i, b in enumerate(base)]
         with_it = [np.column_stack([b, s]) for b, s in zip(wider, signals, strict=True)]
@@ -611,7 +751,8 @@ def _score_effect(
     )
     text = (
         f"{effect.description}: explains {100 * gains.score:.1f} % of the residual variance "
-        f"of held-out blocks beyond the input and the declared effects{where} "
+        f"of held-out blocks beyond the input and the declared effects{where}"
+        f"{' (also through the model dynamics)' if through else ''} "
         f"({how}; {len(base_blocks)} blocks: p = {p_value:.2g})"
     )
     log.info("%s", text)
