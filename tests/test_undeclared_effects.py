@@ -190,3 +190,22 @@ def test_a_backlash_the_loop_keeps_cuts_the_error(tmp_path):
     assert first["added"] in CASES["backlash"][2], first["diagnosis"][:3]
     assert "backlash" in result["effects"], [r.get("note") for r in report["rounds"]]
     assert result["mean_rmse_free_run"] < 0.75 * first["mean_rmse_free_run"]
+
+
+def test_the_loop_setting_reads_the_residual_through_the_model_dynamics(tmp_path):
+    """``loop.diagnosis_through_dynamics`` reaches the loop's diagnosis: on the same clipped
+    positioner and start, round 0 scores the clipping higher with it on than off."""
+    effects = {"hysteresis": {"enabled": False}, "creep": {"enabled": False},
+               "saturation": {"enabled": True, "limit_v": 80.0}}
+    data = make_default_dataset(effects=effects, n_train=8000, test_frequencies=(10.0,),
+                                max_test_samples=2000, val_samples=4000)
+    scores = {}
+    for through in (False, True):
+        report = run_loop({"name": "linear", "effects": [], "lr": 0.005},
+                          DataSpec.from_config({"name": "small"}), TRAINER, data,
+                          tmp_path / str(through),
+                          LoopSettings(max_rounds=0, diagnosis_through_dynamics=through),
+                          use_tensorboard=False)
+        diagnosis = report["rounds"][0]["diagnosis"]
+        scores[through] = next(d["score"] for d in diagnosis if d["effect"] == "saturation")
+    assert scores[True] > scores[False] + 0.05, scores
