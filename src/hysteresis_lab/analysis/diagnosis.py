@@ -34,7 +34,8 @@ a moving input a trend per recording cannot be told apart from slow input-driven
 creep transient, a slow hysteresis error) and held out it takes up whichever is there. With no
 such recording the effect is reported as not tested, with what to record.
 
-``through_dynamics`` (opt-in, off by default): a missing input-side block leaves a residual
+``through_dynamics`` (the loop's default, `loop.diagnosis_through_dynamics`; off in a bare
+`diagnose` call): a missing input-side block leaves a residual
 of about G(q)·Δ(u), G the model's dynamics; through a lightly damped mode that ring lasts far
 longer than the regression's lags. With it, an ARX fit of the model's own free run
 (``predictions``) on the baseline signals gives the denominator of its dynamics
@@ -44,7 +45,8 @@ lags give the numerator) and is tested against a baseline that also holds the in
 declared operators through it (so a linear dynamics error stays in the baseline). Effects
 linear in the input (resonance, creep) are themselves a change of the dynamics and keep the
 plain baseline. For every effect the first rows of each residual are dropped, `SETTLE_FACTOR`
-times as many as the slowest pole takes to decay to 1 % (`_settling`): a recording that starts
+times as many as the slowest pole takes to decay to 1 % (`_settling`), at most
+`MAX_SKIPPED_SHARE` of them: a recording that starts
 with a jump from rest has a start transient that can outweigh the rest of the residual, and
 filters of the input started from rest (the resonance's) fit it whatever its cause. The cost:
 an effect that shows only in that start transient (a mode far above the band of a
@@ -91,8 +93,11 @@ MIN_RANKED_BLOCKS = 6
 #: orders of the ARX fit of the model's own dynamics (denominator, input lags; `_model_dynamics`)
 DYNAMICS_ORDER = (4, 8)
 #: the start skipped: this many times the samples the slowest pole of the model's dynamics
-#: takes to decay to 1 % (so to 1e-6)
+#: takes to decay to 1 % (so to 1e-6) ...
 SETTLE_FACTOR = 3
+#: ... but never more than this share of a residual's scored rows: dynamics that settle over
+#: most of a short record (the cascaded tanks' 1024 samples) would take its evidence with them
+MAX_SKIPPED_SHARE = 0.1
 
 
 @dataclass
@@ -190,7 +195,8 @@ def _prepare(
     e_all = np.asarray(residual, dtype=float)[:, 0]  # one output's (see `_one_output_each`)
     keep = np.flatnonzero(np.isfinite(e_all))
     if dynamics is not None and len(keep):
-        keep = keep[keep >= keep[0] + min(_settling(dynamics), len(keep) // 2)]
+        keep = keep[keep >= keep[0] + min(_settling(dynamics),
+                                          int(MAX_SKIPPED_SHARE * len(keep)))]
     keep = keep[:: max(1, len(keep) // max_points)]
     e = _centre(e_all[keep])
     weight = 1.0 / (float(np.sqrt(e @ e)) or 1.0)

@@ -93,9 +93,11 @@ class LoopSettings:
     #: from, when the data set has no validation recordings (`hysteresis_lab.workflows.loop_data`)
     holdout: float = 0.25
     #: the diagnosis drops each residual's start transient and also reads the input-side
-    #: effects through the model's own dynamics (`hysteresis_lab.analysis.diagnosis`, off by
-    #: default: on short records whose modes show only in start transients it loses them)
-    diagnosis_through_dynamics: bool = False
+    #: effects through the model's own dynamics (`hysteresis_lab.analysis.diagnosis`): a
+    #: recording that starts with a jump from rest rings, and filters of the input started
+    #: from rest fit that ring whatever its cause (off: an effect seen only in start
+    #: transients, a mode far above the input's band, stays visible)
+    diagnosis_through_dynamics: bool = True
 
     def __post_init__(self) -> None:
         if not 0.0 < self.holdout < 1.0:
