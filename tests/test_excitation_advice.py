@@ -176,8 +176,10 @@ def test_no_advice_where_the_identification_data_drive_the_operators_as_the_test
 def test_the_loop_reports_the_recordings_to_add(tmp_path):
     """Round 0 of the loop on short simulator records with the amplifier clipping: the 1 s
     validation multisine passes 70 V a few times, the 10 and 100 Hz test sines every cycle.
-    The clipping's score reaches loop.min_score without significance, and the report (JSON,
-    page, log) says which sines to add, nothing else changed."""
+    With the plain diagnosis (``loop.diagnosis_through_dynamics=false``: read through the
+    model's dynamics, the clipping is named on these records) the clipping's score reaches
+    loop.min_score without significance, and the report (JSON, page, log) says which sines
+    to add, nothing else changed."""
     spec = DataSpec.from_config(hl.compose("data=default", *CLIPPING).data)
     effects = {"hysteresis": {"enabled": False}, "creep": {"enabled": False},
                "saturation": {"enabled": True}}
@@ -186,7 +188,8 @@ def test_the_loop_reports_the_recordings_to_add(tmp_path):
     trainer = TrainerSettings(max_epochs=5, accelerator="cpu", devices=1,
                               enable_progress_bar=False, enable_model_summary=False)
     report = run_loop({"name": "linear", "effects": [], "lr": 0.02}, spec, trainer, data,
-                      tmp_path, LoopSettings(max_rounds=0), use_tensorboard=False)
+                      tmp_path, LoopSettings(max_rounds=0, diagnosis_through_dynamics=False),
+                      use_tensorboard=False)
     first = report["rounds"][0]
     score = next(d for d in first["diagnosis"] if d["effect"] == "saturation")
     assert score["score"] >= 0.05 and not score["significant"]
