@@ -46,12 +46,11 @@ def test_a_shared_initial_state_is_learned_only_where_the_data_say_so():
     assert float(rest.initial_state().abs().max()) == 0.0
 
 
-def test_the_cascaded_tanks_declare_a_shared_initial_state(tmp_path):
-    """The tanks' protocol: estimation and test start from the same unknown state."""
+def test_the_cascaded_tanks_declare_a_shared_initial_state():
+    """The tanks' protocol (their SOURCE.md): estimation and test start from the same unknown
+    state. Read from the bundled benchmark file."""
     from hysteresis_lab.data.benchmarks import cascaded_tanks
 
-    rows = ["uEst,uVal,yEst,yVal,Ts"] + [f"1,1,2,2,{4 if i == 0 else ''}" for i in range(20)]
-    (tmp_path / "dataBenchmark.csv").write_text("\n".join(rows) + "\n")
-    splits = cascaded_tanks(root=tmp_path)
+    splits = cascaded_tanks()
     assert splits.shared_initial_state
-    assert isinstance(splits.train[0], Recording)
+    assert isinstance(splits.train[0], Recording) and splits.train[0].n_samples == 1024

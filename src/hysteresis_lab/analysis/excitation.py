@@ -49,7 +49,7 @@ class Excitation:
     def reading(self) -> str:
         """One line for the report."""
         channel, ratio = self.worst
-        if ratio is not None and ratio <= UNDER_EXCITED_RATIO:
+        if not under_excited_ratio(ratio):
             return (
                 f"the tests drive no operator of '{self.effect}' more than {ratio:.2g}x as "
                 f"hard (RMS) as the identification data ({channel})"
@@ -99,7 +99,11 @@ def _excitation(
     ctx: FeatureContext,
 ) -> Excitation:
     """`operator_excitation` on input arrays."""
-    train, test = _spread(effect, reference, ctx), _spread(effect, tests, ctx)
+    return _from_spreads(effect, _spread(effect, reference, ctx), _spread(effect, tests, ctx))
+
+
+def _from_spreads(effect: str, train: np.ndarray, test: np.ndarray) -> Excitation:
+    """The ratios of the operator spreads ``test`` over ``train`` (`_spread`)."""
     ratios: dict[str, float | None] = {}
     for j, (on_train, on_test) in enumerate(zip(train, test, strict=True)):
         if on_train > 0:
@@ -241,15 +245,18 @@ def recommend_recordings(
     that is validated and diagnosed on (data without validation recordings; then every
     added recording is a training one)."""
     test_inputs = [r.u for r in tests]
+    on_tests = _spread(effect, test_inputs, ctx)
+    on_identification = _spread(effect, [r.u for r in identification], ctx)
     now = {
-        "identification": _excitation(effect, [r.u for r in identification], test_inputs, ctx),
-        "diagnosis": _excitation(effect, [r.u for r in diagnosis], test_inputs, ctx),
+        "identification": _from_spreads(effect, on_identification, on_tests),
+        "diagnosis": _from_spreads(effect, _spread(effect, [r.u for r in diagnosis], ctx),
+                                   on_tests),
     }
     lacking = {role: under_excited(e) for role, e in now.items()}
     if not any(lacking.values()):
         return None
-    driving = [t for t in tests
-               if under_excited(_excitation(effect, [r.u for r in identification], [t.u], ctx))]
+    driving = [t for t in tests if under_excited(
+        _from_spreads(effect, on_identification, _spread(effect, [t.u], ctx)))]
     driving = driving or list(tests)
     hz = {t.name: dominant_frequency(t.u, t.fs) for t in tests}
     amplitude = np.atleast_1d(np.max([np.max(np.abs(t.u), axis=0) for t in driving], axis=0))

@@ -87,13 +87,7 @@ class StableSections(nn.Module):
         """Start from ``b(z^-1) / a(z^-1)`` (as `scipy.signal.lfilter` takes them); poles
         outside the unit circle are reflected inside it first, and no pole lies beyond
         ``MAX_RADIUS``."""
-        poles = np.roots(a)
-        radius = np.abs(poles)
-        poles = np.where(radius > 1.0, 1.0 / np.conj(poles), poles)
-        radius = np.abs(poles)
-        poles = np.where(radius > MAX_RADIUS, poles * MAX_RADIUS / np.maximum(radius, 1e-300),
-                         poles)
-        a = np.real(np.poly(poles))
+        a = np.real(np.poly(held_poles(a)))
         nonzero = np.flatnonzero(b)
         lead = int(nonzero[0]) if len(nonzero) else 0
         b = np.asarray(b, dtype=float)[lead:]
@@ -159,26 +153,33 @@ def arx_least_squares(
 SM_ITERATIONS = 10
 
 
+def _reflected_poles(a: np.ndarray) -> np.ndarray:
+    """The poles of the denominator ``a``, those outside the unit circle reflected inside."""
+    poles = np.roots(a).astype(complex)
+    return np.where(np.abs(poles) > 1.0, 1.0 / np.conj(poles), poles)
+
+
+def held_poles(a: np.ndarray) -> np.ndarray:
+    """The poles of the denominator ``a`` as `StableSections` holds them: reflected inside
+    the unit circle, and none beyond `MAX_RADIUS`."""
+    poles = _reflected_poles(a)
+    radius = np.abs(poles)
+    return np.where(radius > MAX_RADIUS, poles * MAX_RADIUS / np.maximum(radius, 1e-300), poles)
+
+
 def stable_denominator(a: np.ndarray) -> np.ndarray:
-    """``a`` with every pole outside the unit circle reflected inside it (the first step of
-    `StableSections.set_transfer_function`)."""
-    poles = np.roots(a)
-    if not len(poles):
-        return np.asarray(a, dtype=float)
-    poles = np.where(np.abs(poles) > 1.0, 1.0 / np.conj(poles), poles)
-    return np.real(np.poly(poles))
+    """``a`` with every pole outside the unit circle reflected inside it."""
+    poles = _reflected_poles(a)
+    return np.real(np.poly(poles)) if len(poles) else np.asarray(a, dtype=float)
 
 
 def slowest_rate(a: np.ndarray) -> float:
-    """The slowest mode of the denominator ``a`` as `StableSections` holds it (poles reflected
-    inside the unit circle, at most `MAX_RADIUS`): ``min |ln p|`` over its poles, in radians
-    per sample (``inf`` without poles)."""
-    poles = np.roots(stable_denominator(a)).astype(complex)
+    """The slowest mode of the denominator ``a`` as `StableSections` holds it
+    (`held_poles`): ``min |ln p|`` over its poles, in radians per sample (``inf`` without
+    poles)."""
+    poles = held_poles(a)
     poles = poles[np.abs(poles) > 0.0]
-    if not len(poles):
-        return np.inf
-    poles = np.where(np.abs(poles) > MAX_RADIUS, poles * MAX_RADIUS / np.abs(poles), poles)
-    return float(np.min(np.abs(np.log(poles))))
+    return float(np.min(np.abs(np.log(poles)))) if len(poles) else np.inf
 
 
 def free_run_error(
