@@ -2,19 +2,23 @@
 
 Runs ``hysteresis-lab-loop data=<name>`` (start ``model=linear effects=[]``, default
 settings; only the progress bar and TensorBoard are off, which change no number) for each
-data set, times it, reads its ``loop_report.json`` and writes the table to
-``docs/results/loop_measured.md`` with the command, the commit and the date.
+data set, times it and reads its ``loop_report.json``. Each data set's row (its command,
+commit, date and the parts of the report the table shows) is merged into
+``docs/results/loop_measured.json``, so a run of some data sets replaces only their rows;
+``docs/results/loop_measured.md`` is regenerated from all kept rows.
 
     python benchmarks/loop_measured.py                       # cascaded_tanks, bouc_wen
-    python benchmarks/loop_measured.py --data cascaded_tanks bouc_wen p885
+    python benchmarks/loop_measured.py --data cascaded_tanks bouc_wen p885 fsm
 """
 
 from __future__ import annotations
 
 import argparse
 import datetime
+import json
 import logging
 from pathlib import Path
+from typing import Any
 
 from hysteresis_lab.analysis.loop_checks import run_fresh_loop
 from hysteresis_lab.evaluation.provenance import commit_stamp
@@ -22,6 +26,7 @@ from hysteresis_lab.run_folder import LoopFolder, RunFolder
 
 REPO = Path(__file__).resolve().parents[1]
 OUT = REPO / "docs" / "results" / "loop_measured.md"
+KEPT = OUT.with_suffix(".json")
 #: the issue's targets: the effect the loop should name and the free-run RMSE it should reach
 TARGETS = {
     "cascaded_tanks": ("overflow", "free-run RMSE <= 0.25 V"),
@@ -30,6 +35,8 @@ TARGETS = {
     "fsm": (None, "what the loop finds"),
 }
 QUIET = ["trainer.enable_progress_bar=false", "logger=none"]
+#: the round fields the table reads (the rest of loop_report.json stays in the run folder)
+ROUND_FIELDS = ("mean_rmse_free_run", "rejected", "added", "effects", "held_out")
 
 log = logging.getLogger("loop_measured")
 
@@ -42,8 +49,36 @@ def run_one(name: str, folder: Path) -> dict:
     except RuntimeError as exc:
         raise SystemExit(str(exc)) from None
     round_0 = RunFolder(LoopFolder(folder).round_dir(0)).read_metrics()
-    return {"command": " ".join(command), "report": report,
+    return {"command": " ".join(command), "report": table_report(report),
             "seconds": seconds, "round_0_train_s": round_0.get("train_seconds")}
+
+
+def table_report(report: dict[str, Any]) -> dict[str, Any]:
+    """The parts of a ``loop_report.json`` the table shows: units, roles, the result and per
+    round its error, effects, decision, held-out loss and the three best-scored effects."""
+    rounds = []
+    for entry in report["rounds"]:
+        kept = {key: entry[key] for key in ROUND_FIELDS if key in entry}
+        kept["diagnosis"] = [d for d in entry.get("diagnosis") or [] if d["tested"]][:3]
+        rounds.append(kept)
+    return {"units": report["units"], "roles": report["roles"], "result": report["result"],
+            "rounds": rounds}
+
+
+def load_kept(path: Path = KEPT) -> dict[str, dict]:
+    """The rows kept so far, data set -> row (command, commit, date, report, times)."""
+    return json.loads(path.read_text()) if path.is_file() else {}
+
+
+def keep(runs: dict[str, dict], path: Path = KEPT) -> dict[str, dict]:
+    """Merge ``runs`` into the kept rows (a data set run again replaces its row); all rows in
+    `TARGETS`' order, then any other."""
+    kept = {**load_kept(path), **runs}
+    order = [name for name in TARGETS if name in kept] + sorted(set(kept) - set(TARGETS))
+    kept = {name: kept[name] for name in order}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(kept, indent=1) + "\n")
+    return kept
 
 
 def row(name: str, run: dict) -> str:
@@ -86,11 +121,38 @@ def diagnosis_lines(name: str, run: dict) -> list[str]:
             continue
         best = [f"{d['effect']} {100 * d['score']:.1f} % (p {d['p_value']:.2g}"
                 f"{', significant' if d['significant'] else ''})"
-                for d in entry["diagnosis"][:3] if d["tested"]]
+                for d in entry["diagnosis"][:3]]
         held = entry["held_out"]
         lines.append(f"- {name} round {i} {entry['effects']}: held-out loss "
                      f"{held['loss']:.4g}; best scores {', '.join(best)}")
     return lines
+
+
+def render(kept: dict[str, dict]) -> str:
+    """The page from all kept rows."""
+    lines = [
+        "# The loop on measured data, before and after",
+        "",
+        "Written by `python benchmarks/loop_measured.py --data <data sets>`, which reruns the "
+        "given data sets and keeps the other rows (`loop_measured.json`); each row's commit "
+        "and date are listed below it. Shared 2-core CPU (OMP_NUM_THREADS=1). One command per "
+        "data set, default settings: the start is `model=linear effects=[]`.",
+        "",
+        "| data | start (round 0) free-run RMSE | result | change | rounds | result's effects "
+        "| target | round 0 train / whole command |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    lines += [row(name, run) for name, run in kept.items()]
+    lines += ["", "Commands, with the commit and date each row was measured at:", ""]
+    lines += [f"- `{run['command']}` at {run['commit']}, {run['date']}" for run in kept.values()]
+    lines += ["", "Which recordings played which role:", ""]
+    for name, run in kept.items():
+        lines += roles_lines(name, run)
+    lines += ["", "Diagnosis per round (held-out residual; score = share of its variance "
+              "explained beyond the input and the declared effects):", ""]
+    for name, run in kept.items():
+        lines += diagnosis_lines(name, run)
+    return "\n".join(lines) + "\n"
 
 
 def main() -> None:
@@ -99,35 +161,14 @@ def main() -> None:
     parser.add_argument("--runs", type=Path, default=REPO / "outputs" / "loop_measured")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
+    stamp = {"commit": commit_stamp(REPO),
+             "date": f"{datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC"}
     runs = {}
     for name in args.data:
         log.info("running the loop on %s ...", name)
-        runs[name] = run_one(name, args.runs / name)
+        runs[name] = {**run_one(name, args.runs / name), **stamp}
         log.info("%s done in %.0f s", name, runs[name]["seconds"])
-    lines = [
-        "# The loop on measured data, before and after",
-        "",
-        f"Written by `python benchmarks/loop_measured.py --data {' '.join(args.data)}` on "
-        f"{datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC, commit {commit_stamp(REPO)}, "
-        "on a shared 2-core CPU (OMP_NUM_THREADS=1). One command per data set, default "
-        "settings: the start is `model=linear effects=[]`.",
-        "",
-        "| data | start (round 0) free-run RMSE | result | change | rounds | result's effects "
-        "| target | round 0 train / whole command |",
-        "|---|---|---|---|---|---|---|---|",
-    ]
-    lines += [row(name, run) for name, run in runs.items()]
-    lines += ["", "Commands:", ""]
-    lines += [f"- `{run['command']}`" for run in runs.values()]
-    lines += ["", "Which recordings played which role:", ""]
-    for name, run in runs.items():
-        lines += roles_lines(name, run)
-    lines += ["", "Diagnosis per round (held-out residual; score = share of its variance "
-              "explained beyond the input and the declared effects):", ""]
-    for name, run in runs.items():
-        lines += diagnosis_lines(name, run)
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text("\n".join(lines) + "\n")
+    OUT.write_text(render(keep(runs)))
     log.info("wrote %s", OUT)
 
 
