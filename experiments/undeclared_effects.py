@@ -27,7 +27,9 @@ effect's own output off the round-0 error would give); and the verdict of the ru
 the top significant effect (or its catalogue stand-in); the refit takes at least half the
 ceiling off where the effect acts; no other test more than 5 % worse; an input-independent
 effect (drift) named and no gain claimed for it. Each case's row is kept as JSON under
-``--root``; the table of all kept rows goes to ``docs/results/undeclared_effects.md``.
+``--root`` and merged into ``docs/results/undeclared_effects.json`` (a case run again replaces
+its rows, the others stay); the table of all kept rows goes to
+``docs/results/undeclared_effects.md``.
 
 Where round 0 could not judge an effect for lack of excitation, the loop's report names the
 recordings to add (``under_excited``: simulator overrides). ``--recommended`` runs such a
@@ -322,6 +324,24 @@ def _run_and_keep(name: str, root: Path, rounds: int, recommended: bool) -> None
     _keep(run_case(name, root, rounds, tuple(extra)), rerun)
 
 
+def merged_rows(root: Path) -> dict[str, dict]:
+    """The rows under ``root`` over those kept in ``undeclared_effects.json``, case by case
+    in `CASES`' order: a case with a row under ``root`` takes its rows (first run and
+    ``+recommended`` rerun) from there only."""
+    kept_path = OUT.with_suffix(".json")
+    kept = json.loads(kept_path.read_text()) if kept_path.is_file() else {}
+    rows = {}
+    for name in CASES:
+        fresh = (root / name / "row.json").is_file()
+        for key in (name, f"{name}+recommended"):
+            path = root / key / "row.json"
+            if path.is_file():
+                rows[key] = json.loads(path.read_text())
+            elif not fresh and key in kept:
+                rows[key] = kept[key]
+    return rows
+
+
 def _keep(row: dict, path: Path) -> None:
     path.write_text(json.dumps(row, indent=1))
     log.info("%s", json.dumps(row, indent=1))
@@ -342,11 +362,10 @@ def main() -> None:
     if not args.table_only:
         for name in args.cases:
             _run_and_keep(name, args.root, args.rounds, args.recommended)
-    rows = [json.loads(path.read_text()) for n in CASES
-            for path in (args.root / n / "row.json", args.root / f"{n}+recommended" / "row.json")
-            if path.is_file()]
+    rows = merged_rows(args.root)
     OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(table(rows))
+    OUT.with_suffix(".json").write_text(json.dumps(rows, indent=1) + "\n")
+    OUT.write_text(table(list(rows.values())))
     log.info("wrote %s", OUT)
 
 
