@@ -37,7 +37,12 @@ refit that adds an effect starts exactly from the model it grows:
 * ``resonance``: a second-order section in parallel with the dynamics, numerator from zero;
 * ``overflow``: ``y - w_hi relu(y - c_hi) + w_lo relu(c_lo - y)`` on each output, after the
   dynamics (a tank that overflows, a sensor that clips), levels from the training output's
-  extremes.
+  extremes; with the output stage also a rim on the upstream storage.
+
+``model.feedback_on`` says where the loop forces act: ``dynamics`` (around the whole
+dynamics) or ``output_stage``: the dynamics as a `StorageCascade` (an upstream part, an
+upstream storage, the output stage) with the forces on the output stage's own level, as a
+tank's outflow law reads its own level (`LinearModel.refit_variants`: the loop tries both).
 """
 
 from __future__ import annotations
