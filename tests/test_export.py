@@ -93,6 +93,8 @@ CHAIN_CASES = {
                               "effects": ["nonlinear_feedback"]}, 2, 2),
     "linear_output_stage": ({"name": "linear", "feedback_on": "output_stage", "order": 3,
                              "effects": ["hysteresis", "nonlinear_feedback", "overflow"]}, 1, 1),
+    "linear_mimo_output_stage": ({"name": "linear", "order": 2, "feedback_on": "output_stage",
+                                  "effects": ["nonlinear_feedback", "overflow"]}, 2, 2),
     "linear_output_stage_plain": ({"name": "linear", "feedback_on": "output_stage",
                                    "delay": 0}, 1, 1),
     "linear_output_stage_shared_start": ({"name": "linear", "feedback_on": "output_stage",
