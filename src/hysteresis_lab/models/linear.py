@@ -90,13 +90,13 @@ OUTPUT_ERROR_REPLACES_AT = 0.01
 #: 0.121 instead of 0.053 um after the refit)
 SLOWEST_MODE_SHARE = 0.5
 
-#: catalogue effects the linear model carries as blocks, in physical order
 #: where the loop forces (hysteresis in the feedback, nonlinear_feedback) act: around the whole
 #: dynamics, or on the output stage's own level (`StorageCascade`)
 FEEDBACK_PLACES = ("dynamics", "output_stage")
 #: effects whose refit in the loop tries both places (the held-out loss chooses)
 PLACED_EFFECTS = ("hysteresis", "nonlinear_feedback", "overflow")
 
+#: catalogue effects the linear model carries as blocks, in physical order
 LINEAR_EFFECTS = ("saturation", "dead_zone", "backlash", "hysteresis", "rate", "creep",
                   "resonance", "nonlinear_feedback", "overflow")
 
@@ -445,7 +445,7 @@ class StagePole(nn.Module):
 
 class StorageCascade(nn.Module):
     """The dynamics as storages in a row (``model.feedback_on=output_stage``): an upstream
-    part (`StableSections`: the gain, delay, zeros and the other poles, open loop), then an
+    part (`StableSections`: the gain, delay and the other poles, open loop), then an
     upstream storage (one real pole, `StagePole`'s rate, optionally with a rim:
     `hysteresis_lab.blocks.storage`, its level held there and a share of the spill passed
     on), then the output stage (one real pole) whose own level the loop forces
@@ -455,7 +455,7 @@ class StorageCascade(nn.Module):
 
     def __init__(self, order: int, rim_level: float | None = None) -> None:
         super().__init__()
-        #: the start's whole numerator stays upstream: room for ``order`` poles there
+        #: room for ``order`` poles upstream (sections the start leaves empty may train)
         self.upstream = StableSections(order)
         self.storage = StagePole()
         self.stage = StagePole()
@@ -495,10 +495,13 @@ class StorageCascade(nn.Module):
         return [f"upstream.{name}" for name in self.upstream.state_names()] + ["storage"]
 
     def set_transfer_function(self, b: np.ndarray, a: np.ndarray) -> None:
-        """Start as ``b(z^-1) / a(z^-1)``: its two slowest real poles become the storages
-        (the slowest the upstream storage, the other the output stage), the rest and ``b``
-        over the storages' gains the upstream part. Where ``a`` has fewer real poles, its
-        slowest complex pair gives two real poles of its radius (an approximate start)."""
+        """Start from ``b(z^-1) / a(z^-1)``: its two slowest real poles become the storages
+        (the slowest the upstream storage, the other the output stage), the other poles the
+        upstream part with ``b``'s delay and the static gain but no zeros (the inflow: the
+        exact numerator over two slow storages amplifies high frequencies a thousandfold on
+        the cascaded tanks, where the rim then acts). Where ``a`` has fewer real poles, its
+        slowest complex pair gives two real poles of its radius. So the start keeps the
+        poles, the delay and the static gain, not the zeros."""
         poles = list(held_poles(a))
         chosen = []
         for _ in range(2):
@@ -815,8 +818,9 @@ class LinearModel(PhysicalChainModule):
     def warm_start_from(self, previous: Any) -> None:
         """`PhysicalChainModule.warm_start_from`; from a model whose forces act on the whole
         dynamics into one with an output stage, the fitted dynamics are factored into the
-        `StorageCascade` (`StorageCascade.set_transfer_function`; exact below the rim), and
-        only the blocks new to the model (the rim) count as new."""
+        `StorageCascade` (`StorageCascade.set_transfer_function`: its poles, delay and static
+        gain; the loop forces' weights carry over onto the output stage), and only the
+        blocks new to the model (the rim) count as new."""
         super().warm_start_from(previous)
         if not self.output_stage or getattr(previous, "output_stage", False):
             return
