@@ -94,9 +94,10 @@ RECOMMENDED: dict[str, dict[str, list[str]]] = {
                    "model.weight_decay=1e-3", "model.horizon=300", "model.lr=3e-3",
                    "data.batch_size=2", "trainer.max_epochs=600"],
         "greybox": [],
-        # the tanks' physics on the linear model: level-dependent outflow and overflow
-        "linear": ["model.effects=[nonlinear_feedback,overflow]", "model.lr=0.01",
-                   "trainer.max_epochs=300"],
+        # the tanks' physics on the linear model: the lower tank's outflow law on its own
+        # level (the output stage) and the upper tank's rim (overflow on the output stage)
+        "linear": ["model.effects=[nonlinear_feedback,overflow]", "model.feedback_on=output_stage",
+                   "model.lr=0.01", "trainer.max_epochs=300"],
     },
 }
 #: pairs a model cannot take, with the reason (shown in the table)

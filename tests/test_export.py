@@ -70,7 +70,7 @@ def _step_through(path, recording) -> np.ndarray:
 
 
 #: cases trained on data whose recordings all start from one unknown state
-SHARED_START = ("linear_shared_start", "greybox_shared_start")
+SHARED_START = ("linear_shared_start", "greybox_shared_start", "linear_output_stage_shared_start")
 CHAIN_CASES = {
     "greybox": ({"name": "greybox"}, 1, 1),
     "greybox_creep_resonance": ({"name": "greybox", "effects": ["creep", "resonance"]}, 1, 1),
@@ -91,6 +91,14 @@ CHAIN_CASES = {
                              "effects": ["hysteresis", "creep", "overflow"]}, 2, 2),
     "linear_mimo_feedback": ({"name": "linear", "order": 2, "delay": 0,
                               "effects": ["nonlinear_feedback"]}, 2, 2),
+    "linear_output_stage": ({"name": "linear", "feedback_on": "output_stage", "order": 3,
+                             "effects": ["hysteresis", "nonlinear_feedback", "overflow"]}, 1, 1),
+    "linear_mimo_output_stage": ({"name": "linear", "order": 2, "feedback_on": "output_stage",
+                                  "effects": ["nonlinear_feedback", "overflow"]}, 2, 2),
+    "linear_output_stage_plain": ({"name": "linear", "feedback_on": "output_stage",
+                                   "delay": 0}, 1, 1),
+    "linear_output_stage_shared_start": ({"name": "linear", "feedback_on": "output_stage",
+                                          "effects": ["nonlinear_feedback", "overflow"]}, 1, 1),
 }
 
 

@@ -87,7 +87,7 @@ class StableSections(nn.Module):
         """Start from ``b(z^-1) / a(z^-1)`` (as `scipy.signal.lfilter` takes them); poles
         outside the unit circle are reflected inside it first, and no pole lies beyond
         ``MAX_RADIUS``."""
-        a = np.real(np.poly(held_poles(a)))
+        a = np.atleast_1d(np.real(np.poly(held_poles(a))))
         nonzero = np.flatnonzero(b)
         lead = int(nonzero[0]) if len(nonzero) else 0
         b = np.asarray(b, dtype=float)[lead:]

@@ -189,13 +189,17 @@ class Overflow(_ReadFromModelOutput):
     description = "output saturation / overflow (the model's own output clipped near its extremes)"
     block = "output"
     fractions = np.array([0.7, 0.8, 0.9, 0.95])
+    #: an upstream storage held at its rim: the excesses through a first-order storage
+    poles = (0.9,)
 
     def output_evidence(self, y_model: np.ndarray, span: tuple[float, float]) -> np.ndarray:
         y, low, width = self._on_range(y_model, span)
         high = low + width
         upper = [np.maximum(y - (low + f * width), 0.0) for f in self.fractions]
         lower = [np.minimum(y - (high - f * width), 0.0) for f in self.fractions]
-        return np.nan_to_num(np.column_stack(upper + lower))
+        clips = np.column_stack(upper + lower)
+        stored = [signal.lfilter([1.0 - p], [1.0, -p], clips, axis=0) for p in self.poles]
+        return np.nan_to_num(np.column_stack([clips, *stored]))
 
 
 class NonlinearFeedback(_ReadFromModelOutput):

@@ -37,7 +37,12 @@ refit that adds an effect starts exactly from the model it grows:
 * ``resonance``: a second-order section in parallel with the dynamics, numerator from zero;
 * ``overflow``: ``y - w_hi relu(y - c_hi) + w_lo relu(c_lo - y)`` on each output, after the
   dynamics (a tank that overflows, a sensor that clips), levels from the training output's
-  extremes.
+  extremes; with the output stage also a rim on the upstream storage.
+
+``model.feedback_on`` says where the loop forces act: ``dynamics`` (around the whole
+dynamics) or ``output_stage``: the dynamics as a `StorageCascade` (an upstream part, an
+upstream storage, the output stage) with the forces on the output stage's own level, as a
+tank's outflow law reads its own level (`LinearModel.refit_variants`: the loop tries both).
 """
 
 from __future__ import annotations
@@ -53,13 +58,18 @@ from torch import nn
 
 from hysteresis_lab.blocks import BoucWen, CreepBank, bouc_wen_scaled_params, play
 from hysteresis_lab.blocks.feedback import closed_loop
+from hysteresis_lab.blocks.linear import iir_filter
 from hysteresis_lab.blocks.sections import (
+    MAX_RADIUS,
     StableSections,
+    _polymul,
     arx_least_squares,
+    held_poles,
     slowest_rate,
     steiglitz_mcbride,
 )
-from hysteresis_lab.blocks.step import StepState, bouc_wen_advance, frozen, play_step
+from hysteresis_lab.blocks.step import StepState, bouc_wen_advance, frozen, play_step, tdf2_step
+from hysteresis_lab.blocks.storage import rim_step, rim_storage
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.effects.augment import context_from_dict
 from hysteresis_lab.errors import ConfigError
@@ -79,6 +89,12 @@ OUTPUT_ERROR_REPLACES_AT = 0.01
 #: loop's creep refit did worse (simulator creep diagnosed on a 1 Hz sine: its 0.1 Hz test
 #: 0.121 instead of 0.053 um after the refit)
 SLOWEST_MODE_SHARE = 0.5
+
+#: where the loop forces (hysteresis in the feedback, nonlinear_feedback) act: around the whole
+#: dynamics, or on the output stage's own level (`StorageCascade`)
+FEEDBACK_PLACES = ("dynamics", "output_stage")
+#: effects whose refit in the loop tries both places (the held-out loss chooses)
+PLACED_EFFECTS = ("hysteresis", "nonlinear_feedback", "overflow")
 
 #: catalogue effects the linear model carries as blocks, in physical order
 LINEAR_EFFECTS = ("saturation", "dead_zone", "backlash", "hysteresis", "rate", "creep",
@@ -322,7 +338,8 @@ def _loop_step(
         h = advance(h, y - past_y[:, 0])
     if not lag:
         e = x - force(y, h)
-    state.put(torch.cat([e[:, None], past_e[:, :-1]], dim=1))
+    if b.shape[0] > 1:  # a numerator of one term (`StagePole`) keeps no past input
+        state.put(torch.cat([e[:, None], past_e[:, :-1]], dim=1))
     state.put(torch.cat([y[:, None], past_y[:, :-1]], dim=1))
     if h is not None:
         state.put(h)
@@ -399,6 +416,139 @@ class StaticFeedback(nn.Module):
                 "levels": self.levels.cpu().numpy().tolist()}
 
 
+class StagePole(nn.Module):
+    """One real pole ``p = MAX_RADIUS tanh(raw)`` with unit static gain,
+    ``(1 - p) / (1 - p z^-1)``: a first-order storage, stable for any parameter value. It has
+    `StableSections`' ``polynomials`` and ``delay`` (none), so the closed loops
+    (`StaticFeedback`, `StateHysteresis`) run around it as they do around the dynamics."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.raw_pole = nn.Parameter(torch.zeros((), dtype=torch.float64))
+        self.register_buffer("delay", torch.zeros((), dtype=torch.long))
+
+    @property
+    def pole(self) -> torch.Tensor:
+        return MAX_RADIUS * torch.tanh(self.raw_pole)
+
+    def set_pole(self, pole: float) -> None:
+        """Start at ``pole`` (kept within ``MAX_RADIUS``)."""
+        held = float(np.clip(pole / MAX_RADIUS, -0.999999, 0.999999))
+        with torch.no_grad():
+            self.raw_pole.fill_(float(np.arctanh(held)))
+
+    def polynomials(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """``b = [1 - p]``, ``a = [1, -p]``."""
+        p = self.pole
+        return (1.0 - p).reshape(1), torch.stack([torch.ones_like(p), -p])
+
+
+class StorageCascade(nn.Module):
+    """The dynamics as storages in a row (``model.feedback_on=output_stage``): an upstream
+    part (`StableSections`: the gain, delay and the other poles, open loop), then an
+    upstream storage (one real pole, `StagePole`'s rate, optionally with a rim:
+    `hysteresis_lab.blocks.storage`, its level held there and a share of the spill passed
+    on), then the output stage (one real pole) whose own level the loop forces
+    (`StaticFeedback`, `StateHysteresis`) act on — a tank whose outflow law reads its own
+    level, fed by an upper tank that overflows. Both storages have unit static gain, so the
+    cascade's static gain is the upstream part's."""
+
+    def __init__(self, order: int, rim_level: float | None = None) -> None:
+        super().__init__()
+        #: room for ``order`` poles upstream (sections the start leaves empty may train)
+        self.upstream = StableSections(order)
+        self.storage = StagePole()
+        self.stage = StagePole()
+        self.rim_weight: nn.Parameter | None = None
+        if rim_level is not None:  # effect overflow: the rim, spill weight and share from zero
+            self.rim_weight = nn.Parameter(torch.zeros((), dtype=torch.float64))
+            self.rim_level = nn.Parameter(torch.tensor(float(rim_level), dtype=torch.float64))
+            self.spill_share = nn.Parameter(torch.zeros((), dtype=torch.float64))
+
+    def _rim(self, offset: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The rim on the storage's level (the output's units less its ``offset``), the
+        spill's weight and its share passed on (zeros without a rim)."""
+        if self.rim_weight is None:
+            zero = torch.zeros((), dtype=torch.float64, device=offset.device)
+            return zero, zero, zero
+        return self.rim_level - offset, self.rim_weight, self.spill_share
+
+    def storage_output(self, x: torch.Tensor, offset: torch.Tensor) -> torch.Tensor:
+        """What fills the output stage (B, T): the upstream storage's level plus its share of
+        the spill (over the output stage's rate: ``share = 1`` passes all of it into the
+        stage's level), for the cascade's input ``x`` (B, T)."""
+        rim, weight, share = self._rim(offset)
+        level, spill = rim_storage(self.upstream(x), 1.0 - self.storage.pole, rim, weight)
+        return level + share * spill / (1.0 - self.stage.pole)
+
+    def storage_step(self, x: torch.Tensor, state: StepState,
+                     offset: torch.Tensor) -> torch.Tensor:
+        """One sample of `storage_output`; state: the upstream part's, the storage's level."""
+        v = self.upstream.step(x, state)
+        alpha, rim, weight, share, stage = frozen(1.0 - self.storage.pole, *self._rim(offset),
+                                                  1.0 - self.stage.pole)
+        level, spill = rim_step(v, state.take(1)[:, 0], alpha, rim, weight)
+        state.put(level[:, None])
+        return level + share * spill / stage
+
+    def storage_state_names(self) -> list[str]:
+        return [f"upstream.{name}" for name in self.upstream.state_names()] + ["storage"]
+
+    def set_transfer_function(self, b: np.ndarray, a: np.ndarray) -> None:
+        """Start from ``b(z^-1) / a(z^-1)``: its two slowest real poles become the storages
+        (the slowest the upstream storage, the other the output stage), the other poles the
+        upstream part with ``b``'s delay and the static gain but no zeros (the inflow: the
+        exact numerator over two slow storages amplifies high frequencies a thousandfold on
+        the cascaded tanks, where the rim then acts). Where ``a`` has fewer real poles, its
+        slowest complex pair gives two real poles of its radius. So the start keeps the
+        poles, the delay and the static gain, not the zeros."""
+        poles = list(held_poles(a))
+        chosen = []
+        for _ in range(2):
+            real = [i for i, p in enumerate(poles) if abs(p.imag) <= 1e-9]
+            if not real and poles:
+                i = max(range(len(poles)), key=lambda k: abs(poles[k]))
+                radius = abs(poles[i])
+                pair = [k for k in range(len(poles)) if k != i
+                        and abs(poles[k] - np.conj(poles[i])) < 1e-9][:1]
+                poles = [p for k, p in enumerate(poles) if k not in (i, *pair)]
+                poles += [complex(radius)] * (1 + len(pair))
+                log.info("output stage start: no real pole left, a pole pair of radius %.4f "
+                         "made real", radius)
+                real = [len(poles) - 1]
+            if not real:
+                chosen.append(0.0)
+                continue
+            i = max(real, key=lambda k: poles[k].real)
+            chosen.append(float(poles.pop(i).real))
+        rest = np.atleast_1d(np.real(np.poly(poles)))
+        b = np.asarray(b, dtype=float)
+        static_gain = b.sum() / np.sum(np.real(np.poly(held_poles(a))))
+        lead = int(np.flatnonzero(b)[0]) if np.any(b) else 0
+        upstream = np.zeros(lead + 1)
+        upstream[lead] = static_gain * rest.sum()  # the inflow: no zeros, the static gain kept
+        self.upstream.set_transfer_function(upstream, rest)
+        self.storage.set_pole(chosen[0])
+        self.stage.set_pole(chosen[1])
+
+    def polynomials(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The cascade below the rim as one transfer function (upstream, storage, stage)."""
+        b, a = self.upstream.polynomials()
+        for part in (self.storage, self.stage):
+            bp, ap = part.polynomials()
+            b, a = _polymul(b, bp), _polymul(a, ap)
+        return b, a
+
+    def export(self) -> dict[str, Any]:
+        with torch.no_grad():
+            out = {"upstream": self.upstream.export(),
+                   "storage_pole": float(self.storage.pole), "stage_pole": float(self.stage.pole)}
+            if self.rim_weight is not None:
+                out.update(rim_level=float(self.rim_level), rim_weight=float(self.rim_weight),
+                           spill_share=float(self.spill_share))
+        return out
+
+
 def _pairs(n_out: int, n_in: int, make: Any) -> nn.ModuleList:
     """``[output][input]`` blocks from ``make()``."""
     return nn.ModuleList(nn.ModuleList(make() for _ in range(n_in)) for _ in range(n_out))
@@ -426,6 +576,7 @@ class LinearModel(PhysicalChainModule):
         creep_time_constants_s: Sequence[float] = (0.1, 1.0, 10.0, 100.0),
         recording_repeats: int = 10,
         feedback_knots: int = 6,
+        feedback_on: str = "dynamics",
         objective: str = "simulation",
         lr: float = 0.002,
         **kwargs: Any,
@@ -445,6 +596,12 @@ class LinearModel(PhysicalChainModule):
                 and 1 <= feedback_knots <= 50):
             problems.append(f"model.feedback_knots={feedback_knots!r} (knots of the "
                             "nonlinear feedback's law, a whole number from 1 to 50)")
+        if feedback_on not in FEEDBACK_PLACES:
+            problems.append(f"model.feedback_on={feedback_on!r} (where the loop forces act: "
+                            f"one of {list(FEEDBACK_PLACES)})")
+        elif feedback_on == "output_stage" and isinstance(order, int) and order < 2:
+            problems.append(f"model.feedback_on=output_stage with model.order={order} (the "
+                            "output stage and the upstream storage take a pole each: order >= 2)")
         if objective != "simulation":
             problems.append(f"model.objective='{objective}' (it is fitted on the simulation "
                             "error only)")
@@ -458,12 +615,21 @@ class LinearModel(PhysicalChainModule):
             self._input_blocks(effects, self._input_amplitude(j)) for j in range(n_in))
         self.creep = nn.ModuleList(CreepBank(fs, creep_time_constants_s) for _ in range(n_in)) \
             if "creep" in effects else None
-        self.dynamics = _pairs(ny, n_in, lambda: StableSections(order))
+        extremes = [self._output_extremes(o) for o in range(ny)]
+        #: the loop forces act on the output stage's own level (`StorageCascade`)
+        self.output_stage = feedback_on == "output_stage"
+        if self.output_stage:
+            rim = "overflow" in effects
+            self.dynamics = nn.ModuleList(
+                nn.ModuleList(StorageCascade(order, low + knot_fractions(2)[-1] * (high - low)
+                                             if rim else None) for _ in range(n_in))
+                for low, high in extremes)
+        else:
+            self.dynamics = _pairs(ny, n_in, lambda: StableSections(order))
         self.resonance: nn.ModuleList | None = None
         if "resonance" in effects:
             self.resonance = _pairs(ny, n_in, self._resonance_section)
         self.offset = nn.Parameter(torch.zeros(ny, dtype=torch.float64))
-        extremes = [self._output_extremes(o) for o in range(ny)]
         self.overflow: nn.ModuleList | None = None
         if "overflow" in effects:
             self.overflow = nn.ModuleList(Overflow(low, high) for low, high in extremes)
@@ -544,35 +710,53 @@ class LinearModel(PhysicalChainModule):
 
     def _dynamics_path(self, o: int, j: int, x: torch.Tensor) -> torch.Tensor:
         """The dynamics of pair ``(o, j)`` on ``x`` (B, T), in a closed loop with the
-        hysteretic force and/or the static feedback where declared."""
+        hysteretic force and/or the static feedback where declared (with
+        ``feedback_on=output_stage``: the loop around the output stage, fed by the upstream
+        part and storage)."""
         dynamics = self.dynamics[o][j]
+        if self.output_stage:
+            x = dynamics.storage_output(x, self.offset[o])
+            dynamics = dynamics.stage
         static = None if self.static_feedback is None else self.static_feedback[o][j]
         if self.state_hysteresis is not None:
             return self.state_hysteresis[o][j](dynamics, x, static, self.offset[o])
         if static is not None:
             return static(dynamics, x, self.offset[o])
+        if self.output_stage:
+            return iir_filter(x, *dynamics.polynomials())
         return dynamics(x)
 
     def _dynamics_step(self, o: int, j: int, x: torch.Tensor, state: StepState) -> torch.Tensor:
         """One sample of `_dynamics_path`."""
         dynamics = self.dynamics[o][j]
-        static = None if self.static_feedback is None else self.static_feedback[o][j]
         offset = frozen(self.offset)[0][o]
+        if self.output_stage:
+            x = dynamics.storage_step(x, state, offset)
+            dynamics = dynamics.stage
+        static = None if self.static_feedback is None else self.static_feedback[o][j]
         if self.state_hysteresis is not None:
             return self.state_hysteresis[o][j].step(dynamics, x, state, static, offset)
         if static is not None:
             return static.step(dynamics, x, state, offset)
+        if self.output_stage:
+            return tdf2_step(*frozen(*dynamics.polynomials()), x, state)
         return dynamics.step(x, state)
 
     def _dynamics_state_names(self, o: int, j: int) -> list[str]:
         """The state of `_dynamics_step` for pair ``(o, j)``."""
         dynamics = self.dynamics[o][j]
+        names = []
+        if self.output_stage:
+            names = [f"dynamics{o}{j}.{part}" for part in dynamics.storage_state_names()]
+            dynamics = dynamics.stage
         if self.state_hysteresis is not None:
-            return [f"state_hysteresis{o}{j}.{part}"
-                    for part in self.state_hysteresis[o][j].state_names(dynamics)]
+            return names + [f"state_hysteresis{o}{j}.{part}"
+                            for part in self.state_hysteresis[o][j].state_names(dynamics)]
         if self.static_feedback is not None:
-            return [f"static_feedback{o}{j}.{part}"
-                    for part in StaticFeedback.state_names(dynamics)]
+            return names + [f"static_feedback{o}{j}.{part}"
+                            for part in StaticFeedback.state_names(dynamics)]
+        if self.output_stage:
+            return names + [f"dynamics{o}{j}.stage"]
         return [f"dynamics{o}{j}.{part}" for part in dynamics.state_names()]
 
     def state_names(self) -> list[str]:
@@ -612,6 +796,44 @@ class LinearModel(PhysicalChainModule):
                 y = self.overflow[o].step(y + offset, state) - offset
             outputs.append(y)
         return torch.stack(outputs, dim=-1)
+
+    # ------------------------------------------------------------------ the loop's refits
+    @classmethod
+    def refit_variants(cls, model_cfg: dict[str, Any], previous: Any | None,
+                       added: str | None) -> list[dict[str, Any]]:
+        """The model settings a loop round fits (each a candidate; the held-out loss chooses):
+        a refit that adds a loop force or the overflow (`PLACED_EFFECTS`) to a model whose
+        forces still act on the whole dynamics tries both places (`FEEDBACK_PLACES`), the
+        physics deciding where a law sits: the tanks' outflow law reads the output stage's
+        own level, a spring's force the whole oscillator's. Otherwise the place the last
+        model was fitted with (``model.feedback_on`` at the start)."""
+        place = (previous.hparams.get("feedback_on") if previous is not None
+                 else None) or model_cfg.get("feedback_on", "dynamics")
+        order = model_cfg.get("order", 6)
+        if (added in PLACED_EFFECTS and place == "dynamics" and previous is not None
+                and isinstance(order, int) and order >= 2):
+            return [{"feedback_on": p} for p in FEEDBACK_PLACES]
+        return [{"feedback_on": place}]
+
+    def warm_start_from(self, previous: Any) -> None:
+        """`PhysicalChainModule.warm_start_from`; from a model whose forces act on the whole
+        dynamics into one with an output stage, the fitted dynamics are factored into the
+        `StorageCascade` (`StorageCascade.set_transfer_function`: its poles, delay and static
+        gain; the loop forces' weights carry over onto the output stage), and only the
+        blocks new to the model (the rim) count as new."""
+        super().warm_start_from(previous)
+        if not self.output_stage or getattr(previous, "output_stage", False):
+            return
+        for o in range(self.ny):
+            for j in range(self.n_base_inputs):
+                with torch.no_grad():
+                    b, a = previous.dynamics[o][j].polynomials()
+                self.dynamics[o][j].set_transfer_function(b.cpu().numpy(), a.cpu().numpy())
+        self._new_entries = {name: new for name, new in self._new_entries.items()
+                             if not re.match(r"^dynamics\.\d+\.\d+\.(upstream|storage|stage)\.",
+                                             name)}
+        log.info("output stage: the fitted dynamics factored into upstream part, storage and "
+                 "output stage")
 
     # ------------------------------------------------------------------ initial values
     def initialise_from_data(self, u: np.ndarray, y: np.ndarray, fs: float) -> None:

@@ -285,12 +285,15 @@ def _fit_round_and_decide(
     log.info("=== loop round %d: effects %s ===", number, round_effects or "none")
     warm_start = (_previous_network([k[0] for k in state.kept])
                   if settings.warm_start else None)
+    model_cfg = {**run.model.to_config(), "effects": round_effects}
+    variants = _refit_variants(run.model.cls, model_cfg, warm_start, trying)
     result, round_dir, refit_lr, losses, check = _fit_round(
         run.fit_model,
         run.judge,
-        {**run.model.to_config(), "effects": round_effects},
+        model_cfg,
         run.folder.round_dir(number),
         _refit_rates(run.model.settings, settings) if warm_start is not None else [None],
+        variants=variants,
         warm_start=warm_start,
         refit=_refit_mode(settings.refit, trying, run.model.cls),
     )
@@ -305,6 +308,8 @@ def _fit_round_and_decide(
     if refit_lr is not None:
         entry["refit_lr"] = refit_lr
         entry["refit_candidates"] = losses
+    if len(variants) > 1:
+        entry["refit_settings"] = {k: result.model.hparams.get(k) for k in variants[0]}
     if trying is not None:
         entry["decision"] = _decision(trying, result, entry, state, settings.min_refit_gain)
     state.rounds.append(entry)
@@ -680,43 +685,63 @@ def _fit_round(
     model_cfg: dict[str, Any],
     round_dir: Path,
     rates: list[float] | list[None],
+    variants: Sequence[Mapping[str, Any]] = ({},),
     **fit_options: Any,
-) -> tuple[RunResult, Path, float | None, list[dict[str, float]], HeldOut]:
+) -> tuple[RunResult, Path, float | None, list[dict[str, Any]], HeldOut]:
     """Fit a round's model with ``fit_model`` (`train_and_evaluate` bound to the loop's data
     and settings) once per refit learning rate in ``rates`` (``[None]``: no refit, one fit),
     each in its own folder when there are several, and score each on the held-out data with
     ``judge``; the one with the lowest held-out validation loss (then training validation
     loss) is returned with its folder, its rate, every rate's losses and its held-out scores
     (the test recordings play no part in the choice). A refit that diverges in training is
-    no candidate (recorded with ``diverged``); when every one does, `DivergedError`."""
+    no candidate (recorded with ``diverged``); when every one does, `DivergedError`.
+    ``variants``: model settings each rate is fitted with (the model class's
+    ``refit_variants``: a law's place), each in its own folder when there are several."""
     runs, diverged = [], []
-    for rate in rates:
-        run_dir = LoopFolder.refit_dir(round_dir, rate, several=len(rates) > 1)
+    for variant, rate in itertools.product(variants, rates):
+        base = round_dir / _variant_label(variant) if len(variants) > 1 else round_dir
+        run_dir = LoopFolder.refit_dir(base, rate, several=len(rates) > 1)
         refit_lr = {"refit_lr": rate} if rate is not None else {}
         try:
-            result = fit_model(
-                model_cfg={**model_cfg, **refit_lr}, output_dir=run_dir, **fit_options)
+            result = fit_model(model_cfg={**model_cfg, **variant, **refit_lr},
+                               output_dir=run_dir, **fit_options)
         except DivergedError as exc:
-            if rate is None:
+            if rate is None and len(variants) == 1:
                 raise
-            log.warning("the refit at learning rate %.3g diverged: not a candidate (%s)",
-                        rate, exc)
-            diverged.append({"refit_lr": rate, "validation_loss": float("inf"),
+            log.warning("the refit %s at learning rate %s diverged: not a candidate (%s)",
+                        dict(variant), rate, exc)
+            diverged.append({**variant, "refit_lr": rate, "validation_loss": float("inf"),
                              "held_out_loss": float("inf"), "diverged": str(exc)})
             continue
-        runs.append((result, run_dir, rate, judge(result)))
+        runs.append((result, run_dir, rate, judge(result), dict(variant)))
     if not runs:
         raise DivergedError(
             f"every refit diverged in training (learning rates "
             f"{', '.join(f'{r:.3g}' for r in rates if r is not None)}). Fix: smaller rates, "
             "e.g. loop.refit_lr_factors=[0.1] or a smaller model.lr."
         )
-    result, run_dir, rate, check = min(runs, key=lambda run: (run[3].loss, _refit_loss(run[0])))
+    result, run_dir, rate, check, _ = min(runs, key=lambda run: (run[3].loss,
+                                                                 _refit_loss(run[0])))
     losses = [
-        {"refit_lr": r, "validation_loss": _refit_loss(res), "held_out_loss": c.loss}
-        for res, _, r, c in runs if r is not None
+        {**v, "refit_lr": r, "validation_loss": _refit_loss(res), "held_out_loss": c.loss}
+        for res, _, r, c, v in runs if r is not None
     ] + diverged
     return result, run_dir, rate, losses, check
+
+
+def _variant_label(variant: Mapping[str, Any]) -> str:
+    """A folder name for a refit's model settings (``feedback_on_output_stage``)."""
+    return "_".join(f"{key}_{value}" for key, value in variant.items()) or "default"
+
+
+def _refit_variants(model_cls: type | None, model_cfg: Mapping[str, Any], previous: Any | None,
+                    added: str | None) -> list[dict[str, Any]]:
+    """The model settings a round fits, each a candidate the held-out loss chooses among
+    (the class's ``refit_variants``; ``[{}]``: the round's settings alone)."""
+    variants = getattr(model_cls, "refit_variants", None)
+    if variants is None:
+        return [{}]
+    return variants(dict(model_cfg), previous, added) or [{}]
 
 
 def _refit_rates(model_cfg: Mapping[str, Any], settings: LoopSettings) -> list[float]:

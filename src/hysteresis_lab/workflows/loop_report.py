@@ -343,12 +343,21 @@ def _refit_rate_lines(entry: Mapping[str, Any]) -> list[str]:
     """The learning rate a refit was chosen at and every tried rate's validation loss."""
     if entry.get("refit_lr") is None:
         return []
+    settings = entry.get("refit_settings") or {}
+
+    def label(c: Mapping[str, Any]) -> str:
+        where = " ".join(f"{key}={c[key]}" for key in settings if key in c)
+        return f"{where} {c['refit_lr']:.0e}" if where else f"{c['refit_lr']:.0e}"
+
     tried = ", ".join(
-        f"{c['refit_lr']:.0e}: " + ("diverged" if c.get("diverged") else
-                                    f"{c['validation_loss']:.4g}")
+        f"{label(c)}: " + ("diverged" if c.get("diverged") else
+                           f"{c['validation_loss']:.4g} (held out "
+                           f"{c.get('held_out_loss', float('nan')):.4g})")
         for c in entry["refit_candidates"]
     )
-    return [f"- refit learning rate {entry['refit_lr']:.0e} (validation loss per rate: {tried})"]
+    chosen = "".join(f", {key}={value}" for key, value in settings.items())
+    return [f"- refit learning rate {entry['refit_lr']:.0e}{chosen} (validation loss per "
+            f"candidate: {tried})"]
 
 
 def _change(before: float, after: float) -> str:
