@@ -4,7 +4,7 @@ The FSM test records are periodic steady state. The official score simulates eac
 from its first samples (the model may read ``y[:n_init]``, ``n_init = 100``) and scores the
 rest; the published baselines (BLA, NL-LFR) instead simulate with ``offset=1000``: the
 period's last 1000 input samples run first, so their state has settled when the scored
-period begins. This script scores one trained model both ways on the same test records:
+period begins. This script scores trained models both ways on the same test records:
 
 * **official**: each period as one recording, free run from its first ``first_target``
   measured samples, RMSE from sample ``n_init``;
@@ -19,7 +19,7 @@ period begins. This script scores one trained model both ways on the same test r
 RMSE per output, realisation and period, averaged (the benchmark's scoring), in µm per
 amplitude. Writes ``docs/results/fsm_start.md``.
 
-    python experiments/fsm_start.py --run <a run folder of hysteresis-lab-train data=fsm>
+    python experiments/fsm_start.py --runs <run folders of hysteresis-lab-train data=fsm>
 """
 
 from __future__ import annotations
@@ -34,6 +34,7 @@ import yaml
 
 from hysteresis_lab.data.benchmarks import FSM_AMPLITUDES, fsm_piezo_mirror
 from hysteresis_lab.data.recording import Recording
+from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.evaluation.predict import free_run
 from hysteresis_lab.evaluation.provenance import commit_stamp
 from hysteresis_lab.models.io import load_model, model_window
@@ -67,48 +68,57 @@ def score(recs: list[Recording], sims: list[np.ndarray], skip: int, start: int =
     return {amp: float(np.mean(v)) for amp, v in per_amp.items()}
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--run", type=Path, required=True, help="a trained run folder")
-    parser.add_argument("--lead", type=int, default=1000)
-    args = parser.parse_args()
-    logging.basicConfig(level=logging.INFO, format="%(message)s")
-    model_file = RunFolder(args.run).model_file()
+def model_table(run: Path, splits: DatasetSplits, lead: int) -> list[str]:
+    """The four scorings of the model trained in ``run``, as markdown lines."""
+    model_file = RunFolder(run).model_file()
     if model_file is None:
-        raise SystemExit(f"{args.run} holds no model.ckpt / model.skops: train one first")
+        raise SystemExit(f"{run} holds no model.ckpt / model.skops: train one first")
     model = load_model(model_file)
     window = model_window(model)
-    splits = fsm_piezo_mirror()
     recs = splits.test
     official = free_run(model, recs, window)
-    led = free_run(model, [with_lead(r, args.lead) for r in recs], window)
+    led = free_run(model, [with_lead(r, lead) for r in recs], window)
     rows = {
         f"official (free run from y[:{window.first_target}], scored from sample {N_INIT})":
             score(recs, official, N_INIT),
-        f"official run, scored from sample {args.lead} (start transient left out)":
-            score(recs, official, args.lead),
-        f"periodic start (the period's last {args.lead} samples first, as the baselines' "
-        f"offset), scored from sample {N_INIT}": score(recs, led, N_INIT, start=args.lead),
+        f"official run, scored from sample {lead} (start transient left out)":
+            score(recs, official, lead),
+        f"periodic start (the period's last {lead} samples first, as the baselines' "
+        f"offset), scored from sample {N_INIT}": score(recs, led, N_INIT, start=lead),
         f"training records, official start, scored from sample {N_INIT}":
             score(splits.train, free_run(model, splits.train, window), N_INIT),
-        "NL-LFR (published, offset=1000)": NL_LFR,
     }
-    overrides = args.run / ".hydra" / "overrides.yaml"
+    overrides = run / ".hydra" / "overrides.yaml"
     trained_with = (" ".join(yaml.safe_load(overrides.read_text())) if overrides.is_file()
                     else "(see the run)")
-    lines = [
-        "# The FSM: how much of the error is the start", "",
-        f"Written by `python experiments/fsm_start.py --run <run> --lead {args.lead}` on "
-        f"{datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC, commit "
-        f"{commit_stamp(REPO)}, for the model trained with `{trained_with}`. "
-        "Free-run RMSE in µm per amplitude, averaged over outputs, realisations and periods "
-        "(see the script's docstring).", "",
-        "| scoring | 100 mV | 200 mV | 300 mV |", "|---|---|---|---|",
-    ]
+    lines = [f"`hysteresis-lab-train {trained_with}`:", "",
+             "| scoring | 100 mV | 200 mV | 300 mV |", "|---|---|---|---|"]
     for name, values in rows.items():
         lines.append(f"| {name} | " + " | ".join(f"{values[a]:.4f}" for a in FSM_AMPLITUDES)
                      + " |")
         log.info("%s: %s", name, values)
+    return lines
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--runs", type=Path, nargs="+", required=True,
+                        help="run folders of hysteresis-lab-train data=fsm")
+    parser.add_argument("--lead", type=int, default=1000)
+    args = parser.parse_args()
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    splits = fsm_piezo_mirror()
+    lines = [
+        "# The FSM: how much of the error is the start", "",
+        f"Written by `python experiments/fsm_start.py --runs <runs> --lead {args.lead}` on "
+        f"{datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC, commit "
+        f"{commit_stamp(REPO)}. Free-run RMSE in µm per amplitude, averaged over outputs, "
+        "realisations and periods (see the script's docstring); one table per trained model.",
+    ]
+    for run in args.runs:
+        lines += ["", *model_table(run, splits, args.lead)]
+    lines += ["", "NL-LFR (published, offset=1000): "
+              + " / ".join(f"{NL_LFR[a]} µm" for a in FSM_AMPLITUDES) + " at 100 / 200 / 300 mV."]
     OUT.write_text("\n".join(lines) + "\n")
     log.info("wrote %s", OUT)
 
