@@ -1,0 +1,295 @@
+"""Why the loop's saturation refit falls short of its ceiling (issue #23 item 4).
+
+    python experiments/undeclared_effects.py --cases saturation --root /tmp/ue   # the loop run
+    python experiments/saturation_refit.py --run /tmp/ue/saturation              # this study
+
+On the loop run of the undeclared-effect case ``saturation`` (the simulator's amplifier
+clips at ±``limit_v`` behind its 5 kHz low-pass; the start is ``model=linear effects=[]``)
+this measures, on the run's own data:
+
+* excitation: how much of each recording's amplifier output passes the clip level;
+* placement: the simulator clips behind the amplifier's low-pass, the model's block ahead of
+  all its dynamics; the RMS output difference of the two placements on the test sines;
+* the round-0 model on test inputs clipped at the true level (a perfect block, the round-0
+  dynamics unchanged) and the dynamics' gain beside the simulator's, in and beyond the
+  multisine's 0-500 Hz band (a clipped sine's corners reach far beyond it);
+* refits from the round-0 model as the loop runs them (whole refit, ``model.refit_lr`` =
+  ``model.lr``), the block's weight and level free, fixed at the simulator's clip (weight 1,
+  level ``limit_v``), one of them fixed, and a block-only refit;
+* with ``--order3``: the loop again with ``model.order=3`` (the simulator's own order: the
+  amplifier pole and the bending mode), nothing else changed.
+
+The page goes to ``docs/results/saturation_refit.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import json
+import logging
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from lightning.pytorch.callbacks import Callback
+from omegaconf import OmegaConf
+from scipy import signal
+
+from hysteresis_lab.analysis.loop_checks import (
+    free_run_rmse,
+    round_model,
+    run_data_config,
+    run_fresh_loop,
+)
+from hysteresis_lab.data.factory import build_splits
+from hysteresis_lab.data.recording import Recording
+from hysteresis_lab.data.spec import DataSpec
+from hysteresis_lab.evaluation.provenance import commit_stamp
+from hysteresis_lab.models.io import load_model
+from hysteresis_lab.sim import blocks
+from hysteresis_lab.sim.config import PositionerConfig
+from hysteresis_lab.sim.positioner import Positioner
+from hysteresis_lab.trainer import TrainerSettings
+from hysteresis_lab.workflows.loop import LoopSettings
+from hysteresis_lab.workflows.loop_data import loop_data
+from hysteresis_lab.workflows.pipeline import train_and_evaluate
+
+log = logging.getLogger("saturation_refit")
+
+REPO = Path(__file__).resolve().parents[1]
+OUT = REPO / "docs" / "results" / "saturation_refit.md"
+#: where the dynamics' gain is compared: in the multisine's band and beyond it
+FREQUENCIES_HZ = (10.0, 100.0, 500.0, 900.0, 1500.0, 2500.0, 4500.0, 9000.0)
+#: refits: tag -> (weight fixed at, level fixed at as a share of the clip, refit mode)
+VARIANTS: dict[str, tuple[float | None, float | None, str]] = {
+    "weight and level free (the loop's)": (None, None, "full"),
+    "weight 1, level at the clip": (1.0, 1.0, "full"),
+    "level at the clip, weight free": (None, 1.0, "full"),
+    "weight 1, level free": (1.0, None, "full"),
+    "block only, both free": (None, None, "new_inputs"),
+}
+
+
+@dataclasses.dataclass
+class Study:
+    """The loop run's data, settings and round-0 model."""
+
+    run: Path
+    data_cfg: dict[str, Any]
+    cfg: Any
+    fit_splits: Any
+    tests: list[Recording]
+    n_init: int
+    start: Any
+
+    @classmethod
+    def load(cls, run: Path) -> Study:
+        cfg = OmegaConf.load(run / ".hydra" / "config.yaml")
+        data_cfg = run_data_config(run)
+        splits = build_splits(data_cfg)
+        settings = LoopSettings(**OmegaConf.to_container(cfg.loop, resolve=True))
+        fit = loop_data(splits, DataSpec.from_config(cfg.data), settings.holdout).fit
+        return cls(run, data_cfg, cfg, fit, list(splits.test), splits.n_init,
+                   load_model(run / "round_0" / "model.ckpt"))
+
+    @property
+    def limit_v(self) -> float:
+        return float(self.data_cfg["effects"]["saturation"]["limit_v"])
+
+    def positioner(self, **changes: Any) -> PositionerConfig:
+        """The run's simulator without noise and quantisation, blocks changed as given."""
+        quiet = {"noise": {"enabled": False}, "quantisation": {"enabled": False}}
+        return PositionerConfig.from_dict({**self.data_cfg["effects"], **quiet, **changes})
+
+
+def excitation(study: Study) -> list[dict[str, Any]]:
+    """Per recording: samples whose amplifier output passes the clip, the excess's RMS."""
+    amplifier = study.positioner().amplifier
+    rows = []
+    recordings = [*study.fit_splits.train, *study.fit_splits.val, *study.tests]
+    for rec in recordings:
+        v = blocks.amplifier(rec.u[:, 0], rec.fs, amplifier)
+        excess = np.abs(v) - np.minimum(np.abs(v), study.limit_v)
+        rows.append({"recording": rec.name, "samples": len(v),
+                     "over_pct": 100 * float(np.mean(excess > 0)),
+                     "excess_rms_v": float(np.sqrt(np.mean(excess**2)))})
+    return rows
+
+
+def placement(study: Study) -> dict[str, float]:
+    """Per test: RMS of (clip behind the amplifier's low-pass) - (clip of the command)."""
+    behind = Positioner(study.positioner())
+    ahead = Positioner(study.positioner(saturation={"enabled": False}))
+    limit = study.limit_v
+    return {rec.name: float(np.sqrt(np.mean(
+        (behind.simulate(rec.u[:, 0], rec.fs)
+         - ahead.simulate(np.clip(rec.u[:, 0], -limit, limit), rec.fs)) ** 2)))
+        for rec in study.tests}
+
+
+def simulator_gain(study: Study, frequencies: np.ndarray, fs: float) -> np.ndarray:
+    """|H| (um/V) of the simulator's linear chain: amplifier, gain, first mode, delays."""
+    c = study.positioner()
+    pole = np.exp(-2.0 * np.pi * c.amplifier.cutoff_hz / fs)
+    _, h = signal.freqz([1.0 - pole], [1.0, -pole], worN=frequencies, fs=fs)
+    wn = 2.0 * np.pi * c.mode1.frequency_hz
+    warped = 2.0 * fs * np.tan(wn / (2.0 * fs))
+    b, a = signal.bilinear([warped**2], [1.0, 2.0 * c.mode1.damping * warped, warped**2], fs)
+    _, mode = signal.freqz(b, a, worN=frequencies, fs=fs)
+    return np.abs(h * mode) * c.hysteresis.d_um_per_v
+
+
+def model_gain(model: Any, frequencies: np.ndarray, fs: float) -> np.ndarray:
+    """|H| (um/V) of a linear model's dynamics from input 0 to output 0."""
+    b, a = (p.detach().cpu().numpy() for p in model.dynamics[0][0].polynomials())
+    _, h = signal.freqz(np.ravel(b), a, worN=frequencies, fs=fs)
+    return np.abs(h) * float(model.y_scale[0]) / float(model.u_scale[0])
+
+
+def block_parameters(model: Any) -> tuple[float, float]:
+    """The saturation block's weight and level (V)."""
+    block = model.input_blocks[0]["saturation"]
+    return float(block.weight.detach()), float(block.level.detach()) * float(model.u_scale[0])
+
+
+class FixBlock(Callback):
+    """Set the saturation block's weight and/or level at the fit's start and keep them."""
+
+    def __init__(self, weight: float | None, level: float | None) -> None:
+        self.weight, self.level = weight, level
+
+    def on_fit_start(self, trainer: Any, pl_module: Any) -> None:
+        block = pl_module.input_blocks[0]["saturation"]
+        with torch.no_grad():
+            if self.weight is not None:
+                block.weight.fill_(self.weight)
+                block.weight.requires_grad_(False)
+            if self.level is not None:
+                block.raw_level.fill_(float(np.log(self.level)))
+                block.raw_level.requires_grad_(False)
+
+
+def refit(study: Study, out: Path, weight: float | None, level_share: float | None,
+          mode: str) -> tuple[Any, dict[str, float], float]:
+    """A refit from the round-0 model at ``model.lr``: the model, test RMSE, val loss."""
+    model_cfg = {**OmegaConf.to_container(study.cfg.model, resolve=True),
+                 "effects": ["saturation"]}
+    model_cfg["refit_lr"] = float(model_cfg["lr"])
+    level = None if level_share is None else level_share * study.limit_v / float(
+        study.start.u_scale[0])
+    result = train_and_evaluate(
+        model_cfg, data=DataSpec.from_config(study.cfg.data),
+        trainer=TrainerSettings.from_config(study.cfg.trainer), output_dir=out,
+        seed=int(study.cfg.seed), splits=study.fit_splits, use_tensorboard=False, plots=False,
+        warm_start=study.start, refit=mode, callbacks=[FixBlock(weight, level)])
+    rmse = {k: v["rmse_free_run"] for k, v in result.document["tests"].items()}
+    return result.model, rmse, float((result.refit_validation or {}).get("refit", np.nan))
+
+
+def order3_loop(study: Study, out: Path) -> dict[str, Any]:
+    """The loop run again with ``model.order=3``, nothing else changed: round 0's and the
+    judged refit's test RMSE and the refit's model."""
+    command = json.loads((study.run / "row.json").read_text())["command"].split()[1:]
+    report, _ = run_fresh_loop([*command, "model.order=3"], out)
+    rounds = report["rounds"]
+    refit_round = next((r for r in rounds[1:] if not r.get("rejected")), rounds[1])
+    return {"before": {t: m["rmse_free_run"] for t, m in rounds[0]["tests"].items()},
+            "after": {t: m["rmse_free_run"] for t, m in refit_round["tests"].items()}}
+
+
+def _cells(values: dict[str, float], fmt: str = "{:.3f}") -> str:
+    return " | ".join(fmt.format(v) for v in values.values())
+
+
+def page(study: Study, parts: dict[str, Any], command: str) -> str:
+    """The markdown page of the measurements."""
+    tests = [rec.name for rec in study.tests]
+    row = json.loads((study.run / "row.json").read_text())
+    head = "| | " + " | ".join(t.replace("sine_", "") for t in tests) + " |\n|---|" + \
+        "---|" * len(tests) + "\n"
+    need = {t: row["before"][t] * (1 - row["ceiling_pct"][t] / 200) for t in tests
+            if t in row["ceiling_pct"]}
+    lines = [
+        "# The saturation refit against its ceiling (issue #23 item 4)", "",
+        f"Written by `{command}` at {commit_stamp(REPO)}, "
+        f"{datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC, on the loop run that "
+        "`python experiments/undeclared_effects.py --cases saturation --root <root>` made, "
+        f"`{row['command']}` (commit {row['commit']}). Simulator clip at "
+        f"±{study.limit_v:g} V behind the amplifier's low-pass; the start `model=linear "
+        "effects=[]`; free-run RMSE in µm on the test sines.", "",
+        "## Excitation: amplifier output past the clip", "",
+        "| recording | samples | past the clip | excess RMS (V) |", "|---|---|---|---|",
+        *[f"| {r['recording']} | {r['samples']} | {r['over_pct']:.3f} % | "
+          f"{r['excess_rms_v']:.3f} |" for r in parts["excitation"]], "",
+        "## Test RMSE (µm)", "", head.rstrip("\n"),
+        f"| round 0 (loop) | {_cells(row['before'])} |",
+        f"| loop's refit | {_cells(row['after'])} |",
+        f"| the rule: at most (half the ceiling off round 0) | {_cells(need)} |",
+        f"| placement: clip behind vs ahead of the amplifier (output RMS difference) | "
+        f"{_cells(parts['placement'])} |",
+        f"| round 0, test inputs clipped at {study.limit_v:g} V | {_cells(parts['clipped'])} |",
+    ]
+    for tag, (w, c, loss, rmse) in parts["refits"].items():
+        lines.append(f"| refit: {tag} (w {w:.2f}, c {c:.1f} V, validation {loss:.3g}) | "
+                     f"{_cells(rmse)} |")
+    if "order3" in parts:
+        lines += [f"| `model.order=3`: round 0 | {_cells(parts['order3']['before'])} |",
+                  f"| `model.order=3`: the loop's refit | {_cells(parts['order3']['after'])} |"]
+    freqs = parts["frequencies"]
+    lines += ["", "## Gain of the dynamics (µm/V), in and beyond the multisine's band", "",
+              "| | " + " | ".join(f"{f:g} Hz" for f in freqs) + " |",
+              "|---|" + "---|" * len(freqs),
+              *[f"| {name} | " + " | ".join(f"{g:.3g}" for g in gain) + " |"
+                for name, gain in parts["gains"].items()], ""]
+    return "\n".join(lines)
+
+
+def measure(study: Study, scratch: Path, order3: bool) -> dict[str, Any]:
+    """Every measurement of the page."""
+    fs = float(study.tests[0].fs)
+    freqs = np.array(FREQUENCIES_HZ)
+    limit = study.limit_v
+    clipped = [dataclasses.replace(r, u=np.clip(r.u, -limit, limit)) for r in study.tests]
+    parts: dict[str, Any] = {
+        "excitation": excitation(study), "placement": placement(study),
+        "clipped": free_run_rmse(study.start, clipped, study.n_init), "frequencies": freqs,
+        "gains": {"simulator": simulator_gain(study, freqs, fs),
+                  "round 0": model_gain(study.start, freqs, fs)},
+        "refits": {},
+    }
+    for i, (tag, (weight, level, mode)) in enumerate(VARIANTS.items()):
+        model, rmse, loss = refit(study, scratch / f"refit_{i}", weight, level, mode)
+        parts["refits"][tag] = (*block_parameters(model), loss, rmse)
+        parts["gains"][f"refit: {tag}"] = model_gain(model, freqs, fs)
+        log.info("%s: %s", tag, rmse)
+    if order3:
+        parts["order3"] = order3_loop(study, scratch / "order3")
+        model = load_model(round_model(scratch / "order3", 1))
+        parts["gains"]["`model.order=3`: the loop's refit"] = model_gain(model, freqs, fs)
+    return parts
+
+
+def main(argv: list[str] | None = None, write: Callable[[str], Any] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--run", type=Path, required=True,
+                        help="the saturation case's loop run (undeclared_effects.py --root)")
+    parser.add_argument("--scratch", type=Path, default=Path("/tmp/saturation_refit"))
+    parser.add_argument("--order3", action="store_true",
+                        help="also run the loop with model.order=3 (about a minute)")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    study = Study.load(args.run.resolve())
+    parts = measure(study, args.scratch, args.order3)
+    command = "python experiments/saturation_refit.py --run <root>/saturation" + (
+        " --order3" if args.order3 else "")
+    text = page(study, parts, command)
+    (write or OUT.write_text)(text)
+    log.info("wrote %s", OUT)
+
+
+if __name__ == "__main__":
+    main()
