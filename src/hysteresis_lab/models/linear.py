@@ -86,8 +86,9 @@ SLOWEST_MODE_SHARE = 0.5
 #: the sensor noise above the input's band, puts poles near Nyquist that no training on that
 #: band moves (simulated positioner, 0-500 Hz multisine: order-6 ARX 1.02 um/V at 4.5 kHz and
 #: 7.96 at 9 kHz where it has 0.005 and 0.0001, 39x its static gain; an input clipped by the
-#: loop's saturation block rang in it, refit 1.0-2.4 um on the 100-500 Hz sines instead of
-#: 0.08-0.41 from the output-error start; experiments/saturation_refit.py)
+#: loop's saturation block rang in it: the refit left 1.00 um on the 100 Hz sine and
+#: 0.76-1.02 on 400-500 Hz, from the output-error start 0.08 and 0.32-0.41;
+#: experiments/saturation_refit.py)
 NYQUIST_GAIN_SHARE = 1.0
 
 #: catalogue effects the linear model carries as blocks, in physical order
