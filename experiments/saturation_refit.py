@@ -55,7 +55,7 @@ from hysteresis_lab.analysis.loop_checks import (
     run_data_config,
     run_fresh_loop,
 )
-from hysteresis_lab.blocks.sections import slowest_rate, stable_denominator, steiglitz_mcbride
+from hysteresis_lab.blocks.sections import nyquist_share, slowest_rate, steiglitz_mcbride
 from hysteresis_lab.data.benchmarks import load_benchmark
 from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.data.factory import build_splits
@@ -248,16 +248,6 @@ def sm_start_loop(study: Study, out: Path) -> dict[str, dict[str, float]]:
     subprocess.run([sys.executable, "-c", SM_START_LOOP, *command, f"hydra.run.dir={out}"],
                    check=True, capture_output=True, text=True)
     return rule_rows(out)
-
-
-def nyquist_share(b: np.ndarray, a: np.ndarray) -> float:
-    """Largest gain at Nyquist over the largest static gain, over the inputs of ``b / a``."""
-    a = stable_denominator(a)
-    b = np.atleast_2d(b)
-    alternating = (-1.0) ** np.arange(max(b.shape[1], len(a)))
-    nyquist = np.abs(b @ alternating[: b.shape[1]]) / abs(a @ alternating[: len(a)])
-    static = np.abs(b.sum(axis=1)) / abs(a.sum())
-    return float(nyquist.max() / max(static.max(), 1e-12))
 
 
 def start_fits(name: str, data: Any, scaling: str) -> list[dict[str, Any]]:
