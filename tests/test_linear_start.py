@@ -1,7 +1,8 @@
 """The linear model's start: ARX, or a Steiglitz–McBride fit where its free run is far
 closer to the training recordings (a mode above the input band that ARX misplaces) and it
-needs no slower mode than ARX's (slow effects such as creep stay out of the start), or closer
-at all where ARX's gain at Nyquist is above its static gain and the output-error fit's is not."""
+needs no slower mode than ARX's (slow effects such as creep stay out of the start), or clearly
+closer, with ARX's slow dynamics, where ARX's gain at Nyquist is above its static gain and the
+output-error fit's is not."""
 
 from __future__ import annotations
 
