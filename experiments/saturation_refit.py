@@ -345,8 +345,11 @@ def page(study: Study, parts: dict[str, Any], command: str) -> str:
         lines += ["## The linear start's fits on other data (`model.order=6`)", "",
                   "Gain at Nyquist over the static gain of the ARX start (the order it starts "
                   "at) and of the Steiglitz–McBride fit, the latter's free-run error variance "
-                  "and slowest mode over ARX's on the training records (it starts today below "
-                  "0.01 and above 0.5).", "",
+                  "and slowest mode over ARX's on the training records. It starts below 0.01 "
+                  "of the error with its slowest mode above 0.5 of ARX's, or where ARX's "
+                  "Nyquist/static is above 1 and its own is not, below 0.9 of the error with "
+                  "its slowest mode at least 0.9 of ARX's (`model=linear`'s start since "
+                  "6968906).", "",
                   "| data | output | ARX order | ARX Nyquist/static | SM Nyquist/static | "
                   "SM/ARX free-run error | SM/ARX slowest mode |", "|---|---|---|---|---|---|---|",
                   *[f"| {r['data']} | {r['output']} | {r['arx_order']} | {r['arx_nyquist']:.3g} | "
