@@ -1,6 +1,8 @@
 """The linear model's start: ARX, or a Steiglitz–McBride fit where its free run is far
 closer to the training recordings (a mode above the input band that ARX misplaces) and it
-needs no slower mode than ARX's (slow effects such as creep stay out of the start)."""
+needs no slower mode than ARX's (slow effects such as creep stay out of the start), or clearly
+closer, with ARX's slow dynamics, where ARX's gain at Nyquist is above its static gain and the
+output-error fit's is not."""
 
 from __future__ import annotations
 
@@ -11,11 +13,17 @@ from scipy import signal
 from hysteresis_lab.blocks.sections import (
     arx_least_squares,
     free_run_error,
+    nyquist_share,
     stable_denominator,
     steiglitz_mcbride,
 )
-from hysteresis_lab.models.linear import OUTPUT_ERROR_REPLACES_AT, LinearModel
+from hysteresis_lab.models.linear import (
+    NYQUIST_GAIN_SHARE,
+    OUTPUT_ERROR_REPLACES_AT,
+    LinearModel,
+)
 from hysteresis_lab.signals import multisine, sine
+from hysteresis_lab.sim.default_dataset import make_default_dataset
 
 FS = 20_000.0
 
@@ -103,3 +111,32 @@ def test_a_slow_effect_stays_out_of_the_start():
 
     _, a_start = _started(u, y, order=4).dynamics[0][0].polynomials()
     np.testing.assert_allclose(a_start.detach().numpy(), a_arx, atol=1e-9)
+
+
+def test_nyquist_share_is_the_gain_at_nyquist_over_the_static_gain():
+    """Two inputs: the larger gain at Nyquist over the larger static gain (scipy's freqz)."""
+    b = np.array([[0.0, 0.2, 0.1], [0.0, 0.05, -0.3]])
+    a = np.array([1.0, -0.5, 0.2])
+    gains = [np.abs(signal.freqz(row, a, worN=[0.0, np.pi])[1]) for row in b]
+    expected = max(g[1] for g in gains) / max(g[0] for g in gains)
+    assert np.isclose(nyquist_share(b, a), expected)
+
+
+def test_a_clipped_positioner_starts_without_arx_gain_at_nyquist():
+    """The simulated positioner clipping at 90 V on a 0-500 Hz multisine with sensor noise:
+    ARX's equation error puts poles near Nyquist (gain there far above the static gain, which
+    no training on the band moves and a clipped input's corners reach); the output-error fit
+    simulates the record better without them, and starts."""
+    data = make_default_dataset(
+        effects={"hysteresis": {"enabled": False}, "creep": {"enabled": False},
+                 "saturation": {"enabled": True}},
+        n_train=8000, test_frequencies=(10.0,), max_test_samples=100)
+    rec = data.train[0]
+    u, y = rec.u[:, 0] / 100.0, rec.y[:, 0] / 20.0
+    b_arx, a_arx = arx_least_squares(u, y, na=6, nb=6, nk=1)
+    assert nyquist_share(b_arx, a_arx) > 10.0
+    start = _started(u, y, order=6)
+    b, a = (p.detach().numpy() for p in start.dynamics[0][0].polynomials())
+    assert nyquist_share(b, a) < NYQUIST_GAIN_SHARE
+    assert (free_run_error([u], [y], b, a)
+            < free_run_error([u], [y], b_arx, stable_denominator(a_arx)))

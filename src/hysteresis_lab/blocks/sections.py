@@ -182,6 +182,17 @@ def slowest_rate(a: np.ndarray) -> float:
     return float(np.min(np.abs(np.log(poles)))) if len(poles) else np.inf
 
 
+def nyquist_share(b: np.ndarray, a: np.ndarray) -> float:
+    """The largest gain at Nyquist over the largest static gain of ``b / a`` (``b``: one
+    numerator per input, rows; ``a`` as `StableSections` holds it, poles reflected inside)."""
+    a = stable_denominator(np.asarray(a, dtype=float))
+    b = np.atleast_2d(np.asarray(b, dtype=float))
+    alternating = (-1.0) ** np.arange(max(b.shape[1], len(a)))
+    nyquist = np.abs(b @ alternating[: b.shape[1]]) / max(abs(a @ alternating[: len(a)]), 1e-300)
+    static = np.abs(b.sum(axis=1)) / max(abs(a.sum()), 1e-300)
+    return float(nyquist.max() / max(static.max(), 1e-300))
+
+
 def free_run_error(
     u: Sequence[np.ndarray], y: Sequence[np.ndarray], b: np.ndarray, a: np.ndarray
 ) -> float:

@@ -65,6 +65,7 @@ from hysteresis_lab.blocks.sections import (
     _polymul,
     arx_least_squares,
     held_poles,
+    nyquist_share,
     slowest_rate,
     steiglitz_mcbride,
 )
@@ -89,6 +90,23 @@ OUTPUT_ERROR_REPLACES_AT = 0.01
 #: loop's creep refit did worse (simulator creep diagnosed on a 1 Hz sine: its 0.1 Hz test
 #: 0.121 instead of 0.053 um after the refit)
 SLOWEST_MODE_SHARE = 0.5
+#: ... or where the ARX start's gain at Nyquist exceeds this share of its static gain while
+#: the Steiglitz–McBride fit's does not: a sampled physical low-pass system has far less
+#: there; ARX's equation error, whitening the sensor noise above the input's band, puts poles
+#: near Nyquist that no training on that band moves (simulated positioner, 0-500 Hz
+#: multisine: order-6 ARX 1.02 um/V at 4.5 kHz and 7.96 at 9 kHz where it has 0.005 and
+#: 0.0001, 39x its static gain; an input clipped by the loop's saturation block rang in it:
+#: the refit left 1.00 um on the 100 Hz sine and 0.76-1.02 on 400-500 Hz, from the
+#: output-error start 0.08 and 0.32-0.41; experiments/saturation_refit.py) ...
+NYQUIST_GAIN_SHARE = 1.0
+#: ... where, too, the output-error fit simulates clearly better (below this share of the ARX
+#: start's error variance) and keeps ARX's slow dynamics (its slowest mode at least this share
+#: of ARX's): it is there to take out the poles near Nyquist, not to read another mode into
+#: the start (an 8000-sample dead-zone record: output-error fit 0.97 of ARX's error with a
+#: pole at the radius limit, the round-0 held-out loss 0.29 instead of 0.18 and the loop's
+#: dead-zone refit no longer cut it; the simulator's default data, hysteresis and creep on:
+#: 0.41 with its slowest mode at 0.68, a plain linear fit 6 % worse on the test sines)
+NYQUIST_CLEAR_SHARE = 0.9
 
 #: where the loop forces (hysteresis in the feedback, nonlinear_feedback) act: around the whole
 #: dynamics, or on the output stage's own level (`StorageCascade`)
@@ -857,7 +875,12 @@ class LinearModel(PhysicalChainModule):
         its slowest mode is no slower than `SLOWEST_MODE_SHARE` of the ARX start's: ARX's
         equation error can misplace a lightly damped mode above the input band (seen only in
         start transients), which training on the free run does not recover; slow effects
-        (creep, drift) stay out of the start, for the loop's creep block."""
+        (creep, drift) stay out of the start, for the loop's creep block. It also starts
+        where the ARX start's gain at Nyquist is above `NYQUIST_GAIN_SHARE` of its static gain
+        while its own is not (`nyquist_share`), its free run below `NYQUIST_CLEAR_SHARE` of
+        ARX's error variance and its slowest mode at least that share of ARX's: ARX's poles
+        near Nyquist, fitted to sensor noise above the input's band, leave a gain there that
+        no training on that band moves and that a clipped input's corners reach."""
         self._initialise_from_arrays([rec.u for rec in recordings], [rec.y for rec in recordings])
 
     def _initialise_from_arrays(
@@ -892,12 +915,16 @@ class LinearModel(PhysicalChainModule):
         order = self.hparams.order
         b, a = steiglitz_mcbride(vs, ys, na=order, nb=self._nb(order), nk=self.hparams.delay)
         output_error = self._set_start(o, vs, ys, b, a)
-        if output_error < OUTPUT_ERROR_REPLACES_AT * arx[0]:
-            slowest = slowest_rate(a) / slowest_rate(arx[3])
+        rings = (nyquist_share(arx[2], arx[3]), nyquist_share(b, a))
+        slowest = slowest_rate(a) / slowest_rate(arx[3])
+        clean = (rings[0] > NYQUIST_GAIN_SHARE >= rings[1] and slowest >= NYQUIST_CLEAR_SHARE
+                 and output_error < NYQUIST_CLEAR_SHARE * arx[0])
+        if output_error < OUTPUT_ERROR_REPLACES_AT * arx[0] or clean:
             replaces = slowest >= SLOWEST_MODE_SHARE
             log.info("linear start, output %d: Steiglitz-McBride (order %d) in free run %.3g "
                      "of the ARX fit's error variance (order %d), its slowest mode at %.3g of "
-                     "ARX's: %s", o, order, output_error / arx[0], arx[1], slowest,
+                     "ARX's, gain at Nyquist %.3g of its static gain (ARX: %.3g): %s", o, order,
+                     output_error / arx[0], arx[1], slowest, rings[1], rings[0],
                      "it starts" if replaces else "too slow, ARX starts")
             if replaces:
                 return order, a, "Steiglitz-McBride"
