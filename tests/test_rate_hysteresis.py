@@ -10,7 +10,7 @@ import torch
 from hysteresis_lab.blocks import BoucWen
 from hysteresis_lab.blocks.bouc_wen import _BoucWenFunction
 from hysteresis_lab.blocks.step import StepState
-from hysteresis_lab.models.linear import HysteresisCell
+from hysteresis_lab.models.linear_blocks import HysteresisCell
 from hysteresis_lab.sim.bouc_wen import bouc_wen_state
 
 

@@ -67,8 +67,8 @@ class StableSections(nn.Module):
         a = self.denominators()
         b_total, a_total = self.numerators[0].double(), a[0]
         for i in range(1, self.n_sections):
-            b_total = _polymul(b_total, self.numerators[i].double())
-            a_total = _polymul(a_total, a[i])
+            b_total = polymul(b_total, self.numerators[i].double())
+            a_total = polymul(a_total, a[i])
         return nn.functional.pad(b_total, (int(self.delay), 0)), a_total
 
     def state_names(self) -> list[str]:
@@ -112,7 +112,7 @@ class StableSections(nn.Module):
                     "denominators": self.denominators().cpu().numpy().copy()}
 
 
-def _polymul(p: Tensor, q: Tensor) -> Tensor:
+def polymul(p: Tensor, q: Tensor) -> Tensor:
     """The product of two polynomials (coefficient vectors), differentiable."""
     return nn.functional.conv1d(p.reshape(1, 1, -1), q.flip(0).reshape(1, 1, -1),
                                 padding=q.shape[0] - 1).reshape(-1)
