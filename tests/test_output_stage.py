@@ -169,9 +169,9 @@ def test_the_output_stage_law_has_exact_gradients():
 
 
 def test_the_loop_tries_both_places_once():
-    """A refit that adds a law or the overflow to a model whose forces act on the whole
-    dynamics is fitted both ways; once the output stage stands it stays; other effects and
-    the first round keep the place."""
+    """A refit that adds a storage's law or its overflow to a model whose forces act on the
+    whole dynamics is fitted both ways; once the output stage stands it stays; other effects
+    (hysteresis too) and the first round keep the place."""
     splits = narx_data(n=300)
     around = _model({"name": "linear", "order": 2}, splits)
     on_stage = _model({"name": "linear", "order": 2, "feedback_on": "output_stage"}, splits)
@@ -179,7 +179,8 @@ def test_the_loop_tries_both_places_once():
     both = [{"feedback_on": "dynamics"}, {"feedback_on": "output_stage"}]
     assert LinearModel.refit_variants(cfg, around, "nonlinear_feedback") == both
     assert LinearModel.refit_variants(cfg, around, "overflow") == both
-    assert LinearModel.refit_variants(cfg, around, "creep") == [{"feedback_on": "dynamics"}]
+    for other in ("creep", "hysteresis"):  # a restoring force acts on the whole oscillator
+        assert LinearModel.refit_variants(cfg, around, other) == [{"feedback_on": "dynamics"}]
     assert LinearModel.refit_variants(cfg, None, None) == [{"feedback_on": "dynamics"}]
     assert LinearModel.refit_variants(cfg, on_stage, "hysteresis") == [
         {"feedback_on": "output_stage"}]
