@@ -161,12 +161,12 @@ def main() -> None:
     parser.add_argument("--runs", type=Path, default=REPO / "outputs" / "loop_measured")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
-    stamp = {"commit": commit_stamp(REPO),
-             "date": f"{datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC"}
+    commit = commit_stamp(REPO)
     runs = {}
     for name in args.data:
         log.info("running the loop on %s ...", name)
-        runs[name] = {**run_one(name, args.runs / name), **stamp}
+        runs[name] = {**run_one(name, args.runs / name), "commit": commit,
+                      "date": f"{datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC"}
         log.info("%s done in %.0f s", name, runs[name]["seconds"])
     OUT.write_text(render(keep(runs)))
     log.info("wrote %s", OUT)
