@@ -61,9 +61,8 @@ def score(recs: list[Recording], sims: list[np.ndarray], skip: int, start: int =
     """Mean per amplitude of the RMSE per output/recording from sample ``start + skip``."""
     per_amp: dict[int, list[float]] = {amp: [] for amp in FSM_AMPLITUDES}
     for rec, sim in zip(recs, sims, strict=True):
-        amp = int(rec.name.split("mV")[0])
-        err = (sim[start:] - np.concatenate([rec.y[-start:], rec.y])[start:]
-               if start else sim - rec.y)[skip:]
+        amp = int(rec.metadata["amplitude_mV"])
+        err = (sim[start:] - rec.y)[skip:]  # ``start``: the lead run before the period
         per_amp[amp].extend(np.sqrt(np.mean(err**2, axis=0)).tolist())
     return {amp: float(np.mean(v)) for amp, v in per_amp.items()}
 

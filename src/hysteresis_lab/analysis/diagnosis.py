@@ -202,8 +202,7 @@ def _prepare(
     weight = 1.0 / (float(np.sqrt(e @ e)) or 1.0)
     if held:
         return _Prepared(e * weight, np.empty((len(keep), 0)), keep, weight)
-    base = np.column_stack(
-        [recording.u] + [get_effect(name).features(recording.u, context) for name in declared])
+    base = _baseline_signals(recording.u, context, declared)
     design = _centre(_lagged_rows(base, keep, lags))
     through = None
     if dynamics is not None:
@@ -213,6 +212,13 @@ def _prepare(
         y_model = np.nan_to_num(np.asarray(model_output, dtype=float).reshape(len(e_all), -1))
         output = _centre(_lagged_rows(y_model, keep, lags)) * weight
     return _Prepared(e * weight, design * weight, keep, weight, output, through)
+
+
+def _baseline_signals(u: np.ndarray, context: FeatureContext,
+                      declared: Sequence[str]) -> np.ndarray:
+    """The baseline's signals of one recording: its input and the declared effects'
+    operators (N x k)."""
+    return np.column_stack([u] + [get_effect(name).features(u, context) for name in declared])
 
 
 def _through_dynamics(x: np.ndarray, a: np.ndarray) -> np.ndarray:
@@ -253,8 +259,7 @@ def _model_dynamics(
         scored = np.flatnonzero(np.isfinite(np.asarray(e, dtype=float).reshape(-1)))
         if held[k] or len(scored) <= 2 * (na + nb):
             continue
-        base = np.column_stack(
-            [rec.u] + [get_effect(name).features(rec.u, context) for name in declared])
+        base = _baseline_signals(rec.u, context, declared)
         inputs, outputs = fits.setdefault(rec.y_names[0], ([], []))
         inputs.append(base[scored[0]:])
         outputs.append(np.nan_to_num(np.asarray(y, dtype=float).reshape(-1)[scored[0]:]))

@@ -84,7 +84,8 @@ def operator_excitation(
     ctx: FeatureContext,
 ) -> Excitation:
     """Compare how much ``effect``'s operators move on ``tests`` and on ``identification``."""
-    return _excitation(effect, [r.u for r in identification], [r.u for r in tests], ctx)
+    return _from_spreads(effect, _spread(effect, [r.u for r in identification], ctx),
+                         _spread(effect, [r.u for r in tests], ctx))
 
 
 def _spread(effect: str, inputs: Sequence[np.ndarray], ctx: FeatureContext) -> np.ndarray:
@@ -92,14 +93,6 @@ def _spread(effect: str, inputs: Sequence[np.ndarray], ctx: FeatureContext) -> n
     operator = get_effect(effect)
     values = np.concatenate([operator.features(u, ctx) for u in inputs])
     return np.sqrt(np.mean((values - values.mean(axis=0)) ** 2, axis=0))
-
-
-def _excitation(
-    effect: str, reference: Sequence[np.ndarray], tests: Sequence[np.ndarray],
-    ctx: FeatureContext,
-) -> Excitation:
-    """`operator_excitation` on input arrays."""
-    return _from_spreads(effect, _spread(effect, reference, ctx), _spread(effect, tests, ctx))
 
 
 def _from_spreads(effect: str, train: np.ndarray, test: np.ndarray) -> Excitation:
@@ -244,8 +237,7 @@ def recommend_recordings(
     give are computed too. ``held_out``: the share at the end of every training recording
     that is validated and diagnosed on (data without validation recordings; then every
     added recording is a training one)."""
-    test_inputs = [r.u for r in tests]
-    on_tests = _spread(effect, test_inputs, ctx)
+    on_tests = _spread(effect, [r.u for r in tests], ctx)
     on_identification = _spread(effect, [r.u for r in identification], ctx)
     now = {
         "identification": _from_spreads(effect, on_identification, on_tests),
@@ -272,8 +264,9 @@ def recommend_recordings(
             break
         added = _added_inputs(make_sine, amplitude, train_hz, val_hz, held_out)
         after = {
-            f"{role}_after": _excitation(
-                effect, [*(r.u for r in recordings), *added[role]], test_inputs, ctx).worst[1]
+            f"{role}_after": _from_spreads(
+                effect, _spread(effect, [*(r.u for r in recordings), *added[role]], ctx),
+                on_tests).worst[1]
             for role, recordings in roles.items()
         }
         attempts.append((train_hz, val_hz, after))

@@ -184,7 +184,8 @@ def slowest_rate(a: np.ndarray) -> float:
 
 def nyquist_share(b: np.ndarray, a: np.ndarray) -> float:
     """The largest gain at Nyquist over the largest static gain of ``b / a`` (``b``: one
-    numerator per input, rows; ``a`` as `StableSections` holds it, poles reflected inside)."""
+    numerator per input, rows; ``a`` with its poles reflected inside the unit circle,
+    `stable_denominator`)."""
     a = stable_denominator(np.asarray(a, dtype=float))
     b = np.atleast_2d(np.asarray(b, dtype=float))
     alternating = (-1.0) ** np.arange(max(b.shape[1], len(a)))

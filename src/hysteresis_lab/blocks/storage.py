@@ -206,7 +206,8 @@ class StorageCascade(nn.Module):
         the cascaded tanks, where the rim then acts). Where ``a`` has fewer real poles, its
         slowest complex pair gives two real poles of its radius. So the start keeps the
         poles, the delay and the static gain, not the zeros."""
-        poles = list(held_poles(a))
+        held = held_poles(a)
+        poles = list(held)
         chosen = []
         for _ in range(2):
             real = [i for i, p in enumerate(poles) if abs(p.imag) <= 1e-9]
@@ -227,7 +228,7 @@ class StorageCascade(nn.Module):
             chosen.append(float(poles.pop(i).real))
         rest = np.atleast_1d(np.real(np.poly(poles)))
         b = np.asarray(b, dtype=float)
-        static_gain = b.sum() / np.sum(np.real(np.poly(held_poles(a))))
+        static_gain = b.sum() / np.sum(np.real(np.poly(held)))
         lead = int(np.flatnonzero(b)[0]) if np.any(b) else 0
         upstream = np.zeros(lead + 1)
         upstream[lead] = static_gain * rest.sum()  # the inflow: no zeros, the static gain kept
