@@ -51,13 +51,21 @@ RESULTS = REPO / "docs" / "results"
 #: the study's NARX networks: their defaults plus free-run fine-tuning after the one-step stage
 NETWORK_DEFAULTS = ["model.objective=simulation", "model.horizon=200",
                     "model.simulation_epochs=5"]
-#: recommended settings, data set -> model -> Hydra overrides (one place; see docs/results)
+#: the "augmented" row: SUBNET with the free run of the named row's model as an extra input
+#: (`model.baseline`); data set -> that row (trained first when its run folder has no model)
+AUGMENTED = "augmented"
+AUGMENTED_BASELINE: dict[str, str] = {"default": "greybox", "cascaded_tanks": "linear"}
+#: recommended settings, data set -> model -> Hydra overrides (one place; see docs/results);
+#: ``<root>`` stands for the run folders' root (``--root``)
 RECOMMENDED: dict[str, dict[str, list[str]]] = {
     "default": {
         "subnet": ["model.effects=[hysteresis]", "data.window.na=20", "data.window.nb=20",
                    "model.horizon=200", "model.lr=1e-4", "data.batch_size=32",
                    "trainer.max_epochs=40"],
         "greybox": ["model.effects=[creep]"],
+        AUGMENTED: ["model=subnet", "model.baseline=<root>/greybox_default", "data.window.na=20",
+                    "data.window.nb=20", "model.horizon=200", "model.lr=1e-4",
+                    "data.batch_size=32", "trainer.max_epochs=40"],
     },
     "fsm": {
         "subnet": ["model.nx=28", "data.window.na=50", "data.window.nb=50",
@@ -98,6 +106,10 @@ RECOMMENDED: dict[str, dict[str, list[str]]] = {
         # level (the output stage) and the upper tank's rim (overflow on the output stage)
         "linear": ["model.effects=[nonlinear_feedback,overflow]", "model.feedback_on=output_stage",
                    "model.lr=0.01", "trainer.max_epochs=300"],
+        AUGMENTED: ["model=subnet", "model.baseline=<root>/linear_cascaded_tanks", "model.nx=3",
+                    "model.neurons=16", "model.hidden_layers=1", "model.encoder_neurons=16",
+                    "model.encoder_layers=1", "model.weight_decay=1e-3", "model.horizon=300",
+                    "model.lr=3e-3", "data.batch_size=2", "trainer.max_epochs=600"],
     },
 }
 #: pairs a model cannot take, with the reason (shown in the table)
@@ -129,6 +141,9 @@ def run_pair(
     """Train (or with ``resume`` reuse) one pair; its cell, or None when the run failed."""
     if (model, data) in UNSUPPORTED:
         return {"model": model, "data": data, "skipped": UNSUPPORTED[(model, data)], **stamp}
+    if model == AUGMENTED and data not in AUGMENTED_BASELINE:
+        return {"model": model, "data": data, **stamp,
+                "skipped": "no physical model to augment is chosen for this data set"}
     overrides = recommended(model, data)
     run_dir = root / f"{model}_{data}"
     metrics_path = RunFolder(run_dir).metrics
@@ -146,7 +161,9 @@ def run_pair(
     if run_dir.is_dir():  # a fresh run: no checkpoint or metrics of an older one stay
         shutil.rmtree(run_dir)
     run_dir.mkdir(parents=True)
-    command = [*train_command(), f"model={model}", f"data={data}", *overrides, *COMMON,
+    model_args = [] if any(o.startswith("model=") for o in overrides) else [f"model={model}"]
+    command = [*train_command(), *model_args, f"data={data}",
+               *(o.replace("<root>", str(root)) for o in overrides), *COMMON,
                f"hydra.run.dir={run_dir}"]
     log.info("%s on %s: %s (log: %s)", model, data, " ".join(command[1:]),
              run_dir / "accuracy_train.log")
@@ -168,6 +185,16 @@ def run_pair(
              ", ".join(f"{r['test']} {format_value(r['free_run'])} {cell['units']}"
                        for r in cell["rows"]), format_duration(cell["train_seconds"]))
     return cell
+
+
+def _with_baselines(models: Sequence[str], data: str) -> list[str]:
+    """``models`` in order, with the augmented row's baseline row before it when missing."""
+    baseline = AUGMENTED_BASELINE.get(data)
+    if AUGMENTED not in models or baseline is None:
+        return list(models)
+    others = [m for m in models if m != baseline]
+    at = others.index(AUGMENTED)
+    return [*others[:at], baseline, *others[at:]]
 
 
 def _choices(text: str, allowed: Sequence[str], what: str) -> list[str]:
@@ -205,7 +232,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     cells, failed = [], []
     for data in datasets:
-        for model in models:
+        for model in _with_baselines(models, data):
             cell = run_pair(model, data, args.root, args.resume, stamp)
             if cell is None:
                 failed.append(f"{model}/{data}")

@@ -21,6 +21,7 @@ from lightning.pytorch.utilities.exceptions import MisconfigurationException
 from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.data.segments import simulation_data
 from hysteresis_lab.errors import ConfigError, DivergedError
+from hysteresis_lab.models.baseline import SETTING as BASELINE_SETTING
 from hysteresis_lab.models.interface import SystemModel
 from hysteresis_lab.models.settings import Stage
 from hysteresis_lab.models.spec import ModelSpec
@@ -62,6 +63,7 @@ def build_model(
     """
     spec = ModelSpec.from_config(model)
     name, cls, params = spec.name, spec.cls, dict(spec.settings)
+    params.pop(BASELINE_SETTING, None)  # the pipeline gives the model its baseline's channels
     extra = {k: v for k, v in extra.items() if k in _init_parameters(cls)}
     accepted = _init_parameters(cls) - DERIVED_PARAMETERS
     unknown = sorted(set(params) - accepted)

@@ -101,9 +101,14 @@ def augment_splits(
 
 
 def for_model(model: Any, recordings: Sequence[Recording]) -> list[Recording]:
-    """Recordings with the extra input channels that a loaded ``model``'s effects need."""
+    """Recordings with the extra input channels that a loaded ``model`` reads: its effects'
+    operators, then its baseline's free run (`hysteresis_lab.models.baseline`)."""
     effects = list(model.hparams.get("effects") or [])
-    if not effects:
-        return list(recordings)
-    ctx = context_from_dict(model.hparams["feature_context"])
-    return [augment(r, effects, ctx) for r in recordings]
+    augmented = list(recordings)
+    if effects:
+        ctx = context_from_dict(model.hparams["feature_context"])
+        augmented = [augment(r, effects, ctx) for r in recordings]
+    baseline = getattr(model, "baseline", None)
+    if baseline is not None:
+        augmented = baseline.append_to(augmented, recordings)
+    return augmented

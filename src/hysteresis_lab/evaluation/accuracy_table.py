@@ -11,7 +11,10 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
-MODELS = ("subnet", "greybox", "linear", "ffnn", "lstm", "cnn", "svm")
+MODELS = ("subnet", "augmented", "greybox", "linear", "ffnn", "lstm", "cnn", "svm")
+#: rows that are no registered model: the row's label -> what it is
+ROW_NOTES = {"augmented": "SUBNET augmenting the data set's physical model: its free run is an "
+                          "extra input (`model.baseline=<that row's run folder>`)"}
 DATASETS = ("default", "fsm", "p885", "bouc_wen", "emps", "cascaded_tanks")
 #: data config name -> bundled loader name (`hysteresis_lab.data.benchmarks.load_benchmark`)
 LOADER = {"fsm": "fsm_piezo_mirror", "p885": "piezo_p885", "bouc_wen": "bouc_wen",
@@ -185,10 +188,19 @@ def render_markdown(
         lines.append("")
         for cell in mine:
             if not cell.get("skipped"):
-                settings = " ".join([f"model={cell['model']}", f"data={data}", *cell["overrides"]])
-                lines.append(f"- {cell['model']}: `{settings}`")
-        lines.append("")
+                lines.append(f"- {cell['model']}: `{_settings_line(cell, data)}`")
+        notes = [f"- *{label}*: {ROW_NOTES[label]}." for label in ROW_NOTES
+                 if any(c["model"] == label for c in mine)]
+        lines += [*notes, ""]
     return "\n".join(lines)
+
+
+def _settings_line(cell: Mapping[str, Any], data: str) -> str:
+    """The CLI settings of a row: ``model=<label>`` unless its overrides name the model."""
+    overrides = list(cell["overrides"])
+    named = [o for o in overrides if o.startswith("model=")]
+    rest = [o for o in overrides if not o.startswith("model=")]
+    return " ".join([*(named or [f"model={cell['model']}"]), f"data={data}", *rest])
 
 
 def write_results(

@@ -39,15 +39,16 @@ def save_model(model: SystemModel, path: Path) -> Path:
     if isinstance(model, torch.nn.Module):
         target = path.with_suffix(".ckpt")
         hparams = _plain(dict(model.hparams))
-        torch.save(
-            {
-                "format": FORMAT,
-                "model_name": name,
-                "hyper_parameters": hparams,
-                "state_dict": model.state_dict(),
-            },
-            target,
-        )
+        checkpoint = {
+            "format": FORMAT,
+            "model_name": name,
+            "hyper_parameters": hparams,
+            "state_dict": model.state_dict(),
+        }
+        baseline = getattr(model, "baseline", None)
+        if baseline is not None:  # the model reads its free run: it travels along
+            checkpoint["baseline"] = baseline.to_checkpoint()
+        torch.save(checkpoint, target)
         return target
     import skops.io
 
@@ -92,6 +93,10 @@ def load_model(path: Path | str) -> SystemModel:
             source=str(path),
             fix="retrain the model",
         ) from None
+    if "baseline" in checkpoint:
+        from hysteresis_lab.models.baseline import Baseline
+
+        model.baseline = Baseline.from_checkpoint(checkpoint["baseline"])
     return model.eval()
 
 

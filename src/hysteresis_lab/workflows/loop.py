@@ -44,6 +44,7 @@ from hysteresis_lab.evaluation.plots import loops_figure, save_figure
 from hysteresis_lab.evaluation.predict import free_run
 from hysteresis_lab.evaluation.report import write_json
 from hysteresis_lab.models.base import NarxModule
+from hysteresis_lab.models.baseline import SETTING as BASELINE_SETTING
 from hysteresis_lab.models.spec import ModelSpec
 from hysteresis_lab.run_folder import LoopFolder, RunFolder
 from hysteresis_lab.trainer import TrainerSettings
@@ -205,6 +206,13 @@ def run_loop(
     """Run the loop on ``splits``, the data set of ``data_spec``; write
     ``loop_report.json``, ``loop_report.md`` and figures."""
     model = _without_network_only_settings(ModelSpec.from_config(model_cfg))
+    if model.settings.get(BASELINE_SETTING):
+        raise ConfigError(
+            "the loop grows a model from its residual; a start with model.baseline would add "
+            "effects in front of the baseline's channels. Fix: run the loop without "
+            "model.baseline, then give the run folder of its result round to a network as "
+            "model.baseline=<that folder>."
+        )
     start = {"model": model.name, "effects": model.effects}
     log.info("loop start: %s", start_label(start))
     data = loop_data(splits, data_spec, settings.holdout)

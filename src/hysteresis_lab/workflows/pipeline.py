@@ -35,6 +35,7 @@ from hysteresis_lab.evaluation.evaluate import Evaluation, evaluate_model, scori
 from hysteresis_lab.evaluation.plots import loops_figure, residuals_figure, save_figure
 from hysteresis_lab.evaluation.predict import check_n_step
 from hysteresis_lab.evaluation.report import metrics_document
+from hysteresis_lab.models.baseline import Baseline, baseline_of
 from hysteresis_lab.models.interface import SystemModel
 from hysteresis_lab.models.io import load_model, model_window, save_model
 from hysteresis_lab.models.spec import ModelSpec
@@ -197,15 +198,16 @@ def run_model(
     settings = config.settings
     _prepare_run(config)
     effects = config.model.effects
-    splits, data, context = _run_data(config, effects, splits)
-    record_key = _fit_record_key(config, splits, warm_start)
+    baseline = baseline_of(config.model.settings, config.model.cls)
+    splits, data, context = _run_data(config, effects, splits, baseline)
+    record_key = _fit_record_key(config, splits, warm_start, baseline)
     if record_key is not None:
         reused = _reuse_finished_fit(config, record_key, data)
         if reused is not None:
             return reused
     # this fit overwrites the folder's files: an older record must not vouch for them
     fit_record.forget(config.output_dir)
-    datamodule, model = _build(config, data, context, effects, warm_start)
+    datamodule, model = _build(config, data, context, effects, warm_start, baseline)
     logger = _tensorboard_logger(config)
     trained = fit(
         model, datamodule, config.trainer, config.output_dir, logger=logger,
@@ -229,20 +231,25 @@ def _prepare_run(config: RunConfig) -> None:
 
 
 def _run_data(
-    config: RunConfig, effects: list[str], splits: DatasetSplits | None
+    config: RunConfig, effects: list[str], splits: DatasetSplits | None,
+    baseline: Baseline | None = None,
 ) -> tuple[DatasetSplits, DatasetSplits, Any]:
     """The data set (``splits``, else built from the data config), the same with the effects'
-    operator channels added and their feature context; checked for scoring when it will be."""
+    operator channels (and the ``baseline``'s free run) added, and the effects' feature
+    context; checked for scoring when it will be."""
     check_effects(effects)
     splits = splits or build_splits(config.data)
     data, context = augment_splits(splits, effects)
+    if baseline is not None:
+        data = baseline.append_to_splits(data, splits)
     if config.settings.evaluate:
         _check_evaluation_settings(data, config.settings.n_steps, config.data.window)
     return splits, data, context
 
 
 def _fit_record_key(
-    config: RunConfig, splits: DatasetSplits, warm_start: Any | None
+    config: RunConfig, splits: DatasetSplits, warm_start: Any | None,
+    baseline: Baseline | None = None,
 ) -> str | None:
     """The fingerprint a finished fit of this run records, when the run may reuse one."""
     settings = config.settings
@@ -254,6 +261,7 @@ def _fit_record_key(
         "seed": settings.seed, "n_steps": settings.n_steps,
         "refit": settings.refit if warm_start is not None else None,
         "min_refit_gain": settings.min_refit_gain,
+        "baseline": baseline.digest if baseline is not None else None,
     }
     return fit_record.fingerprint(fingerprinted, splits, warm_start)
 
@@ -273,8 +281,10 @@ def _build(
     context: Any,
     effects: list[str],
     warm_start: Any | None,
+    baseline: Baseline | None = None,
 ) -> tuple[WindowDataModule, SystemModel]:
-    """The DataModule and the untrained model (started from ``warm_start`` when given)."""
+    """The DataModule and the untrained model (started from ``warm_start`` when given; with
+    the ``baseline`` whose free run it reads, saved with it)."""
     datamodule = build_datamodule(
         config.data, config.model.layout, seed=config.settings.seed, splits=data
     )
@@ -285,6 +295,8 @@ def _build(
         else {}
     )
     model = build_model(config.model, datamodule, trained_on=_trained_on(data), **extra)
+    if baseline is not None:
+        model.baseline = baseline
     if warm_start is not None:
         model.warm_start_from(warm_start)
         if config.settings.refit == "new_inputs":
