@@ -53,3 +53,19 @@ def test_table_has_the_rows_and_references_and_merges(tmp_path):
                   results)
     md = (results / "accuracy.md").read_text()
     assert "model.nx=16" in md and "model.nx=8" not in md and "300 mV" in md
+
+
+def test_the_augmented_row_names_its_model_and_baseline_and_is_explained(tmp_path):
+    """A row that is no registered model (SUBNET on a baseline) shows the command it ran:
+    its own ``model=`` override, the baseline's folder, and a note on what the row is."""
+    tanks = _metrics(tmp_path / "augmented_cascaded_tanks" / "metrics.json",
+                     {"tanks_test": (0.26, 0.05)}, "V")
+    overrides = ["model=subnet", "model.baseline=<root>/linear_cascaded_tanks", "model.nx=3"]
+    write_results([cell_from_metrics("augmented", "cascaded_tanks", tanks, overrides,
+                                     commit="abc1234", date="2026-01-01")],
+                  {"command": "x", "commit": "abc1234", "date": "2026-01-01"}, tmp_path / "r")
+    md = (tmp_path / "r" / "accuracy.md").read_text()
+    assert ("- augmented: `model=subnet data=cascaded_tanks "
+            "model.baseline=<root>/linear_cascaded_tanks model.nx=3`") in md
+    assert "model=augmented" not in md
+    assert "*augmented*: SUBNET augmenting the data set's physical model" in md

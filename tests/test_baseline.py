@@ -1,0 +1,80 @@
+"""``model.baseline``: a network reads a fitted model's free run as an extra input, keeps it
+in its saved model, and the wrong uses are refused with a fix."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import hysteresis_lab as hl
+from hysteresis_lab.data.recording import Recording
+from hysteresis_lab.data.spec import DataSpec
+from hysteresis_lab.effects.augment import for_model
+from hysteresis_lab.errors import ConfigError, DataError
+from hysteresis_lab.models.baseline import Baseline
+from hysteresis_lab.models.io import load_model
+from hysteresis_lab.workflows.loop import LoopSettings, run_loop
+from hysteresis_lab.workflows.pipeline import train_and_evaluate
+from narx import TRAINER, narx_data
+
+DATA = DataSpec.from_config({"window": {"na": 4, "nb": 4, "nk": 1},
+                             "scaling": {"mode": "standard"}})
+SUBNET = {"name": "subnet", "nx": 4, "neurons": 16, "hidden_layers": 1, "encoder_neurons": 16,
+          "encoder_layers": 1, "horizon": 50, "lr": 1e-3}
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory):
+    """The NARX data set, a linear baseline fitted on it, and SUBNET augmenting it."""
+    root = tmp_path_factory.mktemp("baseline")
+    splits = narx_data(800)
+    base = train_and_evaluate({"name": "linear", "effects": [], "lr": 0.02}, DATA,
+                              TRAINER.with_changes(max_epochs=2), root / "linear",
+                              splits=splits, use_tensorboard=False, plots=False)
+    augmented = train_and_evaluate({**SUBNET, "baseline": str(root / "linear")}, DATA,
+                                   TRAINER.with_changes(max_epochs=2), root / "augmented",
+                                   splits=splits, use_tensorboard=False, plots=False)
+    return splits, base, augmented, root
+
+
+def test_the_network_reads_the_baseline_free_run_and_keeps_it_in_its_file(fitted):
+    splits, base, augmented, root = fitted
+    model = augmented.model
+    assert model.nu == splits.nu + splits.ny
+    assert model.baseline.source == str(root / "linear" / "model.ckpt")
+    expected = hl.simulate(base.model, splits.test)
+    seen = [rec.u[:, -1] for rec in for_model(model, splits.test)]
+    for y_base, channel in zip(expected, seen, strict=True):
+        np.testing.assert_allclose(channel, y_base[:, 0], rtol=1e-12, atol=1e-12)
+
+    # the saved file carries the baseline: a loaded model scores as the run did, on the
+    # measured recordings alone, with the baseline's run folder gone
+    (root / "linear" / "model.ckpt").rename(root / "linear" / "moved.ckpt")
+    try:
+        loaded = load_model(root / "augmented" / "model.ckpt")
+    finally:
+        (root / "linear" / "moved.ckpt").rename(root / "linear" / "model.ckpt")
+    assert loaded.baseline is not None and loaded.baseline.digest == model.baseline.digest
+    scores = hl.evaluate(loaded, splits.test).metrics
+    written = json.loads((root / "augmented" / "metrics.json").read_text())["tests"]
+    for name, metrics in scores.items():
+        assert metrics["rmse_free_run"] == pytest.approx(written[name]["rmse_free_run"],
+                                                         rel=1e-6)
+
+
+def test_wrong_uses_of_a_baseline_are_refused_with_a_fix(fitted, tmp_path):
+    splits, _, _, root = fitted
+    with pytest.raises(ConfigError, match="no fitted model there.*Fix: train the baseline"):
+        train_and_evaluate({**SUBNET, "baseline": str(tmp_path / "nothing")}, DATA, TRAINER,
+                           tmp_path / "run", splits=splits, use_tensorboard=False)
+    with pytest.raises(ConfigError, match="is for the networks.*Fix"):
+        train_and_evaluate({"name": "linear", "baseline": str(root / "linear")}, DATA,
+                           TRAINER, tmp_path / "run", splits=splits, use_tensorboard=False)
+    with pytest.raises(ConfigError, match="the loop grows a model.*Fix"):
+        run_loop({**SUBNET, "effects": [], "baseline": str(root / "linear")}, DATA, TRAINER,
+                 splits, tmp_path / "loop", LoopSettings(max_rounds=0), use_tensorboard=False)
+    two_inputs = Recording(u=np.zeros((100, 2)), y=np.zeros((100, 1)), fs=100.0, name="two")
+    with pytest.raises(DataError, match="has 2 measured input.*reads 1"):
+        Baseline.load(root / "linear").channels_for([two_inputs])
