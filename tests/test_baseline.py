@@ -78,3 +78,23 @@ def test_wrong_uses_of_a_baseline_are_refused_with_a_fix(fitted, tmp_path):
     two_inputs = Recording(u=np.zeros((100, 2)), y=np.zeros((100, 1)), fs=100.0, name="two")
     with pytest.raises(DataError, match="has 2 measured input.*reads 1"):
         Baseline.load(root / "linear").channels_for([two_inputs])
+
+
+def test_declared_effects_and_a_baseline_each_get_their_own_channels(fitted, tmp_path):
+    """Effect operators come after the measured input and the baseline's free run last: on
+    the linear effect path only the operators' lags get the linear map, the baseline's
+    channel goes to the network."""
+    splits, _, _, root = fitted
+    ffnn = {"name": "ffnn", "num_layers": 3, "neurons": 16, "effects": ["hysteresis"],
+            "effect_path": "linear", "baseline": str(root / "linear")}
+    model = train_and_evaluate(ffnn, DATA, TRAINER.with_changes(max_epochs=1),
+                               tmp_path / "ffnn", splits=splits, use_tensorboard=False,
+                               plots=False).model
+    operators = model.nu - 2
+    assert operators == 8 and model.n_base_inputs == 1
+    nb = DATA.window.nb
+    assert int(model.effect_mask.sum()) == operators * nb  # the operators' lags only
+    baseline_columns = [lag * model.nu + model.nu - 1 for lag in range(nb)]
+    assert model.net_mask[baseline_columns].tolist() == [1.0] * nb
+    loaded = load_model(tmp_path / "ffnn" / "model.ckpt")
+    assert [r.u.shape[1] for r in for_model(loaded, splits.test)] == [model.nu] * 2

@@ -458,7 +458,7 @@ def _fit_free_run(
 
 #: model parameters that come from the data, never from the config
 DERIVED_PARAMETERS = {"self", "nu", "ny", "na", "nb", "nk", "scaler", "feature_context",
-                      "n_base_inputs", "trained_on"}
+                      "n_base_inputs", "trained_on", "baseline_channels"}
 
 
 def _init_parameters(cls: type) -> set[str]:

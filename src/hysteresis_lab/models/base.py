@@ -19,7 +19,9 @@ Declared effects (`hysteresis_lab.effects`) arrive as extra input channels after
 input; ``effect_path="linear"`` keeps them out of the network and adds a linear map of their
 lags to its output (``y = net(u, y lags) + W · effect lags``): physically the classical
 superposition (a Prandtl–Ishlinskii sum of play operators, a creep filter bank, mode filters),
-and a model that extrapolates linearly in the new operators instead of through ReLUs.
+and a model that extrapolates linearly in the new operators instead of through ReLUs. A
+baseline's free run (``model.baseline``, `hysteresis_lab.models.baseline`) comes last,
+``baseline_channels`` channels, and always enters the network.
 """
 
 from __future__ import annotations
@@ -94,6 +96,7 @@ class NarxModule(L.LightningModule, NetworkModel):
         effect_path: str = "network",
         n_base_inputs: int | None = None,
         trained_on: dict[str, Any] | None = None,
+        baseline_channels: int = 0,
     ) -> None:
         super().__init__()
         check_channels(nu, ny)
@@ -190,6 +193,7 @@ class NarxModule(L.LightningModule, NetworkModel):
         if self.n_base_inputs == self.nu or feature_context is None:
             return ["base"] * self.nu
         routes = ["base"] * self.n_base_inputs
+        baseline = ["network"] * int(self.hparams.get("baseline_channels", 0))
         ctx = context_from_dict(feature_context)
         probe = np.zeros((2, self.n_base_inputs))
         for name in effects:
@@ -199,6 +203,7 @@ class NarxModule(L.LightningModule, NetworkModel):
             route = "input" if effect.block == "input" else (
                 "linear" if effect_path == "linear" else "network")
             routes += [route] * effect.features(probe, ctx).shape[1]
+        routes += baseline  # a baseline's free run (`hysteresis_lab.models.baseline`): last
         if len(routes) != self.nu:
             raise ConfigError(
                 f"the effects {list(effects)} give {len(routes) - self.n_base_inputs} channels "

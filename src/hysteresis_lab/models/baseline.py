@@ -146,7 +146,7 @@ class Baseline:
             train=self.append_to(data.train, measured.train),
             val=self.append_to(data.val, measured.val),
             test=self.append_to(data.test, measured.test),
-            metadata={**data.metadata, SETTING: self.source},
+            metadata={"n_base_inputs": measured.nu, **data.metadata, SETTING: self.source},
         )
 
 

@@ -294,6 +294,8 @@ def _build(
         if effects
         else {}
     )
+    if baseline is not None:  # its free run: the last channels, one per output
+        extra.update(n_base_inputs=data.metadata["n_base_inputs"], baseline_channels=data.ny)
     model = build_model(config.model, datamodule, trained_on=_trained_on(data), **extra)
     if baseline is not None:
         model.baseline = baseline
