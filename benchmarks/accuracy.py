@@ -54,7 +54,8 @@ NETWORK_DEFAULTS = ["model.objective=simulation", "model.horizon=200",
 #: the "augmented" row: SUBNET with the free run of the named row's model as an extra input
 #: (`model.baseline`); data set -> that row (trained first when its run folder has no model)
 AUGMENTED = "augmented"
-AUGMENTED_BASELINE: dict[str, str] = {"default": "greybox", "cascaded_tanks": "linear"}
+AUGMENTED_BASELINE: dict[str, str] = {"default": "greybox", "p885": "greybox",
+                                       "cascaded_tanks": "linear"}
 #: recommended settings, data set -> model -> Hydra overrides (one place; see docs/results);
 #: ``<root>`` stands for the run folders' root (``--root``)
 RECOMMENDED: dict[str, dict[str, list[str]]] = {
@@ -84,6 +85,8 @@ RECOMMENDED: dict[str, dict[str, list[str]]] = {
     "p885": {
         "subnet": ["model.horizon=200", "model.lr=1e-3", "data.batch_size=16",
                    "trainer.max_epochs=300"],
+        AUGMENTED: ["model=subnet", "model.baseline=<root>/greybox_p885", "model.horizon=200",
+                    "model.lr=1e-3", "data.batch_size=16", "trainer.max_epochs=300"],
         "greybox": [],
     },
     "bouc_wen": {

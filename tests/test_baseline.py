@@ -3,6 +3,7 @@ in its saved model, and the wrong uses are refused with a fix."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -16,7 +17,12 @@ from hysteresis_lab.errors import ConfigError, DataError
 from hysteresis_lab.models.baseline import Baseline
 from hysteresis_lab.models.io import load_model
 from hysteresis_lab.workflows.loop import LoopSettings, run_loop
-from hysteresis_lab.workflows.pipeline import train_and_evaluate
+from hysteresis_lab.workflows.pipeline import (
+    RunConfig,
+    RunSettings,
+    _fit_record_key,
+    train_and_evaluate,
+)
 from narx import TRAINER, narx_data
 
 DATA = DataSpec.from_config({"window": {"na": 4, "nb": 4, "nk": 1},
@@ -98,3 +104,14 @@ def test_declared_effects_and_a_baseline_each_get_their_own_channels(fitted, tmp
     assert model.net_mask[baseline_columns].tolist() == [1.0] * nb
     loaded = load_model(tmp_path / "ffnn" / "model.ckpt")
     assert [r.u.shape[1] for r in for_model(loaded, splits.test)] == [model.nu] * 2
+
+
+def test_a_finished_fit_is_reused_only_with_the_same_baseline(fitted):
+    splits, _, _, root = fitted
+    config = RunConfig({**SUBNET, "baseline": str(root / "linear")}, DATA, TRAINER,
+                       root / "unused", RunSettings(reuse=True))
+    baseline = Baseline.load(root / "linear")
+    refitted = dataclasses.replace(baseline, payload=baseline.payload + b"another fit")
+    key = _fit_record_key(config, splits, None, baseline)
+    assert key == _fit_record_key(config, splits, None, Baseline.load(root / "linear"))
+    assert key != _fit_record_key(config, splits, None, refitted)

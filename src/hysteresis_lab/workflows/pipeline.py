@@ -261,8 +261,9 @@ def _fit_record_key(
         "seed": settings.seed, "n_steps": settings.n_steps,
         "refit": settings.refit if warm_start is not None else None,
         "min_refit_gain": settings.min_refit_gain,
-        "baseline": baseline.digest if baseline is not None else None,
     }
+    if baseline is not None:  # only then: the records of runs without one stay valid
+        fingerprinted["baseline"] = baseline.digest
     return fit_record.fingerprint(fingerprinted, splits, warm_start)
 
 
