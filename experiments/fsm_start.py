@@ -35,6 +35,7 @@ import yaml
 from hysteresis_lab.data.benchmarks import FSM_AMPLITUDES, fsm_piezo_mirror
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.splits import DatasetSplits
+from hysteresis_lab.effects.augment import for_model
 from hysteresis_lab.evaluation.predict import free_run
 from hysteresis_lab.evaluation.provenance import commit_stamp
 from hysteresis_lab.models.io import load_model, model_window
@@ -75,8 +76,9 @@ def model_table(run: Path, splits: DatasetSplits, lead: int) -> list[str]:
     model = load_model(model_file)
     window = model_window(model)
     recs = splits.test
-    official = free_run(model, recs, window)
-    led = free_run(model, [with_lead(r, lead) for r in recs], window)
+    official = free_run(model, for_model(model, recs), window)
+    led_recs = [with_lead(r, lead) for r in recs]
+    led = free_run(model, for_model(model, led_recs), window)
     rows = {
         f"official (free run from y[:{window.first_target}], scored from sample {N_INIT})":
             score(recs, official, N_INIT),
@@ -85,7 +87,8 @@ def model_table(run: Path, splits: DatasetSplits, lead: int) -> list[str]:
         f"periodic start (the period's last {lead} samples first, as the baselines' "
         f"offset), scored from sample {N_INIT}": score(recs, led, N_INIT, start=lead),
         f"training records, official start, scored from sample {N_INIT}":
-            score(splits.train, free_run(model, splits.train, window), N_INIT),
+            score(splits.train, free_run(model, for_model(model, splits.train), window),
+                  N_INIT),
     }
     overrides = run / ".hydra" / "overrides.yaml"
     trained_with = (" ".join(yaml.safe_load(overrides.read_text())) if overrides.is_file()
@@ -104,12 +107,15 @@ def main() -> None:
     parser.add_argument("--runs", type=Path, nargs="+", required=True,
                         help="run folders of hysteresis-lab-train data=fsm")
     parser.add_argument("--lead", type=int, default=1000)
+    parser.add_argument("--out", type=Path, default=OUT, help="the markdown page to write")
+    parser.add_argument("--title", default="The FSM: how much of the error is the start")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     splits = fsm_piezo_mirror()
     lines = [
-        "# The FSM: how much of the error is the start", "",
-        f"Written by `python experiments/fsm_start.py --runs <runs> --lead {args.lead}` on "
+        f"# {args.title}", "",
+        f"Written by `python experiments/fsm_start.py --runs <runs> --lead {args.lead}"
+        f"{'' if args.out == OUT else ' --out ' + str(args.out)}` on "
         f"{datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC, commit "
         f"{commit_stamp(REPO)}. Free-run RMSE in µm per amplitude, averaged over outputs, "
         "realisations and periods (see the script's docstring); one table per trained model.",
@@ -118,8 +124,8 @@ def main() -> None:
         lines += ["", *model_table(run, splits, args.lead)]
     lines += ["", "NL-LFR (published, offset=1000): "
               + " / ".join(f"{NL_LFR[a]} µm" for a in FSM_AMPLITUDES) + " at 100 / 200 / 300 mV."]
-    OUT.write_text("\n".join(lines) + "\n")
-    log.info("wrote %s", OUT)
+    args.out.write_text("\n".join(lines) + "\n")
+    log.info("wrote %s", args.out)
 
 
 if __name__ == "__main__":
