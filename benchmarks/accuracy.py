@@ -197,7 +197,8 @@ def run_pair(
 
 
 def _with_baselines(models: Sequence[str], data: str) -> list[str]:
-    """``models`` in order, with the augmented row's baseline row before it when missing."""
+    """``models`` in order, with the augmented row's baseline row just before it (added when
+    missing): the augmented row reads that row's run folder."""
     baseline = AUGMENTED_BASELINE.get(data)
     if AUGMENTED not in models or baseline is None:
         return list(models)
