@@ -75,8 +75,8 @@ RECOMMENDED: dict[str, dict[str, list[str]]] = {
         # 28 poles (the published BLA's order) per output and input, a Bouc–Wen cell per input
         "linear": ["model.order=28", "model.effects=[hysteresis]", "trainer.max_epochs=18"],
         # the grey-box's Bouc-Wen cells carry the amplitude dependence. 32 neurons: with 64 the
-        # 300 mV records fit (0.128 um) but the tests do not follow (0.174); chosen with the
-        # test records in view (docs/results/fsm_augmented.md; the note of 2026-11-26)
+        # 300 mV records fit (0.128 um) but unseen realisations do not follow; a held-out
+        # training realisation chooses 32 (docs/results/fsm_augmented.md, fsm_holdout.md)
         AUGMENTED: ["model=subnet", "model.baseline=<root>/greybox_fsm", "model.nx=28",
                     "model.neurons=32", "data.window.na=50", "data.window.nb=50",
                     "model.horizon=300", "model.lr=3e-3", "data.batch_size=64",
