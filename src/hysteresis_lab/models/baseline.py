@@ -5,8 +5,8 @@ the baseline's free-run simulation of that output from the measured inputs. A ph
 model that extrapolates (the grey-box's Bouc–Wen cell, the linear model with its catalogue
 effects) then carries what the identification data barely show, and the network learns
 what the physics lacks (the physics-guided networks of Bolderman et al., IEEE TCST 2024,
-and the model augmentation of Hoekstra et al., 2024). With SUBNET's linear start the
-untrained network already simulates as the baseline does.
+and the model augmentation of Hoekstra et al., 2024). SUBNET's linear start then fits a
+linear model of the inputs and the baseline's output: training begins near the baseline.
 
 The baseline's file travels inside the network's saved model (`to_checkpoint`), so a loaded
 model recomputes its baseline channels on any recording (`channels_for`) without the
