@@ -31,6 +31,7 @@ from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.errors import ConfigError, DataError
 from hysteresis_lab.models.interface import SystemModel
+from hysteresis_lab.models.spec import ModelSpec
 from hysteresis_lab.run_folder import RunFolder
 
 log = logging.getLogger(__name__)
@@ -150,18 +151,18 @@ class Baseline:
         )
 
 
-def baseline_of(settings: Mapping[str, Any], model_cls: type) -> Baseline | None:
+def baseline_of(spec: ModelSpec) -> Baseline | None:
     """The baseline a ``model`` config names (None when it names none); refused for a model
     that cannot take extra input channels (the physical models: they are the baselines)."""
-    path = settings.get(SETTING)
+    path = spec.settings.get(SETTING)
     if not path:
         return None
     from hysteresis_lab.models.physical_chain import PhysicalChainModule
 
-    if not hasattr(model_cls, "training_step") or issubclass(model_cls, PhysicalChainModule):
+    if not spec.is_network or issubclass(spec.cls, PhysicalChainModule):
         raise ConfigError(
             f"model.baseline is for the networks (ffnn, lstm, cnn, subnet, plugins); "
-            f"{model_cls.__name__} cannot take a baseline's output as an input. Fix: make "
+            f"{spec.cls.__name__} cannot take a baseline's output as an input. Fix: make "
             "this model the baseline of a network instead (model=subnet model.baseline=<its "
             "run folder>)."
         )

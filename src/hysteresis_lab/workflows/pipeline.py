@@ -198,7 +198,7 @@ def run_model(
     settings = config.settings
     _prepare_run(config)
     effects = config.model.effects
-    baseline = baseline_of(config.model.settings, config.model.cls)
+    baseline = baseline_of(config.model)
     splits, data, context = _run_data(config, effects, splits, baseline)
     record_key = _fit_record_key(config, splits, warm_start, baseline)
     if record_key is not None:
