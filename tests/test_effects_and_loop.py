@@ -73,6 +73,26 @@ def test_diagnosis_names_the_effect_behind_the_residual():
     assert "hysteresis" not in [r.effect for r in ranked]
 
 
+def test_block_votes_are_those_the_significance_test_counted():
+    recs = sines()
+    ctx = FeatureContext(FS, np.array([100.0]), 6.0)
+    creep = next(d for d in diagnose(recs, creep_shaped_residuals(recs), ctx, ["hysteresis"])
+                 if d.effect == "creep")
+    votes = creep.blocks
+    assert votes is not None and votes.informative <= votes.held_out
+    assert votes.gaining > votes.losing and creep.p_value >= votes.smallest_p
+    if votes.losing == 0:  # every informative block gains: the exact signed-rank floor
+        assert creep.p_value == pytest.approx(votes.smallest_p)
+    assert creep.to_dict()["blocks"] == {"held_out": votes.held_out, "gaining": votes.gaining,
+                                         "losing": votes.losing}
+    assert f"{votes.gaining} gaining and {votes.losing} losing" in creep.evidence
+    rng = np.random.default_rng(2)
+    white = [0.01 * rng.standard_normal((r.n_samples, 1)) for r in recs]
+    noise = [d for d in diagnose(recs, white, ctx, []) if d.tested]
+    assert any(d.blocks.losing > 0 for d in noise)  # spurious signals lose held-out blocks
+    assert all(d.blocks.held_out == noise[0].blocks.held_out for d in noise)
+
+
 def test_declared_effect_explains_its_own_residual():
     """The omitted-variable test is conditional on what the model has: with creep declared, a
     creep-shaped residual leaves no significant missing effect."""

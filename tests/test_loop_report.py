@@ -172,6 +172,38 @@ def test_older_reports_without_the_new_keys_still_render():
     assert "- rate: score 0.010, p 0.5" in page
 
 
+def test_a_loop_that_stops_says_which_effects_more_held_out_data_would_decide():
+    def score(effect: str, value: float, p: float, votes: tuple[int, int, int] | None,
+              significant: bool = False) -> dict:
+        entry = {"effect": effect, "score": value, "p_value": p, "significant": significant,
+                 "evidence": effect, "predictable": True, "tested": True}
+        if votes:
+            entry["blocks"] = dict(zip(("held_out", "gaining", "losing"), votes, strict=True))
+        return entry
+
+    diagnosis = [score("nonlinear_feedback", 0.2, 0.055, (11, 6, 1)),
+                 score("saturation", 0.19, 0.03, (11, 8, 2)),  # judged lacking excitation
+                 score("rate", 0.01, 0.5, (11, 3, 5)),  # below loop.min_score
+                 score("creep", 0.3, 0.2, None)]  # a report older than block votes
+    report = {"units": {"y": "V"}, "data": "toy", "model": "linear", "result": 0,
+              "start": {"model": "linear", "effects": []},
+              "settings": {"min_score": 0.05, "alpha": 0.01, "significance": "pooled",
+                           "min_refit_gain": 0.0},
+              "roles": {"train": ["t"], "validation": ["v"], "diagnosis": ["v"], "test": ["s"]},
+              "rounds": [{"effects": [], **scores(1.0), "diagnosis": diagnosis, "added": None,
+                          "held_out": held(0.5), "note": "no significant missing effect",
+                          "under_excited": [{"effect": "saturation", "advice": "record more"}]}]}
+    section = round_sections(loop_markdown(report))[0]
+    assert "- nonlinear_feedback: score 0.200, p 0.055 (6 of 11 blocks gain, 1 lose)" in section
+    undecided = subsection(section, "Undecided: more held-out data would decide")
+    assert ("- nonlinear_feedback: score 0.200 at p 0.055 (loop.alpha=0.01): of 11 held-out "
+            "blocks 6 gain, 1 lose and 4 carry no evidence; 7 blocks give at best p = 0.0078"
+            ) in undecided
+    assert all(name not in undecided for name in ("saturation", "rate", "creep"))
+    added = dict(report["rounds"][0], added="nonlinear_feedback")
+    assert "Undecided" not in loop_markdown({**report, "rounds": [added]})  # it goes on
+
+
 def test_a_start_that_diverges_has_no_result():
     page = loop_markdown({
         "units": {"y": "um"}, "data": "toy", "model": "ffnn", "result": None,

@@ -54,9 +54,11 @@ band-limited input) is no longer seen. Without ``predictions``, or where the fit
 nothing changes. Measured in docs/loop.md ("Diagnosis through the model's dynamics").
 
 Significance: a one-sided Wilcoxon signed-rank test that the held-out block gains are positive
-(spurious signals make held-out predictions worse, not better). ``test="pooled"`` (the
-default) tests all blocks of all recordings at once and asks the mean gain to reach
-``min_score``. ``test="per_recording"`` tests each recording's blocks on their own
+(spurious signals make held-out predictions worse, not better). A block that neither fit
+predicts better than nothing carries no evidence and the test leaves it out, so few
+informative blocks bound the p-value from below: `BlockCounts` keeps each effect's votes.
+``test="pooled"`` (the default) tests all blocks of all recordings at once and asks the mean
+gain to reach ``min_score``. ``test="per_recording"`` tests each recording's blocks on their own
 (`BLOCKS_PER_RECORDING` of them), adjusts the p-values for the number of recordings (Holm) and
 calls an effect significant when one recording's gain reaches ``min_score`` at that adjusted
 p: an effect that acts in one regime only (creep on the slowest test, a resonance on the
@@ -68,6 +70,7 @@ name or origin of the data.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
@@ -90,6 +93,8 @@ TESTS = ("pooled", "per_recording")
 BLOCKS_PER_RECORDING = 20
 #: fewer nonzero block gains than this give no signed-rank test (p = 1)
 MIN_RANKED_BLOCKS = 6
+#: a block gain within this of zero carries no evidence (the signed-rank test drops it)
+ZERO_GAIN = 1e-12
 #: orders of the ARX fit of the model's own dynamics (denominator, input lags; `_model_dynamics`)
 DYNAMICS_ORDER = (4, 8)
 #: the start skipped: this many times the samples the slowest pole of the model's dynamics
@@ -113,9 +118,11 @@ class EffectScore:
     evidence: str
     predictable: bool = True
     tested: bool = True  # False: no recording can show the effect (see ``evidence``)
+    #: how the held-out blocks voted (None: not tested)
+    blocks: BlockCounts | None = None
 
     def to_dict(self) -> dict:
-        return {
+        out = {
             "effect": self.effect,
             "score": self.score,
             "p_value": self.p_value,
@@ -124,6 +131,34 @@ class EffectScore:
             "predictable": self.predictable,
             "tested": self.tested,
         }
+        if self.blocks is not None:
+            out["blocks"] = dataclasses.asdict(self.blocks)
+        return out
+
+
+@dataclass(frozen=True)
+class BlockCounts:
+    """How an effect's held-out blocks voted: those its signals predict better than the
+    baseline does (``gaining``), worse (``losing``), and all of them (``held_out``). The rest
+    carry no evidence (neither fit predicts them better than nothing) and the signed-rank
+    test leaves them out, so its p can be no smaller than ``2 ** -(gaining + losing)``."""
+
+    held_out: int
+    gaining: int
+    losing: int
+
+    @property
+    def informative(self) -> int:
+        return self.gaining + self.losing
+
+    @property
+    def smallest_p(self) -> float:
+        """The smallest one-sided signed-rank p the informative blocks can give (all gaining)."""
+        return 2.0 ** -self.informative
+
+    @classmethod
+    def of(cls, gains: np.ndarray) -> BlockCounts:
+        return cls(len(gains), int(np.sum(gains > ZERO_GAIN)), int(np.sum(gains < -ZERO_GAIN)))
 
 
 @dataclass
@@ -355,12 +390,13 @@ class _Gains:
     p_value: float  # all blocks pooled
     recording_gains: np.ndarray  # held-out gain per recording
     recording_p: np.ndarray  # per recording, Holm-adjusted over the recordings
+    block_gains: np.ndarray  # held-out gain per block (of every recording)
 
 
 def _signed_rank_p(gains: np.ndarray) -> float:
     """One-sided Wilcoxon p that the gains are positive (1 with fewer than
     `MIN_RANKED_BLOCKS` nonzero ones)."""
-    nonzero = gains[np.abs(gains) > 1e-12]
+    nonzero = gains[np.abs(gains) > ZERO_GAIN]
     if len(nonzero) < MIN_RANKED_BLOCKS:
         return 1.0
     return float(stats.wilcoxon(nonzero, alternative="greater").pvalue)
@@ -386,7 +422,8 @@ def _gains(base_blocks: Sequence[_Block], full_blocks: Sequence[_Block]) -> _Gai
     ])
     recording_p = _holm(np.array([_signed_rank_p(block_gains[owner == r]) for r in recordings]))
     return _Gains(
-        float(np.mean(per_recording)), _signed_rank_p(block_gains), per_recording, recording_p
+        float(np.mean(per_recording)), _signed_rank_p(block_gains), per_recording, recording_p,
+        block_gains,
     )
 
 
@@ -739,6 +776,7 @@ def _score_effect(
     gains = _gains(base_blocks, _blocks(shown, full, settings.folds))
     significant, p_value, how = _verdict(gains, settings.test, settings.min_score,
                                          settings.alpha, shown_names)
+    blocks = BlockCounts.of(gains.block_gains)
     simpler_names = [other for other in effect.beyond if other not in evidence.declared]
     if simpler_names and significant:  # and beyond the simpler explanation's signals too
         simpler = [_effect_design(get_effect(other), evidence, tested, context, settings,
@@ -752,7 +790,8 @@ def _score_effect(
                       _blocks(shown, with_it, settings.folds))
         significant, p_left, _ = _verdict(left, settings.test, settings.min_score,
                                           settings.alpha, shown_names)
-        p_value = max(p_value, p_left)
+        if p_left > p_value:  # the test that decided: its blocks' votes go with its p
+            p_value, blocks = p_left, BlockCounts.of(left.block_gains)
         how += (f"; beyond the signals of {', '.join(simpler_names)} "
                 f"{100 * left.score:.1f} % (p = {p_left:.2g})")
     n_all = len(evidence.recordings)
@@ -764,7 +803,9 @@ def _score_effect(
         f"{effect.description}: explains {100 * gains.score:.1f} % of the residual variance "
         f"of held-out blocks beyond the input and the declared effects{where}"
         f"{' (also through the model dynamics)' if through else ''} "
-        f"({how}; {len(base_blocks)} blocks: p = {p_value:.2g})"
+        f"({how}; {blocks.held_out} blocks, {blocks.gaining} gaining and {blocks.losing} "
+        f"losing: p = {p_value:.2g})"
     )
     log.info("%s", text)
-    return EffectScore(name, gains.score, p_value, bool(significant), text, effect.predictable)
+    return EffectScore(name, gains.score, p_value, bool(significant), text, effect.predictable,
+                       blocks=blocks)

@@ -114,6 +114,9 @@ def _round_section(report: Mapping[str, Any], number: int, unit: str) -> list[st
         lines += ["", "### Residual evidence", "", *_evidence_lines(r, report["roles"])]
     if r.get("under_excited"):
         lines += ["", "### Not judged: recordings to add", "", *_advice_lines(r)]
+    undecided = _undecided_lines(report, r)
+    if undecided:
+        lines += ["", "### Undecided: more held-out data would decide", "", *undecided]
     if decision is None and not r.get("diagnosis"):
         return lines  # a start that diverges: nothing was diagnosed
     lines += ["", "### Effect added" if decision is None or decision["kept"]
@@ -259,6 +262,36 @@ def _advice_lines(r: Mapping[str, Any]) -> list[str]:
     return lines
 
 
+def _undecided_lines(report: Mapping[str, Any], r: Mapping[str, Any]) -> list[str]:
+    """Where the loop stops with nothing added: the effects whose score reaches
+    loop.min_score at a p above loop.alpha (and not judged for lack of excitation), with how
+    their held-out blocks voted (`hysteresis_lab.analysis.diagnosis.BlockCounts`)."""
+    settings = report.get("settings") or {}
+    if r.get("added") or r.get("rejected") or not settings:
+        return []
+    unjudged = {entry["effect"] for entry in r.get("under_excited", [])}
+    lines = []
+    for d in r.get("diagnosis", []):
+        blocks = d.get("blocks")
+        if (d["significant"] or not d["tested"] or not d["predictable"] or blocks is None
+                or d["effect"] in unjudged or d["score"] < settings["min_score"]):
+            continue
+        silent = blocks["held_out"] - blocks["gaining"] - blocks["losing"]
+        floor = 2.0 ** -(blocks["gaining"] + blocks["losing"])
+        lines.append(
+            f"- {d['effect']}: score {d['score']:.3f} at p {d['p_value']:.3g} (loop.alpha="
+            f"{settings['alpha']:g}): of {blocks['held_out']} held-out blocks {blocks['gaining']} "
+            f"gain, {blocks['losing']} lose and {silent} carry no evidence; "
+            f"{blocks['gaining'] + blocks['losing']} blocks give at best p = {floor:.2g}"
+        )
+    if lines:
+        lines.append(
+            "- each held-out block is one vote of the significance test: more validation data "
+            "(recordings in data.val=[...], or a longer loop.holdout) give more votes"
+        )
+    return lines
+
+
 def _diagnosed_round(rounds: Sequence[Mapping[str, Any]], number: int) -> int:
     """The round whose diagnosis chose round ``number``'s next effect: the last one up to
     it that diagnosed its model."""
@@ -336,7 +369,10 @@ def _diagnosis_line(d: Mapping[str, Any]) -> str:
     if not d["tested"]:
         return f"- {d['effect']} (not tested): {d['evidence']}"
     bold = "**" if d["significant"] else ""
-    return f"- {bold}{d['effect']}{bold}: score {d['score']:.3f}, p {d['p_value']:.3g}"
+    blocks = d.get("blocks")
+    votes = (f" ({blocks['gaining']} of {blocks['held_out']} blocks gain, "
+             f"{blocks['losing']} lose)" if blocks else "")
+    return f"- {bold}{d['effect']}{bold}: score {d['score']:.3f}, p {d['p_value']:.3g}{votes}"
 
 
 def _refit_rate_lines(entry: Mapping[str, Any]) -> list[str]:
