@@ -200,6 +200,9 @@ def test_a_loop_that_stops_says_which_effects_more_held_out_data_would_decide():
             "blocks 6 gain, 1 lose and 4 carry no evidence; 7 blocks give at best p = 0.0078"
             ) in undecided
     assert all(name not in undecided for name in ("saturation", "rate", "creep"))
+    per_recording = {**report, "settings": {**report["settings"],
+                                            "significance": "per_recording"}}
+    assert "give at best" not in loop_markdown(per_recording)  # the floor is the pooled test's
     added = dict(report["rounds"][0], added="nonlinear_feedback")
     assert "Undecided" not in loop_markdown({**report, "rounds": [added]})  # it goes on
 

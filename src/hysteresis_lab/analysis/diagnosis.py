@@ -141,7 +141,8 @@ class BlockCounts:
     """How an effect's held-out blocks voted: those its signals predict better than the
     baseline does (``gaining``), worse (``losing``), and all of them (``held_out``). The rest
     carry no evidence (neither fit predicts them better than nothing) and the signed-rank
-    test leaves them out, so its p can be no smaller than ``2 ** -(gaining + losing)``."""
+    test leaves them out, so the pooled test's p can be no smaller than
+    ``2 ** -(gaining + losing)``."""
 
     held_out: int
     gaining: int

@@ -276,13 +276,15 @@ def _undecided_lines(report: Mapping[str, Any], r: Mapping[str, Any]) -> list[st
         if (d["significant"] or not d["tested"] or not d["predictable"] or blocks is None
                 or d["effect"] in unjudged or d["score"] < settings["min_score"]):
             continue
-        silent = blocks["held_out"] - blocks["gaining"] - blocks["losing"]
-        floor = 2.0 ** -(blocks["gaining"] + blocks["losing"])
+        informative = blocks["gaining"] + blocks["losing"]
+        # the pooled test's floor; a per-recording test is one recording's blocks, Holm-adjusted
+        floor = (f"; {informative} blocks give at best p = {2.0 ** -informative:.2g}"
+                 if settings.get("significance", "pooled") == "pooled" else "")
         lines.append(
             f"- {d['effect']}: score {d['score']:.3f} at p {d['p_value']:.3g} (loop.alpha="
             f"{settings['alpha']:g}): of {blocks['held_out']} held-out blocks {blocks['gaining']} "
-            f"gain, {blocks['losing']} lose and {silent} carry no evidence; "
-            f"{blocks['gaining'] + blocks['losing']} blocks give at best p = {floor:.2g}"
+            f"gain, {blocks['losing']} lose and {blocks['held_out'] - informative} carry no "
+            f"evidence{floor}"
         )
     if lines:
         lines.append(
