@@ -113,6 +113,14 @@ def roles_lines(name: str, run: dict) -> list[str]:
             f"{', '.join(roles['test'])}"]
 
 
+def _votes(score: dict[str, Any]) -> str:
+    """How the effect's held-out blocks voted (rows measured before votes were kept: none)."""
+    blocks = score.get("blocks")
+    if not blocks:
+        return ""
+    return f", {blocks['gaining']} of {blocks['held_out']} blocks gain, {blocks['losing']} lose"
+
+
 def diagnosis_lines(name: str, run: dict) -> list[str]:
     """Round 0's three best-scored effects, the evidence behind the first choice."""
     lines = []
@@ -120,7 +128,7 @@ def diagnosis_lines(name: str, run: dict) -> list[str]:
         if not entry["diagnosis"]:
             continue
         best = [f"{d['effect']} {100 * d['score']:.1f} % (p {d['p_value']:.2g}"
-                f"{', significant' if d['significant'] else ''})"
+                f"{_votes(d)}{', significant' if d['significant'] else ''})"
                 for d in entry["diagnosis"][:3]]
         held = entry["held_out"]
         lines.append(f"- {name} round {i} {entry['effects']}: held-out loss "
