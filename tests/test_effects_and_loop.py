@@ -80,9 +80,9 @@ def test_block_votes_are_those_the_significance_test_counted():
                  if d.effect == "creep")
     votes = creep.blocks
     assert votes is not None and votes.informative <= votes.held_out
-    assert votes.gaining > votes.losing and creep.p_value >= votes.smallest_p
-    if votes.losing == 0:  # every informative block gains: the exact signed-rank floor
-        assert creep.p_value == pytest.approx(votes.smallest_p)
+    # a clear creep residual: every block gains, and the p is the exact signed-rank floor
+    assert votes.gaining == votes.held_out and votes.losing == 0
+    assert creep.p_value == pytest.approx(votes.smallest_p)
     assert creep.to_dict()["blocks"] == {"held_out": votes.held_out, "gaining": votes.gaining,
                                          "losing": votes.losing}
     assert f"{votes.gaining} gaining and {votes.losing} losing" in creep.evidence
