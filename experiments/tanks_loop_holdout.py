@@ -71,6 +71,9 @@ def _measure(share: float, root: Path) -> dict[str, Any]:
     holdout = f"loop.holdout={share}"
     loop, seconds = run_fresh_loop([*COMMON, holdout], root / f"loop_{share}")
     declared, _ = run_fresh_loop([*COMMON, holdout, *DECLARED], root / f"declared_{share}")
+    if loop["result"] is None:
+        raise SystemExit(f"the loop at loop.holdout={share} has no standing model: see "
+                         f"{root / f'loop_{share}'}/loop_report.md")
     result = loop["rounds"][loop["result"]]
     log.info("holdout %g: %.4f V (%s) in %.0f s", share, result["mean_rmse_free_run"],
              _rounds(loop), seconds)
