@@ -28,6 +28,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
+from hysteresis_lab.analysis.diagnosis import BlockCounts
 from hysteresis_lab.analysis.loop_checks import run_fresh_loop
 from hysteresis_lab.evaluation.provenance import commit_stamp
 
@@ -59,10 +60,9 @@ def _law_votes(report: dict[str, Any]) -> str:
                      None)
         if entry is None or "blocks" not in entry:
             continue
-        b = entry["blocks"]
-        silent = b["held_out"] - b["gaining"] - b["losing"]
-        return (f"round {number}: {100 * entry['score']:.1f} %, {b['gaining']} gain / "
-                f"{b['losing']} lose / {silent} silent of {b['held_out']}, "
+        b = BlockCounts(**entry["blocks"])
+        return (f"round {number}: {100 * entry['score']:.1f} %, {b.gaining} gain / "
+                f"{b.losing} lose / {b.silent} silent of {b.held_out}, "
                 f"p {entry['p_value']:.2g}")
     return "not scored"
 

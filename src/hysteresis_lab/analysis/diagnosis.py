@@ -153,6 +153,11 @@ class BlockCounts:
         return self.gaining + self.losing
 
     @property
+    def silent(self) -> int:
+        """The blocks that carry no evidence either way."""
+        return self.held_out - self.informative
+
+    @property
     def smallest_p(self) -> float:
         """The smallest one-sided signed-rank p the informative blocks can give (all gaining)."""
         return 2.0 ** -self.informative

@@ -16,6 +16,7 @@ import time
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+from hysteresis_lab.analysis.diagnosis import BlockCounts
 from hysteresis_lab.analysis.loop_figures import (
     DPI,
     ResidualEvidence,
@@ -276,15 +277,14 @@ def _undecided_lines(report: Mapping[str, Any], r: Mapping[str, Any]) -> list[st
         if (d["significant"] or not d["tested"] or not d["predictable"] or blocks is None
                 or d["effect"] in unjudged or d["score"] < settings["min_score"]):
             continue
-        informative = blocks["gaining"] + blocks["losing"]
+        votes = BlockCounts(**blocks)
         # the pooled test's floor; a per-recording test is one recording's blocks, Holm-adjusted
-        floor = (f"; {informative} blocks give at best p = {2.0 ** -informative:.2g}"
+        floor = (f"; {votes.informative} blocks give at best p = {votes.smallest_p:.2g}"
                  if settings.get("significance", "pooled") == "pooled" else "")
         lines.append(
             f"- {d['effect']}: score {d['score']:.3f} at p {d['p_value']:.3g} (loop.alpha="
-            f"{settings['alpha']:g}): of {blocks['held_out']} held-out blocks {blocks['gaining']} "
-            f"gain, {blocks['losing']} lose and {blocks['held_out'] - informative} carry no "
-            f"evidence{floor}"
+            f"{settings['alpha']:g}): of {votes.held_out} held-out blocks {votes.gaining} "
+            f"gain, {votes.losing} lose and {votes.silent} carry no evidence{floor}"
         )
     if lines:
         lines.append(
