@@ -55,7 +55,7 @@ NETWORK_DEFAULTS = ["model.objective=simulation", "model.horizon=200",
 #: (`model.baseline`); data set -> that row (trained first when its run folder has no model)
 AUGMENTED = "augmented"
 AUGMENTED_BASELINE: dict[str, str] = {"default": "greybox", "fsm": "greybox", "p885": "greybox",
-                                       "cascaded_tanks": "linear"}
+                                       "emps": "linear", "cascaded_tanks": "linear"}
 #: recommended settings, data set -> model -> Hydra overrides (one place; see docs/results);
 #: ``<root>`` stands for the run folders' root (``--root``)
 RECOMMENDED: dict[str, dict[str, list[str]]] = {
@@ -105,6 +105,10 @@ RECOMMENDED: dict[str, dict[str, list[str]]] = {
         "subnet": ["model.horizon=300", "model.lr=1e-3", "data.batch_size=16",
                    "trainer.max_epochs=100"],
         "greybox": [],
+        # a force moves the cart: its position integrates (stable dynamics alone drift off)
+        "linear": ["model.integrator=true"],
+        AUGMENTED: ["model=subnet", "model.baseline=<root>/linear_emps", "model.horizon=300",
+                    "model.lr=1e-3", "data.batch_size=16", "trainer.max_epochs=100"],
     },
     "cascaded_tanks": {
         "subnet": ["model.nx=3", "model.neurons=16", "model.hidden_layers=1",

@@ -99,6 +99,12 @@ CHAIN_CASES = {
                                    "delay": 0}, 1, 1),
     "linear_output_stage_shared_start": ({"name": "linear", "feedback_on": "output_stage",
                                           "effects": ["nonlinear_feedback", "overflow"]}, 1, 1),
+    "linear_integrator": ({"name": "linear", "integrator": True}, 1, 1),
+    "linear_integrator_effects": ({"name": "linear", "integrator": True, "order": 3,
+                                   "effects": ["hysteresis", "nonlinear_feedback", "overflow",
+                                               "resonance"]}, 1, 1),
+    "linear_mimo_integrator": ({"name": "linear", "integrator": True, "order": 2,
+                                "effects": ["nonlinear_feedback"]}, 2, 2),
 }
 
 

@@ -24,7 +24,16 @@ def feature_context(recordings: Sequence[Recording]) -> FeatureContext:
         duration_s=max(r.duration for r in recordings),
         y_low=np.min([np.min(r.y, axis=0) for r in recordings], axis=0),
         y_high=np.max([np.max(r.y, axis=0) for r in recordings], axis=0),
+        dy_low=np.min([_steps(r.y).min(axis=0) for r in recordings], axis=0),
+        dy_high=np.max([_steps(r.y).max(axis=0) for r in recordings], axis=0),
     )
+
+
+def _steps(y: np.ndarray) -> np.ndarray:
+    """The output's steps from one sample to the next, (T - 1, ny) (a row of zeros for a
+    recording of one sample)."""
+    y = np.asarray(y, dtype=float).reshape(len(y), -1)
+    return np.diff(y, axis=0) if len(y) > 1 else np.zeros_like(y)
 
 
 def context_to_dict(ctx: FeatureContext) -> dict[str, Any]:
@@ -35,6 +44,9 @@ def context_to_dict(ctx: FeatureContext) -> dict[str, Any]:
     }
     if ctx.y_low is not None and ctx.y_high is not None:
         values.update(y_low=np.asarray(ctx.y_low).tolist(), y_high=np.asarray(ctx.y_high).tolist())
+    if ctx.dy_low is not None and ctx.dy_high is not None:
+        values.update(dy_low=np.asarray(ctx.dy_low).tolist(),
+                      dy_high=np.asarray(ctx.dy_high).tolist())
     return values
 
 
@@ -48,6 +60,8 @@ def context_from_dict(values: dict[str, Any]) -> FeatureContext:
         float(values["duration_s"]),
         optional("y_low"),
         optional("y_high"),
+        optional("dy_low"),
+        optional("dy_high"),
     )
 
 

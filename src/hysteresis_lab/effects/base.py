@@ -19,6 +19,10 @@ class FeatureContext:
     #: blocks start their levels there); None in contexts saved before they were kept
     y_low: np.ndarray | None = None
     y_high: np.ndarray | None = None
+    #: (ny,) smallest and largest step of the measured output from one sample to the next
+    #: (a model whose output integrates places its blocks there); None where not kept
+    dy_low: np.ndarray | None = None
+    dy_high: np.ndarray | None = None
 
 
 #: blocks whose evidence is read from the model's own free-run output (`Effect.output_evidence`)

@@ -2,7 +2,8 @@
 by the effect catalogue.
 
     u_j -> [saturation] -> [dead zone] -> [backlash] -> [hysteresis] -> [creep] -> x_j
-    y_o = [overflow_o](sum_j dynamics_oj(x_j) (+ [resonance_oj](x_j) in parallel) + offset_o)
+    y_o = [overflow_o]([integrator](sum_j dynamics_oj(x_j) (+ [resonance_oj](x_j) in parallel))
+                       + offset_o)
     dynamics_oj in a closed loop with [hysteresis] / [nonlinear_feedback] of its output
 
 Every input channel ``j`` has its own input blocks, every output ``o`` is a sum over the
@@ -38,6 +39,11 @@ refit that adds an effect starts exactly from the model it grows:
 * ``overflow``: ``y - w_hi relu(y - c_hi) + w_lo relu(c_lo - y)`` on each output, after the
   dynamics (a tank that overflows, a sensor that clips), levels from the training output's
   extremes; with the output stage also a rim on the upstream storage.
+
+``model.integrator``: the output integrates the sum of the dynamics (and resonances), before
+the overflow — a position from a force or a velocity, as on the EMPS positioning system; the
+loop forces (hysteresis in the feedback, nonlinear feedback such as friction) then read the
+integrand, over the range of the output's steps.
 
 ``model.feedback_on`` says where the loop forces act: ``dynamics`` (around the whole
 dynamics) or ``output_stage``: the dynamics as a `StorageCascade` (an upstream part, an
@@ -158,6 +164,7 @@ class LinearModel(PhysicalChainModule):
         recording_repeats: int = 10,
         feedback_knots: int = 6,
         feedback_on: str = "dynamics",
+        integrator: bool = False,
         objective: str = "simulation",
         lr: float = 0.002,
         **kwargs: Any,
@@ -183,6 +190,16 @@ class LinearModel(PhysicalChainModule):
         elif feedback_on == "output_stage" and isinstance(order, int) and order < 2:
             problems.append(f"model.feedback_on=output_stage with model.order={order} (the "
                             "output stage and the upstream storage take a pole each: order >= 2)")
+        if not isinstance(integrator, bool):
+            problems.append(f"model.integrator={integrator!r} (true or false)")
+        elif integrator and feedback_on == "output_stage":
+            problems.append("model.feedback_on=output_stage with model.integrator=true (with "
+                            "an integrator the loop forces act on the integrand, the dynamics' "
+                            "output: model.feedback_on=dynamics)")
+        elif integrator and (kwargs.get("trained_on") or {}).get("shared_initial_state"):
+            problems.append("model.integrator=true on data whose recordings share one unknown "
+                            "initial state (an integrator never settles at a held input, so "
+                            "that state cannot be learned: set model.integrator=false)")
         if objective != "simulation":
             problems.append(f"model.objective='{objective}' (it is fitted on the simulation "
                             "error only)")
@@ -197,6 +214,14 @@ class LinearModel(PhysicalChainModule):
         self.creep = nn.ModuleList(CreepBank(fs, creep_time_constants_s) for _ in range(n_in)) \
             if "creep" in effects else None
         extremes = [self._output_extremes(o) for o in range(ny)]
+        #: the output is the running sum of the dynamics' output (a position from a force)
+        self.integrator = integrator
+        #: the range the loop forces read: the output's, or with an integrator its steps'
+        #: over their largest size (the integrand's unit, `step_scale`)
+        steps = [self._step_extremes(o) for o in range(ny)]
+        forced = ([(low / size, high / size) for (low, high), size
+                   in zip(steps, self._step_sizes(steps), strict=True)]
+                  if integrator else extremes)
         #: the loop forces act on the output stage's own level (`StorageCascade`)
         self.output_stage = feedback_on == "output_stage"
         if self.output_stage:
@@ -211,6 +236,17 @@ class LinearModel(PhysicalChainModule):
         if "resonance" in effects:
             self.resonance = _pairs(ny, n_in, self._resonance_section)
         self.offset = nn.Parameter(torch.zeros(ny, dtype=torch.float64))
+        #: with an integrator: a constant in the integrand (a force offset, a velocity bias),
+        #: without which any bias in the fitted dynamics' output is a drift of the output
+        self.integrand_offset: nn.Parameter | None = None
+        if integrator:
+            self.integrand_offset = nn.Parameter(torch.zeros(ny, dtype=torch.float64))
+            #: the output's largest step per sample over its scale: the integrand is in this
+            #: unit, so the dynamics' gain and the integrand's offset are of order one (the
+            #: optimiser's steps are: a raw step of order one per sample, summed over a
+            #: recording, is a drift no learning rate survives)
+            self.register_buffer("step_scale", torch.tensor(self._step_sizes(steps),
+                                                            dtype=torch.float64))
         self.overflow: nn.ModuleList | None = None
         if "overflow" in effects:
             self.overflow = nn.ModuleList(Overflow(low, high) for low, high in extremes)
@@ -218,12 +254,12 @@ class LinearModel(PhysicalChainModule):
         if "hysteresis" in effects:
             self.state_hysteresis = nn.ModuleList(
                 nn.ModuleList(StateHysteresis(high - low) for _ in range(n_in))
-                for low, high in extremes)
+                for low, high in forced)
         self.static_feedback: nn.ModuleList | None = None
         if "nonlinear_feedback" in effects:
             self.static_feedback = nn.ModuleList(
                 nn.ModuleList(StaticFeedback(low, high, feedback_knots) for _ in range(n_in))
-                for low, high in extremes)
+                for low, high in forced)
 
     def _output_extremes(self, channel: int) -> tuple[float, float]:
         """An output's lowest and highest training value over its scale (the overflow
@@ -234,6 +270,26 @@ class LinearModel(PhysicalChainModule):
         if ctx is None or ctx.y_low is None or ctx.y_high is None or scale <= 0:
             return (offset - 3.0 * scale) / scale, (offset + 3.0 * scale) / scale
         return float(ctx.y_low[channel]) / scale, float(ctx.y_high[channel]) / scale
+
+    def _step_extremes(self, channel: int) -> tuple[float, float]:
+        """An output's smallest and largest step from one sample to the next over its scale
+        (what an integrating model's loop forces read; ±0.05 without a record of them)."""
+        context = self.hparams.get("feature_context")
+        ctx = context_from_dict(context) if context is not None else None
+        scale = float(self.y_scale[channel])
+        if ctx is None or ctx.dy_low is None or ctx.dy_high is None or scale <= 0:
+            return -0.05, 0.05
+        return float(ctx.dy_low[channel]) / scale, float(ctx.dy_high[channel]) / scale
+
+    @staticmethod
+    def _step_sizes(steps: Sequence[tuple[float, float]]) -> list[float]:
+        """Each output's largest step size from its step extremes (at least 1e-12)."""
+        return [max(abs(low), abs(high), 1e-12) for low, high in steps]
+
+    def _forced_offset(self, offset: torch.Tensor) -> torch.Tensor:
+        """What the loop forces add to the dynamics' output to read a level: the output's
+        offset, or nothing where they read an integrator's integrand."""
+        return torch.zeros_like(offset) if self.integrator else offset
 
     @staticmethod
     def _input_blocks(effects: Sequence[str], amplitude: float) -> nn.ModuleDict:
@@ -284,6 +340,8 @@ class LinearModel(PhysicalChainModule):
             y = sum(self._dynamics_path(o, j, x) for j, x in enumerate(xs))
             if self.resonance is not None:
                 y = y + sum(self.resonance[o][j](x) for j, x in enumerate(xs))
+            if self.integrand_offset is not None:
+                y = torch.cumsum(y + self.integrand_offset[o], dim=-1) * self.step_scale[o]
             if self.overflow is not None:  # on the output itself, offset included
                 y = self.overflow[o](y + self.offset[o]) - self.offset[o]
             outputs.append(y)
@@ -299,10 +357,11 @@ class LinearModel(PhysicalChainModule):
             x = dynamics.storage_output(x, self.offset[o])
             dynamics = dynamics.stage
         static = None if self.static_feedback is None else self.static_feedback[o][j]
+        offset = self._forced_offset(self.offset[o])
         if self.state_hysteresis is not None:
-            return self.state_hysteresis[o][j](dynamics, x, static, self.offset[o])
+            return self.state_hysteresis[o][j](dynamics, x, static, offset)
         if static is not None:
-            return static(dynamics, x, self.offset[o])
+            return static(dynamics, x, offset)
         if self.output_stage:
             return iir_filter(x, *dynamics.polynomials())
         return dynamics(x)
@@ -314,6 +373,7 @@ class LinearModel(PhysicalChainModule):
         if self.output_stage:
             x = dynamics.storage_step(x, state, offset)
             dynamics = dynamics.stage
+        offset = self._forced_offset(offset)
         static = None if self.static_feedback is None else self.static_feedback[o][j]
         if self.state_hysteresis is not None:
             return self.state_hysteresis[o][j].step(dynamics, x, state, static, offset)
@@ -343,7 +403,8 @@ class LinearModel(PhysicalChainModule):
     def state_names(self) -> list[str]:
         """Per input: its blocks' states (backlash: the play output; hysteresis: previous
         input and Bouc–Wen state) and creep filters; then per output and input: the
-        dynamics' delay buffer and second-order section states, and the resonance's."""
+        dynamics' delay buffer and second-order section states, the resonance's, and with an
+        integrator its running sum."""
         names = []
         for j, blocks in enumerate(self.input_blocks):
             for name, block in blocks.items():
@@ -356,6 +417,8 @@ class LinearModel(PhysicalChainModule):
             if self.resonance is not None:
                 names += [f"resonance{o}{j}.{part}" for j in range(n_in)
                           for part in self.resonance[o][j].state_names()]
+            if self.integrator:
+                names.append(f"integrator{o}")
         return names
 
     def chain_step(self, v: torch.Tensor, state: StepState) -> torch.Tensor:
@@ -372,6 +435,10 @@ class LinearModel(PhysicalChainModule):
             y = sum(self._dynamics_step(o, j, x, state) for j, x in enumerate(xs))
             if self.resonance is not None:
                 y = y + sum(self.resonance[o][j].step(x, state) for j, x in enumerate(xs))
+            if self.integrand_offset is not None:
+                offset, scale = frozen(self.integrand_offset[o], self.step_scale[o])
+                y = state.take(1)[:, 0] + (y + offset) * scale
+                state.put(y[:, None])
             if self.overflow is not None:
                 offset = frozen(self.offset)[0][o]
                 y = self.overflow[o].step(y + offset, state) - offset
@@ -386,11 +453,14 @@ class LinearModel(PhysicalChainModule):
         a refit that adds a storage's law or its overflow (`PLACED_EFFECTS`) to a model whose
         forces still act on the whole dynamics tries both places (`FEEDBACK_PLACES`), the
         physics deciding where a law sits: the tanks' outflow law reads the output stage's
-        own level, a spring's force the whole oscillator's. Otherwise the place the last
-        model was fitted with (``model.feedback_on`` at the start)."""
+        own level, a spring's force the whole oscillator's. Otherwise (and always with an
+        integrator) the place the last model was fitted with (``model.feedback_on`` at the
+        start)."""
         place = (previous.hparams.get("feedback_on") if previous is not None
                  else None) or model_cfg.get("feedback_on", "dynamics")
         order = model_cfg.get("order", 6)
+        if model_cfg.get("integrator"):  # the forces read the integrand: no output stage
+            return [{"feedback_on": place}]
         if (added in PLACED_EFFECTS and place == "dynamics" and previous is not None
                 and isinstance(order, int) and order >= 2):
             return [{"feedback_on": p} for p in FEEDBACK_PLACES]
@@ -425,12 +495,17 @@ class LinearModel(PhysicalChainModule):
     def initialise_from_recordings(self, recordings: Sequence[Recording]) -> None:
         """The dynamics from a least-squares ARX fit per output (``order`` poles, one
         denominator for all inputs, ``delay``) on the training ``recordings`` (only their
-        measured inputs are read), and the output offsets.
+        measured inputs are read), and the output offsets. With ``model.integrator`` the fits
+        are to the output's steps from sample to sample, and their free runs are judged
+        integrated.
 
         ``order`` starts unless its free run from rest is further from the recordings than
         their mean; then every order from 1 up is fitted and the one that simulates best
         starts: on data that excite few frequencies (a single sine) a high-order ARX is not
-        identified and its free run can be far off.
+        identified and its free run can be far off. With an integrator every order is fitted
+        and the best in free run starts: the integral of an equation-error fit drifts with any
+        error in its static gain (EMPS: order 6 leaves 0.81 of the output's variance, order 1
+        0.008).
 
         A Steiglitz–McBride fit of ``order`` (`steiglitz_mcbride`: ARX on data prefiltered
         by the last denominator, towards the output-error fit) starts instead where its free
@@ -474,9 +549,12 @@ class LinearModel(PhysicalChainModule):
         """Set output ``o``'s dynamics to the start described in
         `initialise_from_recordings`; returns the order, the denominator and the fit
         chosen (``"ARX"`` or ``"Steiglitz-McBride"``)."""
-        arx = self._arx_start(o, vs, ys)
+        targets = ([np.diff(y, prepend=y[:1]) / float(self.step_scale[o]) for y in ys]
+                   if self.integrator else list(ys))
+        arx = self._arx_start(o, vs, ys, targets)
         order = self.hparams.order
-        b, a = steiglitz_mcbride(vs, ys, na=order, nb=self._nb(order), nk=self.hparams.delay)
+        b, a = steiglitz_mcbride(vs, targets, na=order, nb=self._nb(order),
+                                 nk=self.hparams.delay)
         output_error = self._set_start(o, vs, ys, b, a)
         rings = (nyquist_share(arx[2], arx[3]), nyquist_share(b, a))
         slowest = slowest_rate(a) / slowest_rate(arx[3])
@@ -491,7 +569,7 @@ class LinearModel(PhysicalChainModule):
                      "it starts" if replaces else "too slow, ARX starts")
             if replaces:
                 return order, a, "Steiglitz-McBride"
-        self._set_dynamics(o, *arx[2:])  # set it again: the last fit tried is in place
+        self._set_start(o, vs, ys, *arx[2:])  # set it again: the last fit tried is in place
         return arx[1], arx[3], "ARX"
 
     def _nb(self, order: int) -> int:
@@ -502,13 +580,23 @@ class LinearModel(PhysicalChainModule):
         self, o: int, vs: Sequence[np.ndarray], ys: Sequence[np.ndarray], b: np.ndarray,
         a: np.ndarray,
     ) -> float:
-        """Set output ``o``'s dynamics to ``b / a``; the variance of its free-run error from
+        """Set output ``o``'s dynamics to ``b / a`` (with an integrator, its integrand's
+        offset to the mean step the dynamics leave); the variance of its free-run error from
         rest on the recordings (the offset comes after), ``inf`` where not finite."""
         self._set_dynamics(o, b, a)
         with torch.no_grad():
-            errors = np.concatenate([
-                y - self.chain(torch.as_tensor(v[None]))[0, :, o].numpy()
-                for v, y in zip(vs, ys, strict=True)])
+            if self.integrand_offset is not None:
+                self.integrand_offset[o] = 0.0
+            runs = [self.chain(torch.as_tensor(v[None]))[0, :, o].numpy() for v in vs]
+            if self.integrand_offset is not None:
+                scale = float(self.step_scale[o])
+                left = np.concatenate([np.diff(y - run)
+                                       for y, run in zip(ys, runs, strict=True)]) / scale
+                step = float(np.mean(left)) if left.size else 0.0
+                step = step if np.isfinite(step) else 0.0
+                self.integrand_offset[o] = step
+                runs = [run + step * scale * np.arange(1, len(run) + 1) for run in runs]
+            errors = np.concatenate([y - run for y, run in zip(ys, runs, strict=True)])
         error = float(np.var(errors))
         return error if np.isfinite(error) else np.inf
 
@@ -518,19 +606,21 @@ class LinearModel(PhysicalChainModule):
             self.dynamics[o][j].set_transfer_function(b[j], a)
 
     def _arx_start(
-        self, o: int, vs: Sequence[np.ndarray], ys: Sequence[np.ndarray]
+        self, o: int, vs: Sequence[np.ndarray], ys: Sequence[np.ndarray],
+        targets: Sequence[np.ndarray],
     ) -> tuple[float, int, np.ndarray, np.ndarray]:
         """The ARX fit of `initialise_from_recordings` (``model.order``, else the order
-        that simulates best): its free-run error variance, order, ``b`` and ``a``."""
+        that simulates best) to ``targets`` (the outputs ``ys``, or with an integrator their
+        steps): its free-run error variance on ``ys``, order, ``b`` and ``a``."""
         delay = self.hparams.delay
         spread = float(np.var(np.concatenate(ys)))
 
         def fit(order: int) -> tuple[float, int, np.ndarray, np.ndarray]:
-            b, a = arx_least_squares(vs, ys, na=order, nb=self._nb(order), nk=delay)
+            b, a = arx_least_squares(vs, targets, na=order, nb=self._nb(order), nk=delay)
             return self._set_start(o, vs, ys, b, a), order, b, a
 
         full = fit(self.hparams.order)
-        if full[0] < spread:
+        if full[0] < spread and not self.integrator:
             return full
         candidates = [fit(order) for order in range(1, self.hparams.order)] + [full]
         return min(candidates, key=lambda c: c[0])
@@ -555,6 +645,9 @@ class LinearModel(PhysicalChainModule):
             out: dict[str, Any] = {
                 "dynamics": [[block.export() for block in row] for row in self.dynamics],
                 "offset": self.offset.cpu().numpy().tolist(),
+                "integrator": self.integrator,
+                "integrand_offset": (None if self.integrand_offset is None
+                                     else self.integrand_offset.cpu().numpy().tolist()),
                 "inputs": [{name: {k: v.detach().cpu().numpy().tolist()
                                    for k, v in block.named_parameters()}
                             for name, block in blocks.items()} for blocks in self.input_blocks],
