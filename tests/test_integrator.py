@@ -110,6 +110,18 @@ def test_a_law_in_the_feedback_of_an_integrator_reads_the_integrand():
     assert np.max(np.abs(after - before)) > 0.01 * np.std(test.y)
 
 
+def test_the_integrand_unit_is_the_largest_step_of_the_training_output():
+    """Built as the pipeline builds a model without effects (no feature context), the
+    integrand's unit comes from the training recording at the start: its largest step."""
+    data = _cart_data()
+    dm = WindowDataModule(data, scaling="standard")
+    model = build_model({"name": "linear", "integrator": True}, dm, trained_on={"fs": FS})
+    rec = data.train[0]
+    model.initialise_from_data(rec.u[:, 0], rec.y[:, 0], FS)
+    largest = np.max(np.abs(np.diff(rec.y[:, 0]))) / float(model.y_scale[0])
+    assert float(model.step_scale[0]) == pytest.approx(largest)
+
+
 def test_the_steps_of_the_output_are_kept_with_the_model():
     """The feature context records the output's smallest and largest step per sample,
     through its saved form too."""

@@ -241,9 +241,10 @@ class LinearModel(PhysicalChainModule):
         self.integrand_offset: nn.Parameter | None = None
         if integrator:
             self.integrand_offset = nn.Parameter(torch.zeros(ny, dtype=torch.float64))
-            #: the output's largest step per sample over its scale: the integrand is in this
-            #: unit, so the dynamics' gain and the integrand's offset are of order one (the
-            #: optimiser's steps are: a raw step of order one per sample, summed over a
+            #: the output's largest step per sample over its scale (from the saved feature
+            #: context, else from the training recordings at the start): the integrand is in
+            #: this unit, so the dynamics' gain and the integrand's offset are of order one
+            #: (the optimiser's steps are: a raw step of order one per sample, summed over a
             #: recording, is a drift no learning rate survives)
             self.register_buffer("step_scale", torch.tensor(self._step_sizes(steps),
                                                             dtype=torch.float64))
@@ -529,6 +530,12 @@ class LinearModel(PhysicalChainModule):
         vs = [np.asarray(u, float).reshape(len(u), -1)[:, :n_in] / self.u_scale[:n_in].numpy()
               for u in us]
         ys_s = [np.asarray(y, float).reshape(len(y), -1) / self.y_scale.numpy() for y in ys]
+        if self.integrator:  # the integrand's unit from these recordings' own steps
+            steps = np.concatenate([np.diff(y, axis=0) for y in ys_s if len(y) > 1]
+                                   or [np.zeros((1, self.ny))])
+            sizes = self._step_sizes(list(zip(steps.min(axis=0), steps.max(axis=0), strict=True)))
+            with torch.no_grad():
+                self.step_scale.copy_(torch.as_tensor(sizes, dtype=torch.float64))
         radius, orders, fits = 0.0, [], []
         for o in range(self.ny):
             order, a, fit = self._start_output(o, vs, [y[:, o] for y in ys_s])
