@@ -1,0 +1,167 @@
+"""The GPU path, checked end to end: each architecture trains through the real CLI on a GPU.
+
+    python benchmarks/gpu_check.py                      # all checks, page to docs/results
+    python benchmarks/gpu_check.py --out /tmp/gpu.md --checks ffnn linear_emps
+
+Every check runs ``hysteresis-lab-train`` (or ``hysteresis-lab-loop``) with
+``trainer.accelerator=gpu``, so a run that cannot use the GPU fails instead of falling back
+to the CPU, and records whether Lightning reported the GPU used, the wall time of the whole
+command and the free-run RMSE it scored (short trainings: these check the path, they are not
+the accuracy table's figures). The page (``docs/results/gpu_check.md``) also holds the
+training and free-run speed of `bench_models.py` on the GPU and on the same machine's CPU.
+Run it on a machine with a CUDA GPU; it needs the project installed there.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import logging
+import os
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+from hysteresis_lab.evaluation.provenance import commit_stamp
+
+log = logging.getLogger("gpu_check")
+
+REPO = Path(__file__).resolve().parents[1]
+OUT = REPO / "docs" / "results" / "gpu_check.md"
+#: short test sines keep the default data's free-run scoring quick (the 0.1 Hz sine alone is
+#: 200,000 sequential steps)
+SHORT_TESTS = ["+data.splits.test_frequencies=[10,100]", "+data.splits.max_test_samples=4000"]
+#: check -> (console app, Hydra overrides)
+CHECKS: dict[str, tuple[str, list[str]]] = {
+    "ffnn": ("hysteresis-lab-train", ["model=ffnn", "trainer.max_epochs=5", *SHORT_TESTS]),
+    "lstm": ("hysteresis-lab-train", ["model=lstm", "trainer.max_epochs=3", *SHORT_TESTS]),
+    "cnn": ("hysteresis-lab-train", ["model=cnn", "trainer.max_epochs=3", *SHORT_TESTS]),
+    "subnet_emps": ("hysteresis-lab-train", ["model=subnet", "data=emps", "model.horizon=300",
+                                             "model.lr=1e-3", "data.batch_size=16",
+                                             "trainer.max_epochs=10"]),
+    "linear_emps": ("hysteresis-lab-train", ["model=linear", "data=emps",
+                                             "model.integrator=true"]),
+    "greybox_p885": ("hysteresis-lab-train", ["model=greybox", "data=p885"]),
+    "loop_tanks": ("hysteresis-lab-loop", ["data=cascaded_tanks", "loop.max_rounds=1"]),
+}
+QUIET = ["logger=none", "trainer.enable_progress_bar=false"]
+
+
+def run_check(name: str, root: Path, timeout_s: float) -> dict:
+    """One check's command, exit status, GPU use, wall time and scored free-run RMSE."""
+    app, overrides = CHECKS[name]
+    folder = root / name
+    command = [app, *overrides, "trainer.accelerator=gpu", *QUIET, f"hydra.run.dir={folder}"]
+    start = time.perf_counter()
+    try:
+        done = subprocess.run(command, capture_output=True, text=True, timeout=timeout_s)
+        status, output = done.returncode, done.stdout + done.stderr
+    except subprocess.TimeoutExpired as exc:  # its output comes as bytes, text=True or not
+        status, output = "timeout", _text(exc.stdout) + _text(exc.stderr)
+    seconds = time.perf_counter() - start
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "gpu_check.log").write_text(output)
+    return {"command": " ".join([app, *overrides, "trainer.accelerator=gpu"]), "status": status,
+            "gpu_used": re.search(r"GPU available: True.*used: True", output) is not None,
+            "seconds": seconds, "rmse": _free_run_rmse(folder, app),
+            "error": "" if status == 0 else output.strip().splitlines()[-1:]}
+
+
+def _text(value: bytes | str | None) -> str:
+    return value.decode(errors="replace") if isinstance(value, bytes) else value or ""
+
+
+def _free_run_rmse(folder: Path, app: str) -> str:
+    """The mean free-run RMSE the run scored, with its unit ('' when it wrote none)."""
+    if app == "hysteresis-lab-loop":
+        report = folder / "loop_report.json"
+        if not report.is_file():
+            return ""
+        data = json.loads(report.read_text())
+        rounds = data["rounds"]
+        result = data["result"] if data["result"] is not None else 0
+        return (f"{rounds[0]['mean_rmse_free_run']:.4g} -> "
+                f"{rounds[result]['mean_rmse_free_run']:.4g} {data['units']['y']}")
+    metrics = folder / "metrics.json"
+    if not metrics.is_file():
+        return ""
+    data = json.loads(metrics.read_text())
+    return f"{data['mean']['rmse_free_run']:.4g} {data['units']['y']}"
+
+
+def bench(device: str, timeout_s: float) -> str:
+    """`bench_models.py`'s table on ``device`` (its last lines), or why there is none."""
+    command = [sys.executable, str(REPO / "benchmarks" / "bench_models.py"), "--device", device,
+               "--epochs", "2", "--models", "ffnn", "lstm", "cnn", "subnet"]
+    try:
+        done = subprocess.run(command, capture_output=True, text=True, timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        return f"(`bench_models.py --device {device}` ran past {timeout_s:.0f} s)"
+    lines = (done.stdout + done.stderr).strip().splitlines()
+    table = [line for line in lines if line.startswith("|")]
+    head = [line for line in lines if line.startswith("device ")]
+    half = len(table) // 2  # each row is logged as it is measured, then the whole table
+    return "\n".join(head + table[half:]) if table else "\n".join(lines[-3:])
+
+
+def render(rows: dict[str, dict], benches: dict[str, str], stamp: str, argv: str) -> str:
+    name = torch.cuda.get_device_name() if torch.cuda.is_available() else "no CUDA device"
+    lines = [
+        "# The GPU path",
+        "",
+        f"Written by `python benchmarks/gpu_check.py{argv}` at commit `{stamp}` on "
+        f"{datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC, on {name} (torch "
+        f"{torch.__version__}, {os.cpu_count()} CPU cores). Each check trains through the "
+        "console app with `trainer.accelerator=gpu` (no fallback to the CPU). Short trainings: "
+        "they check the path; the accuracy table has the figures.",
+        "",
+        "| check | exit | GPU used | wall time | free-run RMSE (mean over tests) | command |",
+        "|---|---|---|---|---|---|",
+    ]
+    for check, row in rows.items():
+        lines.append(f"| {check} | {row['status']} | {'yes' if row['gpu_used'] else 'no'} | "
+                     f"{row['seconds']:.0f} s | {row['rmse']} | `{row['command']}` |")
+    errors = [f"- {check}: {' '.join(row['error'])}" for check, row in rows.items()
+              if row["error"]]
+    if errors:
+        lines += ["", "Failures (the last line of their output):", "", *errors]
+    for device, table in benches.items():
+        lines += ["", f"Speed on the {device.upper()} (`python benchmarks/bench_models.py "
+                  f"--device {device} --epochs 2 --models ffnn lstm cnn subnet`; untrained "
+                  "weights):", "", table]
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--checks", nargs="+", default=list(CHECKS), choices=list(CHECKS))
+    parser.add_argument("--root", type=Path, default=REPO / "outputs" / "gpu_check")
+    parser.add_argument("--out", type=Path, default=OUT)
+    parser.add_argument("--timeout", type=float, default=120.0, help="seconds per check")
+    parser.add_argument("--bench", nargs="*", default=["cuda", "cpu"], choices=["cuda", "cpu"])
+    parser.add_argument("--commit", default=None, help="the commit measured, where this copy "
+                        "of the project has no git history (a device machine's copy)")
+    args = parser.parse_args()
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    if not torch.cuda.is_available():
+        raise SystemExit("no CUDA device here: run this on a machine with a GPU")
+    stamp = args.commit or commit_stamp(REPO)
+    rows = {}
+    for check in args.checks:
+        rows[check] = run_check(check, args.root, args.timeout)
+        log.info("%s: exit %s, GPU used %s, %.0f s, %s", check, rows[check]["status"],
+                 rows[check]["gpu_used"], rows[check]["seconds"], rows[check]["rmse"])
+    benches = {device: bench(device, 3 * args.timeout) for device in args.bench}
+    argv = "".join(f" {a}" for a in sys.argv[1:])
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(render(rows, benches, stamp, argv))
+    log.info("wrote %s", args.out)
+
+
+if __name__ == "__main__":
+    main()
