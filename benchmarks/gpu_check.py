@@ -151,15 +151,18 @@ def main() -> None:
     if not torch.cuda.is_available():
         raise SystemExit("no CUDA device here: run this on a machine with a GPU")
     stamp = args.commit or commit_stamp(REPO)
-    rows = {}
-    for check in args.checks:
+    argv = "".join(f" {a}" for a in sys.argv[1:])
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    rows: dict[str, dict] = {}
+    benches: dict[str, str] = {}
+    for check in args.checks:  # the page is rewritten after each step: a cut run keeps its rows
         rows[check] = run_check(check, args.root, args.timeout)
         log.info("%s: exit %s, GPU used %s, %.0f s, %s", check, rows[check]["status"],
                  rows[check]["gpu_used"], rows[check]["seconds"], rows[check]["rmse"])
-    benches = {device: bench(device, 3 * args.timeout) for device in args.bench}
-    argv = "".join(f" {a}" for a in sys.argv[1:])
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(render(rows, benches, stamp, argv))
+        args.out.write_text(render(rows, benches, stamp, argv))
+    for device in args.bench:
+        benches[device] = bench(device, 3 * args.timeout)
+        args.out.write_text(render(rows, benches, stamp, argv))
     log.info("wrote %s", args.out)
 
 
