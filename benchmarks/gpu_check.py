@@ -20,6 +20,7 @@ import json
 import logging
 import os
 import re
+import shutil
 import subprocess
 import sys
 import time
@@ -47,7 +48,9 @@ CHECKS: dict[str, tuple[str, list[str]]] = {
     "linear_emps": ("hysteresis-lab-train", ["model=linear", "data=emps",
                                              "model.integrator=true"]),
     "greybox_p885": ("hysteresis-lab-train", ["model=greybox", "data=p885"]),
-    "loop_tanks": ("hysteresis-lab-loop", ["data=cascaded_tanks", "loop.max_rounds=1"]),
+    # resume off: on a machine that ran the check before, the loop would reuse its finished fits
+    "loop_tanks": ("hysteresis-lab-loop", ["data=cascaded_tanks", "loop.max_rounds=1",
+                                           "loop.resume=false"]),
 }
 QUIET = ["logger=none", "trainer.enable_progress_bar=false"]
 
@@ -56,6 +59,7 @@ def run_check(name: str, root: Path, timeout_s: float) -> dict:
     """One check's command, exit status, GPU use, wall time and scored free-run RMSE."""
     app, overrides = CHECKS[name]
     folder = root / name
+    shutil.rmtree(folder, ignore_errors=True)  # a fresh run, not one resumed in an old folder
     command = [app, *overrides, "trainer.accelerator=gpu", *QUIET, f"hydra.run.dir={folder}"]
     start = time.perf_counter()
     try:
