@@ -24,11 +24,11 @@ TRAINER = TrainerSettings(max_epochs=20, accelerator="cpu", enable_progress_bar=
 FS = 1000.0
 
 
-def _cart(u: np.ndarray, coulomb: float) -> np.ndarray:
-    """A mass pushed by ``u`` against viscous and Coulomb friction; its position."""
+def _cart(u: np.ndarray) -> np.ndarray:
+    """A mass pushed by ``u`` against viscous friction; its position."""
     position, velocity = np.zeros(len(u)), 0.0
     for k in range(1, len(u)):
-        force = u[k - 1] - 2.0 * velocity - coulomb * np.tanh(velocity / 0.02)
+        force = u[k - 1] - 2.0 * velocity
         velocity += force / FS * 20.0
         position[k] = position[k - 1] + velocity / FS
     return 1000.0 * position  # mm
@@ -44,12 +44,12 @@ def _pushes(rng: np.random.Generator, n: int) -> np.ndarray:
     return u
 
 
-def _cart_data(coulomb: float = 0.0) -> DatasetSplits:
+def _cart_data() -> DatasetSplits:
     rng = np.random.default_rng(0)
     recordings = []
     for name, n in (("train", 6000), ("val", 2000), ("test", 3000)):
         u = _pushes(rng, n)
-        y = _cart(u, coulomb) + 1e-3 * rng.standard_normal(n)
+        y = _cart(u) + 1e-3 * rng.standard_normal(n)
         recordings.append(Recording(u=u[:, None], y=y[:, None], fs=FS, name=name))
     return DatasetSplits("cart", train=recordings[:1], val=recordings[1:2],
                          test=recordings[2:])
