@@ -1,8 +1,7 @@
 """The loop on measured data, before and after: one default command per data set.
 
 Runs ``hysteresis-lab-loop data=<name>`` (start ``model=linear effects=[]``, default
-settings, with what the data set's physics needs (`START`: EMPS integrates); only the
-progress bar and TensorBoard are off, which change no number) for each
+settings; only the progress bar and TensorBoard are off, which change no number) for each
 data set, times it and reads its ``loop_report.json``. Each data set's row (its command,
 commit, date and the parts of the report the table shows) is merged into
 ``docs/results/loop_measured.json``, so a run of some data sets replaces only their rows;
@@ -36,8 +35,7 @@ TARGETS = {
     "fsm": (None, "what the loop finds"),
     "emps": (None, "what the loop finds"),
 }
-#: what a data set's start needs beyond the defaults, from its physics: data set -> overrides
-START = {"emps": ["model.integrator=true"]}  # a force moves the cart: its position integrates
+
 QUIET = ["trainer.enable_progress_bar=false", "logger=none"]
 #: the round fields the table reads (the rest of loop_report.json stays in the run folder)
 ROUND_FIELDS = ("mean_rmse_free_run", "rejected", "added", "effects", "held_out")
@@ -47,7 +45,7 @@ log = logging.getLogger("loop_measured")
 
 def run_one(name: str, folder: Path) -> dict:
     """Run the loop on data set ``name`` into ``folder`` (fresh); its report and wall time."""
-    command = ["hysteresis-lab-loop", f"data={name}", *START.get(name, []), *QUIET]
+    command = ["hysteresis-lab-loop", f"data={name}", *QUIET]
     try:
         report, seconds = run_fresh_loop(command[1:], folder)
     except RuntimeError as exc:
@@ -148,8 +146,8 @@ def render(kept: dict[str, dict]) -> str:
         "Written by `python benchmarks/loop_measured.py --data <data sets>`, which reruns the "
         "given data sets and keeps the other rows (`loop_measured.json`); each row's commit "
         "and date are listed below it. Shared 2-core CPU (OMP_NUM_THREADS=1). One command per "
-        "data set, default settings: the start is `model=linear effects=[]` (EMPS: with "
-        "`model.integrator=true`, as its position integrates the force).",
+        "data set, default settings: the start is `model=linear effects=[]` (on EMPS with "
+        "the integrator its data set declares: its position integrates the force).",
         "",
         "| data | start (round 0) free-run RMSE | result | change | rounds | result's effects "
         "| target | round 0 train / whole command |",

@@ -163,14 +163,24 @@ def test_the_loop_keeps_the_forces_on_the_integrand():
         assert [v["feedback_on"] for v in variants] == places
 
 
-def test_on_emps_the_integrator_simulates_what_stable_dynamics_cannot(tmp_path):
-    """Measured data (EMPS, a force moving a cart): the same short training with the
-    integrator simulates the pulses test record several times closer than without."""
-    rmse = {}
-    for integrator in ("false", "true"):
-        cfg = compose("model=linear", "data=emps", f"model.integrator={integrator}",
-                      "trainer.max_epochs=30", "logger=none", "trainer.enable_progress_bar=false")
+def test_on_emps_the_data_set_says_its_output_integrates_and_the_model_follows(tmp_path):
+    """Measured data (EMPS, a force moving a cart): by default the linear model carries the
+    integrator the data set declares, and the same short training simulates the pulses test
+    record several times closer than the stable model (``model.integrator=false``)."""
+    rmse, models = {}, {}
+    for name, overrides in (("default", []), ("stable", ["model.integrator=false"])):
+        cfg = compose("model=linear", "data=emps", *overrides, "trainer.max_epochs=30",
+                      "logger=none", "trainer.enable_progress_bar=false")
         L.seed_everything(0)
-        result = train(cfg, tmp_path / integrator)
-        rmse[integrator] = result.evaluation.metrics["emps_test_pulses"]["rmse_free_run"]
-    assert rmse["true"] < 0.25 * rmse["false"]
+        result = train(cfg, tmp_path / name)
+        rmse[name] = result.evaluation.metrics["emps_test_pulses"]["rmse_free_run"]
+        models[name] = result.model
+    assert models["default"].integrator and not models["stable"].integrator
+    assert rmse["default"] < 0.25 * rmse["stable"]
+
+
+def test_other_data_keep_the_stable_model_by_default():
+    data = _cart_data()
+    assert not data.output_integrates
+    dm = WindowDataModule(data, scaling="standard")
+    assert not build_model({"name": "linear"}, dm, trained_on={"fs": FS}).integrator

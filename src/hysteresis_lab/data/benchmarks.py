@@ -272,6 +272,7 @@ def emps(root: str | Path | None = None) -> DatasetSplits:
         train=[rec("DATA_EMPS.mat", "emps_estimation")],
         test=[rec("DATA_EMPS_PULSES.mat", "emps_test_pulses")],
         n_init=20,
+        output_integrates=True,  # the cart's position integrates the motor's force
         metadata={
             "reference": {"dynoNet": 2.64},
             "reference_units": "mm",

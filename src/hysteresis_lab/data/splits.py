@@ -19,7 +19,9 @@ class DatasetSplits:
     benchmarks' state-initialisation window). ``shared_initial_state``: the protocol says every
     recording starts from one and the same unknown state (not rest), which a model that
     simulates from a state may learn on the training recordings and start every recording
-    from (`hysteresis_lab.models.physical_chain`).
+    from (`hysteresis_lab.models.physical_chain`). ``output_integrates``: the measured output
+    integrates what drives it (a position moved by a force, as on EMPS); the linear model
+    then carries an integrator unless told otherwise (``model.integrator``).
     """
 
     name: str
@@ -28,6 +30,7 @@ class DatasetSplits:
     val: list[Recording] = field(default_factory=list)
     n_init: int = 0
     shared_initial_state: bool = False
+    output_integrates: bool = False
     metadata: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:

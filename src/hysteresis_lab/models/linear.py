@@ -40,10 +40,11 @@ refit that adds an effect starts exactly from the model it grows:
   dynamics (a tank that overflows, a sensor that clips), levels from the training output's
   extremes; with the output stage also a rim on the upstream storage.
 
-``model.integrator``: the output integrates the sum of the dynamics (and resonances), before
-the overflow — a position from a force or a velocity, as on the EMPS positioning system; the
-loop forces (hysteresis in the feedback, nonlinear feedback such as friction) then read the
-integrand, over the range of the output's steps.
+``model.integrator`` (default: as the data set says, ``DatasetSplits.output_integrates``):
+the output integrates the sum of the dynamics (and resonances), before the overflow — a
+position from a force or a velocity, as on the EMPS positioning system; the loop forces
+(hysteresis in the feedback, nonlinear feedback such as friction) then read the integrand,
+over the range of the output's steps.
 
 ``model.feedback_on`` says where the loop forces act: ``dynamics`` (around the whole
 dynamics) or ``output_stage``: the dynamics as a `StorageCascade` (an upstream part, an
@@ -164,13 +165,15 @@ class LinearModel(PhysicalChainModule):
         recording_repeats: int = 10,
         feedback_knots: int = 6,
         feedback_on: str = "dynamics",
-        integrator: bool = False,
+        integrator: bool | None = None,
         objective: str = "simulation",
         lr: float = 0.002,
         **kwargs: Any,
     ) -> None:
         super().__init__(nu=nu, ny=ny, objective=objective, lr=lr, **kwargs)
         fs = float((kwargs.get("trained_on") or {}).get("fs") or fs)
+        if integrator is None:  # as the data set says (EMPS: its position integrates)
+            integrator = bool((kwargs.get("trained_on") or {}).get("output_integrates"))
         effects = list(self.hparams.get("effects") or [])
         problems = []
         unknown = [e for e in effects if e not in LINEAR_EFFECTS]
@@ -460,8 +463,8 @@ class LinearModel(PhysicalChainModule):
         place = (previous.hparams.get("feedback_on") if previous is not None
                  else None) or model_cfg.get("feedback_on", "dynamics")
         order = model_cfg.get("order", 6)
-        if model_cfg.get("integrator"):  # the forces read the integrand: no output stage
-            return [{"feedback_on": place}]
+        if model_cfg.get("integrator") or getattr(previous, "integrator", False):
+            return [{"feedback_on": place}]  # the forces read the integrand: no output stage
         if (added in PLACED_EFFECTS and place == "dynamics" and previous is not None
                 and isinstance(order, int) and order >= 2):
             return [{"feedback_on": p} for p in FEEDBACK_PLACES]

@@ -473,12 +473,15 @@ def _trained_on(data: DatasetSplits) -> dict[str, Any]:
     """What a model keeps of its training data to refuse data it cannot score: the sampling
     rate (its lags span a fixed number of samples) and the physical units (its scaler works
     in them); and whether every recording starts from one shared unknown state, with the
-    longest training recording's length for the burn-in to it (only where the data set says
-    so, so other models keep the settings they had)."""
+    longest training recording's length for the burn-in to it, and whether the output
+    integrates (only where the data set says so, so other models keep the settings they
+    had)."""
     shared = {"shared_initial_state": True,
               "burn_in_samples": max(r.n_samples for r in data.train)} \
         if data.shared_initial_state else {}
-    return {"fs": data.fs, **{f"{k}_units": v for k, v in data.units.items()}, **shared}
+    integrates = {"output_integrates": True} if data.output_integrates else {}
+    return {"fs": data.fs, **{f"{k}_units": v for k, v in data.units.items()}, **shared,
+            **integrates}
 
 
 def _check_evaluation_settings(
