@@ -35,7 +35,6 @@ TARGETS = {
     "fsm": (None, "what the loop finds"),
     "emps": (None, "what the loop finds"),
 }
-
 QUIET = ["trainer.enable_progress_bar=false", "logger=none"]
 #: the round fields the table reads (the rest of loop_report.json stays in the run folder)
 ROUND_FIELDS = ("mean_rmse_free_run", "rejected", "added", "effects", "held_out")
