@@ -194,7 +194,8 @@ class LinearModel(PhysicalChainModule):
             problems.append(f"model.feedback_on=output_stage with model.order={order} (the "
                             "output stage and the upstream storage take a pole each: order >= 2)")
         if not isinstance(integrator, bool):
-            problems.append(f"model.integrator={integrator!r} (true or false)")
+            problems.append(f"model.integrator={integrator!r} (true, false, or null: as the data "
+                            "set says)")
         elif integrator and feedback_on == "output_stage":
             problems.append("model.feedback_on=output_stage with model.integrator=true (with "
                             "an integrator the loop forces act on the integrand, the dynamics' "
