@@ -73,7 +73,7 @@ def run_check(name: str, root: Path, timeout_s: float) -> dict:
     return {"command": " ".join([app, *overrides, "trainer.accelerator=gpu"]), "status": status,
             "gpu_used": re.search(r"GPU available: True.*used: True", output) is not None,
             "seconds": seconds, "rmse": _free_run_rmse(folder, app),
-            "error": "" if status == 0 else output.strip().splitlines()[-1:]}
+            "error": [] if status == 0 else output.strip().splitlines()[-1:]}
 
 
 def _text(value: bytes | str | None) -> str:
