@@ -107,10 +107,12 @@ def bench(device: str, timeout_s: float) -> str:
     except subprocess.TimeoutExpired:
         return f"(`bench_models.py --device {device}` ran past {timeout_s:.0f} s)"
     lines = (done.stdout + done.stderr).strip().splitlines()
-    table = [line for line in lines if line.startswith("|")]
     head = [line for line in lines if line.startswith("device ")]
-    half = len(table) // 2  # each row is logged as it is measured, then the whole table
-    return "\n".join(head + table[half:]) if table else "\n".join(lines[-3:])
+    # each row is logged as it is measured, then the whole table from its header on
+    starts = [i for i, line in enumerate(lines) if line.startswith("| model |")]
+    if not starts:
+        return "\n".join(lines[-3:])
+    return "\n".join(head + [line for line in lines[starts[-1]:] if line.startswith("|")])
 
 
 def render(rows: dict[str, dict], benches: dict[str, str], stamp: str, argv: str) -> str:

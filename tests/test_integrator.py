@@ -122,6 +122,29 @@ def test_the_integrand_unit_is_the_largest_step_of_the_training_output():
     assert float(model.step_scale[0]) == pytest.approx(largest)
 
 
+def test_a_grown_integrator_model_starts_where_the_fitted_one_ended(tmp_path):
+    """The loop grows a fitted model by an effect: the grown model keeps the integrand's unit
+    of the fitted one (here its context spans other recordings, whose steps are larger) and
+    simulates exactly what the fitted one did."""
+    data = _cart_data()
+    fitted, _ = _fitted(data, {"integrator": True}, tmp_path)
+    wider = DatasetSplits("cart", train=[*data.train, *data.test], val=data.val, test=data.test)
+    augmented, context = augment_splits(wider, ["nonlinear_feedback"])
+    dm = WindowDataModule(augmented, scaling="standard")
+    grown = build_model({"name": "linear", "integrator": True, "effects": ["nonlinear_feedback"]},
+                        dm, trained_on={"fs": FS}, feature_context=context_to_dict(context),
+                        n_base_inputs=1)
+    assert float(grown.step_scale[0]) != pytest.approx(float(fitted.step_scale[0]))
+    grown.y_scale.copy_(fitted.y_scale)  # the same scaler, as in the loop
+    grown.y_offset.copy_(fitted.y_offset)
+    grown.u_scale.copy_(fitted.u_scale)
+    grown.u_offset.copy_(fitted.u_offset)
+    grown.warm_start_from(fitted)
+    before = free_run(fitted, data.test, dm.window)[0]
+    after = free_run(grown, augmented.test, dm.window)[0]
+    np.testing.assert_allclose(after, before, atol=1e-9 * np.max(np.abs(before)))
+
+
 def test_the_steps_of_the_output_are_kept_with_the_model():
     """The feature context records the output's smallest and largest step per sample,
     through its saved form too."""

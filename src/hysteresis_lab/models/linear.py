@@ -476,8 +476,13 @@ class LinearModel(PhysicalChainModule):
         dynamics into one with an output stage, the fitted dynamics are factored into the
         `StorageCascade` (`StorageCascade.set_transfer_function`: its poles, delay and static
         gain; the loop forces' weights carry over onto the output stage), and only the
-        blocks new to the model (the rim) count as new."""
+        blocks new to the model (the rim) count as new. With an integrator the integrand's
+        unit (`step_scale`) is the fitted model's, whatever the new model's context says."""
         super().warm_start_from(previous)
+        if self.integrand_offset is not None and getattr(previous, "integrand_offset", None) \
+                is not None:  # the integrand's unit stays the fitted model's
+            with torch.no_grad():
+                self.step_scale.copy_(previous.step_scale)
         if not self.output_stage or getattr(previous, "output_stage", False):
             return
         for o in range(self.ny):
@@ -580,7 +585,11 @@ class LinearModel(PhysicalChainModule):
                      "it starts" if replaces else "too slow, ARX starts")
             if replaces:
                 return order, a, "Steiglitz-McBride"
-        self._set_start(o, vs, ys, *arx[2:])  # set it again: the last fit tried is in place
+        # set it again: the last fit tried is in place (with an integrator, its offset too)
+        if self.integrator:
+            self._set_start(o, vs, ys, *arx[2:])
+        else:
+            self._set_dynamics(o, *arx[2:])
         return arx[1], arx[3], "ARX"
 
     def _nb(self, order: int) -> int:
