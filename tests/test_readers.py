@@ -62,7 +62,7 @@ def write_text(tmp_path, text: str, name: str = "bad.csv"):
 @pytest.mark.parametrize(
     ("text", "message"),
     [
-        ("t,u,y\n0,1,2\n0.1,nan,3\n0.2,1,2\n", "NaN/inf .* sample 1"),
+        ("t,u,y\n0,1,2\n0.1,nan,3\n0.2,1,2\n", "NaN/inf .* at line 3"),
         ("t,u,y\n0,1,2\n0.1,inf,3\n0.2,1,2\n", "NaN/inf"),
         ("t,u,y\n0,1,2\n0.1,1,3\n0.5,1,2\n0.6,1,2\n", "not uniformly sampled"),
         ("t,u,y\n0,1,2\n0.1,1,3\n0.1,1,2\n", "does not increase"),
@@ -159,7 +159,7 @@ def test_nan_and_inf_in_binary_files(tmp_path, suffix):
         with h5py.File(path, "w") as handle:
             for key, values in columns.items():
                 handle.create_dataset(key, data=values)
-    with pytest.raises(DataError, match="NaN/inf value.*sample 7") as info:
+    with pytest.raises(DataError, match=r"NaN/inf value.*\((inf|nan)\) at row 8") as info:
         read_recording(path)
     assert_names_file_and_fix(info, path)
 
@@ -244,3 +244,54 @@ def test_scipy_mat_with_matrix_inputs(tmp_path):
     scipy.io.savemat(path, {"u": np.zeros((30, 2)), "y": np.ones((30, 1)), "fs": 10.0})
     back = read_recording(path, time=None, fs=10.0)
     assert back.nu == 2 and back.ny == 1
+
+
+# ----------------------------------------------------------------------------- value limits
+def test_an_absurd_value_is_refused_with_its_line(tmp_path):
+    """1e300 is finite, but no measurement: a model trained on it learns NaN (issue #35)."""
+    lines = ["t,u,y"] + [f"{k / 100:g},{np.sin(k / 10):.4f},{k / 7:.4f}" for k in range(50)]
+    lines.insert(3, "")  # a blank line: a sample's line is still the one an editor shows
+    lines[31] = "0.29,0.2392,1e300"
+    path = write_text(tmp_path, "\n".join(lines) + "\n", name="run.csv")
+    with pytest.raises(DataError, match=r"value 1e\+300 in column 'y' at line 32 is beyond "
+                       r"the physical range \|y\| <= 1e\+09 um") as info:
+        read_recording(path)
+    assert_names_file_and_fix(info, path)
+    assert "data.limits.y_abs_max" in info.value.fix
+    read_recording(path, limits={"y_abs_max": float("inf")})  # a bound of its own lets it in
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".mat", ".h5"])
+def test_a_value_beyond_a_configured_limit_names_its_row(rec, tmp_path, suffix):
+    u = rec.u.copy()
+    u[41, 1] = -250.0  # a glitch on the second input, row 42
+    spiked = Recording(u=u, y=rec.y, fs=rec.fs, u_names=rec.u_names, y_names=rec.y_names)
+    writer = {".npz": write_npz, ".mat": write_mat, ".h5": write_hdf5}[suffix]
+    path = writer(spiked, tmp_path / f"r{suffix}")
+    with pytest.raises(DataError, match=r"value -250 in column 'v' at row 42 is beyond "
+                       r"the physical range \|u\| <= 200 V") as info:
+        read_recording(path, inputs=["u", "v"], limits={"u_abs_max": 200})
+    assert_names_file_and_fix(info, path)
+    assert read_recording(path, inputs=["u", "v"], limits={"u_abs_max": 300}).nu == 2
+
+
+def test_empty_cell_and_nan_time_name_their_line(tmp_path):
+    path = write_text(tmp_path, "t,u,y\n0,1,2\n0.1,1,3\n0.2,,2\n")
+    with pytest.raises(DataError, match=r"column 'u' holds 1 NaN/inf value\(s\), the first "
+                       r"\(nan\) at line 4") as info:
+        read_csv(path)
+    assert "empty cell" in info.value.fix
+    path = write_text(tmp_path, "t,u,y\n0,1,2\nnan,1,3\n0.2,1,2\n", name="t.csv")
+    with pytest.raises(DataError, match="column 't' holds 1 NaN/inf value.* at line 3"):
+        read_csv(path)
+
+
+@pytest.mark.parametrize(
+    ("limits", "message"),
+    [({"y_max": 3}, r"unknown key\(s\) \['y_max'\]"), ({"y_abs_max": -1}, "not a positive")],
+)
+def test_malformed_limits_are_refused(rec, tmp_path, limits, message):
+    path = write_csv(rec, tmp_path / "r.csv")
+    with pytest.raises(DataError, match=message) as info:
+        read_recording(path, inputs=["u", "v"], limits=limits)
+    assert "Fix:" in str(info.value) and "data.limits" in str(info.value)

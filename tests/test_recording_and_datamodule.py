@@ -23,7 +23,7 @@ from hysteresis_lab.errors import ConfigError, DataError
 @pytest.mark.parametrize(
     ("u", "y", "fs", "message"),
     [
-        (np.r_[0.0, np.nan, 1.0], np.zeros(3), 1.0, "NaN/inf .* sample 1"),
+        (np.r_[0.0, np.nan, 1.0], np.zeros(3), 1.0, "NaN/inf .* row 2 \\(1-based\\)"),
         (np.r_[0.0, np.inf, 1.0], np.zeros(3), 1.0, "NaN/inf"),
         (np.zeros(4), np.zeros(3), 1.0, "u has 4 samples but y has 3"),
         (np.zeros((2, 2, 2)), np.zeros(2), 1.0, "shape"),

@@ -100,3 +100,16 @@ def test_different_channel_counts_name_both_files(tmp_path):
     with pytest.raises(DataError, match=counts) as info:
         load_user_files(str(train), [str(test)])
     assert str(train) in str(info.value) and str(test) in str(info.value)
+
+
+def test_data_limits_reach_every_file_of_data_csv(files, tmp_path):
+    """``data.limits`` (conf/data/csv.yaml) bounds the training and the test files alike."""
+    big = recording(phase=1.0)
+    path = write_csv(Recording(u=big.u, y=big.y * 100, fs=big.fs, u_names=("u",),
+                               y_names=("y",)), tmp_path / "big.csv")
+    overrides = [f"data.train={files['train']}", f"data.test=[{path}]"]
+    assert len(build_splits(compose_data(overrides)).test) == 1  # within the default 1e9
+    with pytest.raises(DataError, match=r"big\.csv: value .* in column 'y' at line \d+ is "
+                       r"beyond the physical range \|y\| <= 50 um") as info:
+        build_splits(compose_data([*overrides, "data.limits.y_abs_max=50"]))
+    assert "Fix:" in str(info.value)

@@ -17,6 +17,7 @@ import h5py
 import numpy as np
 import scipy.io
 
+from hysteresis_lab.data.limits import ValueLimits, check_values
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.errors import DataError
 
@@ -119,7 +120,11 @@ def _recording(
     y_units: str,
     name: str | None,
     units: Mapping[str, str] | None = None,
+    limits: Mapping[str, Any] | ValueLimits | None = None,
+    lines: Sequence[int] | None = None,
 ) -> Recording:
+    """The recording of ``columns``, its values checked against ``limits`` (``lines``: the
+    file's line number of every sample, for a text file)."""
     u_units, y_units = _units(units, u_units, y_units, source)
     wanted = ([time] if time else []) + list(inputs) + list(outputs)
     missing = [c for c in wanted if c not in columns]
@@ -137,16 +142,21 @@ def _recording(
             source=str(source),
             fix="store one value per sample in every column",
         )
-    rate = sampling_rate(columns[time] if time else None, fs, str(source))
     try:
-        u = np.column_stack([np.asarray(columns[c], dtype=float).ravel() for c in inputs])
-        y = np.column_stack([np.asarray(columns[c], dtype=float).ravel() for c in outputs])
-    except ValueError as exc:
+        numeric = {c: np.asarray(columns[c], dtype=float).ravel() for c in wanted}
+    except (TypeError, ValueError) as exc:
         raise DataError(
             f"non-numeric values ({exc}).",
             source=str(source),
             fix="keep only numbers in the data columns",
         ) from None
+    check_values(
+        numeric, inputs, outputs, ValueLimits.from_config(limits), str(source),
+        units=(u_units, y_units), lines=lines, time=time,
+    )
+    rate = sampling_rate(numeric[time] if time else None, fs, str(source))
+    u = np.column_stack([numeric[c] for c in inputs])
+    y = np.column_stack([numeric[c] for c in outputs])
     try:
         return Recording(
             u=u,
@@ -173,11 +183,13 @@ def read_csv(
     name: str | None = None,
     u_units: str = "V",
     y_units: str = "um",
+    limits: Mapping[str, Any] | ValueLimits | None = None,
     delimiter: str | None = None,
 ) -> Recording:
     """A CSV file with a header row of column names (``t,u,y`` by default).
 
-    The delimiter (comma, semicolon or tab) is detected from the header unless given.
+    The delimiter (comma, semicolon or tab) is detected from the header unless given; a value
+    that is not finite or lies beyond ``limits`` (`ValueLimits`) is refused with its line.
     """
     path = _check_file(Path(path))
     with path.open(newline="") as handle:
@@ -187,7 +199,11 @@ def read_csv(
         handle.seek(0)
         reader = csv.reader(handle, delimiter=delimiter)
         header = [h.strip() for h in next(reader, [])]
-        rows = [row for row in reader if any(cell.strip() for cell in row)]
+        rows, lines = [], []  # the data rows and the line each ends on (as an editor counts)
+        for row in reader:
+            if any(cell.strip() for cell in row):
+                rows.append(row)
+                lines.append(reader.line_num)
     if not any(header) or all(_is_number(h) for h in header if h):
         raise DataError(
             f"the first line {first.strip()!r} is not a header of column names.",
@@ -208,7 +224,7 @@ def read_csv(
             fix="supply a file with data",
         )
     table: dict[str, list[float]] = {h: [] for h in header if h}
-    for number, row in enumerate(rows, start=2):
+    for number, row in zip(lines, rows, strict=True):
         if any(cell.strip() for cell in row[len(header) :]):
             decimal_comma = delimiter == "," and len(row) >= 2 * len(header)
             raise DataError(
@@ -245,7 +261,8 @@ def read_csv(
                 ) from None
     columns = {k: np.asarray(v) for k, v in table.items()}
     return _recording(
-        columns, path, time, _names(inputs), _names(outputs), fs, u_units, y_units, name, units
+        columns, path, time, _names(inputs), _names(outputs), fs, u_units, y_units, name, units,
+        limits, lines,
     )
 
 
@@ -259,6 +276,7 @@ def read_npz(
     name: str | None = None,
     u_units: str = "V",
     y_units: str = "um",
+    limits: Mapping[str, Any] | ValueLimits | None = None,
 ) -> Recording:
     """An NPZ archive with one array per column (``t``, ``u``, ``y`` by default)."""
     path = _check_file(Path(path))
@@ -274,7 +292,9 @@ def read_npz(
     if "fs" in columns and fs is None and (time is None or time not in columns):
         fs = float(np.ravel(columns["fs"])[0])
     columns, inputs, outputs = _expand_matrices(columns, _names(inputs), _names(outputs))
-    return _recording(columns, path, time, inputs, outputs, fs, u_units, y_units, name, units)
+    return _recording(
+        columns, path, time, inputs, outputs, fs, u_units, y_units, name, units, limits
+    )
 
 
 def read_mat(
@@ -287,12 +307,15 @@ def read_mat(
     name: str | None = None,
     u_units: str = "V",
     y_units: str = "um",
+    limits: Mapping[str, Any] | ValueLimits | None = None,
 ) -> Recording:
     """A MATLAB file: v4-v7 via scipy.io, v7.3 (HDF5) via h5py."""
     path = _check_file(Path(path))
     columns = load_mat_variables(path)
     columns, inputs, outputs = _expand_matrices(columns, _names(inputs), _names(outputs))
-    return _recording(columns, path, time, inputs, outputs, fs, u_units, y_units, name, units)
+    return _recording(
+        columns, path, time, inputs, outputs, fs, u_units, y_units, name, units, limits
+    )
 
 
 def load_mat_variables(path: Path) -> dict[str, np.ndarray]:
@@ -321,6 +344,7 @@ def read_hdf5(
     name: str | None = None,
     u_units: str = "V",
     y_units: str = "um",
+    limits: Mapping[str, Any] | ValueLimits | None = None,
 ) -> Recording:
     """An HDF5 file; column names are dataset paths (e.g. ``"multisine/u"``)."""
     path = _check_file(Path(path))
@@ -345,7 +369,8 @@ def read_hdf5(
             fix="name the datasets in data.columns",
         )
     return _recording(
-        columns, path, time, _names(inputs), _names(outputs), fs, u_units, y_units, name, units
+        columns, path, time, _names(inputs), _names(outputs), fs, u_units, y_units, name, units,
+        limits,
     )
 
 

@@ -69,14 +69,14 @@ class Recording:
                 source=source,
                 fix="supply at least one input and one output column",
             )
-        for what, arr in (("u", u), ("y", y)):
+        for what, arr, names in (("u", u, self.u_names), ("y", y, self.y_names)):
             bad = ~np.isfinite(arr)
             if bad.any():
                 row, col = np.argwhere(bad)[0]
+                channel = f"'{names[col]}'" if len(names) == arr.shape[1] else str(col)
                 raise DataError(
-                    f"{what} contains {int(bad.sum())} NaN/inf value(s), the first at sample "
-                    f"{row}, "
-                    f"channel {col}.",
+                    f"{what} contains {int(bad.sum())} NaN/inf value(s), the first at row "
+                    f"{row + 1} (1-based), channel {channel}.",
                     source=source,
                     fix="remove or interpolate the missing samples before loading",
                 )

@@ -88,11 +88,13 @@ def _resolved(cfg: Mapping[str, Any] | DictConfig) -> dict[str, Any]:
 
 
 def _recording_options(config: Mapping[str, Any]) -> dict[str, Any]:
-    """What `read_recording` takes from the data config: columns, rate and units."""
+    """What `read_recording` takes from the data config: columns, rate, units and limits."""
     columns = dict(config.get("columns") or {})
     options = {key: columns[key] for key in _COLUMN_OPTIONS if key in columns}
     if config.get("fs") is not None:
         options["fs"] = config["fs"]
     if config.get("units"):
         options["units"] = dict(config["units"])
+    if config.get("limits"):
+        options["limits"] = dict(config["limits"])
     return options

@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from hysteresis_lab.data.limits import ValueLimits
 from hysteresis_lab.data.readers import read_recording
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.splits import DatasetSplits
@@ -58,12 +59,15 @@ def load_user_files(
     n_init: int = 0,
     u_units: str | None = None,
     y_units: str | None = None,
+    limits: Mapping[str, Any] | None = None,
 ) -> DatasetSplits:
     """Estimation (``train``), optional validation (``val``) and ``test`` recordings from files.
 
     ``train`` and ``test`` take one path or a list; ``columns`` names the time, input and output
     columns (``time: null`` with ``fs`` when the files have no time column); ``units`` gives
-    ``{u: ..., y: ...}`` (``u_units``/``y_units`` are accepted as older spellings).
+    ``{u: ..., y: ...}`` (``u_units``/``y_units`` are accepted as older spellings); ``limits``
+    the largest physical ``{u_abs_max: ..., y_abs_max: ...}`` (`ValueLimits`): a value beyond,
+    or NaN/inf, is refused with its file and line.
     """
     if not _paths(train):
         raise DataError(
@@ -84,6 +88,7 @@ def load_user_files(
         unit_map["u"] = u_units
     if y_units is not None:
         unit_map["y"] = y_units
+    value_limits = ValueLimits.from_config(limits)
 
     def read(paths: list[str]) -> list[Recording]:
         return [
@@ -94,6 +99,7 @@ def load_user_files(
                 outputs=cols["outputs"],
                 fs=fs,
                 units=unit_map,
+                limits=value_limits,
             )
             for p in paths
         ]
