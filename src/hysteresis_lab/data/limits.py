@@ -55,7 +55,7 @@ class ValueLimits:
                     f"{key}={value!r} is not a positive number.",
                     source="data.limits",
                     fix=f"give data.limits.{key} in the data's units, e.g. "
-                    f"data.limits.{key}=1000 (=inf for no limit)",
+                    f"data.limits.{key}=1000 (or data.limits.{key}=inf for no limit)",
                 )
             values[key] = number
         return cls(**values)

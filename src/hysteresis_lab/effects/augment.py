@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import logging
 from collections.abc import Sequence
 from typing import Any
 
@@ -13,6 +14,8 @@ from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.effects.base import FeatureContext
 from hysteresis_lab.effects.registry import get_effect
 from hysteresis_lab.errors import DataError
+
+log = logging.getLogger(__name__)
 
 
 def feature_context(recordings: Sequence[Recording]) -> FeatureContext:
@@ -27,6 +30,15 @@ def feature_context(recordings: Sequence[Recording]) -> FeatureContext:
         dy_low=np.min([_steps(r.y).min(axis=0) for r in recordings], axis=0),
         dy_high=np.max([_steps(r.y).max(axis=0) for r in recordings], axis=0),
     )
+
+
+def warn_unshown(effects: Sequence[str], ctx: FeatureContext) -> list[str]:
+    """Log a warning for each declared effect the training data of ``ctx`` cannot show
+    (`Effect.unshown`: creep's slow filters on a short record); return the lines."""
+    lines = [line for name in effects if (line := get_effect(name).unshown(ctx))]
+    for line in lines:
+        log.warning(line)
+    return lines
 
 
 def _steps(y: np.ndarray) -> np.ndarray:

@@ -73,3 +73,8 @@ class Effect:
         ``y_model`` (N,), ``span`` its (lowest, highest) value over the recordings diagnosed
         together (one law for all of them)."""
         raise NotImplementedError(f"effect '{self.name}' does not act on the output")
+
+    def unshown(self, ctx: FeatureContext) -> str | None:
+        """What of the effect training data of ``ctx`` (their duration and rate) cannot show,
+        and what data would: one line for a warning; None where they can show all of it."""
+        return None

@@ -15,6 +15,11 @@ from hysteresis_lab.effects.operators import (
 )
 
 
+def _seconds(taus: np.ndarray) -> str:
+    """Time constants as ``0.1, 1 s``."""
+    return ", ".join(f"{t:.3g}" for t in taus) + " s"
+
+
 def _per_input(u: np.ndarray, make) -> np.ndarray:
     return np.column_stack([make(u[:, i], i) for i in range(u.shape[1])])
 
@@ -62,12 +67,48 @@ class Creep(Effect):
     def features(self, u: np.ndarray, ctx: FeatureContext) -> np.ndarray:
         return _per_input(u, lambda x, i: lowpass_bank(x, ctx.fs, self.usable(ctx)))
 
+    #: a filter is used where the training data hold this many samples of its time constant…
+    MIN_SAMPLES_PER_TAU = 20.0
+    #: … and their longest recording is at least this many of its time constants
+    MIN_DURATION_PER_TAU = 2.0
+
+    def _bounds(self, ctx: FeatureContext) -> tuple[float, float]:
+        """The fastest and the slowest time constant (s) the training data can show."""
+        fastest = self.MIN_SAMPLES_PER_TAU / ctx.fs
+        return fastest, max(ctx.duration_s / self.MIN_DURATION_PER_TAU, fastest)
+
     def usable(self, ctx: FeatureContext) -> np.ndarray:
         taus = self.time_constants_s
-        slowest = max(0.5 * ctx.duration_s, 20.0 / ctx.fs)
-        usable = taus[(taus >= 20.0 / ctx.fs) & (taus <= slowest)]
+        fastest, slowest = self._bounds(ctx)
+        usable = taus[(taus >= fastest) & (taus <= slowest)]
         # training data too short for any of them: the slowest filter it can still show
         return usable if len(usable) else np.array([min(slowest, taus[-1])])
+
+    def unshown(self, ctx: FeatureContext) -> str | None:
+        """The filters the training data are too short (or too coarsely sampled) for."""
+        taus = self.time_constants_s
+        fastest, slowest = self._bounds(ctx)
+        parts = []
+        too_slow = taus[taus > slowest]
+        if len(too_slow):
+            parts.append(
+                f"its slowest filter is {taus[-1]:g} s but the longest training record is "
+                f"{ctx.duration_s:.3g} s, so the filters of {_seconds(too_slow)} are left out "
+                f"(a filter needs a record {self.MIN_DURATION_PER_TAU:g}x its time constant); "
+                f"record at least {self.MIN_DURATION_PER_TAU * taus[-1]:g} s, or drop creep "
+                "from model.effects"
+            )
+        too_fast = taus[taus < fastest]
+        if len(too_fast):
+            parts.append(
+                f"its filters of {_seconds(too_fast)} span fewer than "
+                f"{self.MIN_SAMPLES_PER_TAU:g} samples at {ctx.fs:g} Hz and are left out; "
+                f"sample at {self.MIN_SAMPLES_PER_TAU / too_fast[0]:g} Hz or faster to use them"
+            )
+        if not parts:
+            return None
+        used = self.usable(ctx)
+        return (f"creep: {'; '.join(parts)} (used: {_seconds(used)}).")
 
 
 class Resonance(Effect):

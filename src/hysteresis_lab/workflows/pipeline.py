@@ -23,12 +23,13 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from omegaconf import DictConfig, OmegaConf
 
 from hysteresis_lab import fit_record
+from hysteresis_lab.data.checks import warn_weak_excitation
 from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.data.factory import build_datamodule, build_splits
 from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.data.windows import WindowSpec
-from hysteresis_lab.effects.augment import augment_splits, context_to_dict
+from hysteresis_lab.effects.augment import augment_splits, context_to_dict, warn_unshown
 from hysteresis_lab.effects.registry import check_effects
 from hysteresis_lab.errors import DataError
 from hysteresis_lab.evaluation.evaluate import Evaluation, evaluate_model, scoring_start
@@ -239,7 +240,9 @@ def _run_data(
     context; checked for scoring when it will be."""
     check_effects(effects)
     splits = splits or build_splits(config.data)
+    warn_weak_excitation(splits, config.data.window)
     data, context = augment_splits(splits, effects)
+    warn_unshown(effects, context)
     if baseline is not None:
         data = baseline.append_to_splits(data, splits)
     if config.settings.evaluate:
