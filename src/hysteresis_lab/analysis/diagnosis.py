@@ -236,8 +236,7 @@ def _prepare(
     e_all = np.asarray(residual, dtype=float)[:, 0]  # one output's (see `_one_output_each`)
     keep = np.flatnonzero(np.isfinite(e_all))
     if dynamics is not None and len(keep):
-        keep = keep[keep >= keep[0] + min(_settling(dynamics),
-                                          int(MAX_SKIPPED_SHARE * len(keep)))]
+        keep = keep[keep >= keep[0] + _skipped_start(dynamics, len(keep))]
     keep = keep[:: max(1, len(keep) // max_points)]
     e = _centre(e_all[keep])
     weight = 1.0 / (float(np.sqrt(e @ e)) or 1.0)
@@ -278,6 +277,29 @@ def _settling(a: np.ndarray) -> int:
     return int(np.ceil(SETTLE_FACTOR * np.log(0.01) / np.log(radius)))
 
 
+def _skipped_start(a: np.ndarray, scored: int) -> int:
+    """The rows left out at the start of a residual with ``scored`` scored rows: the
+    settling time of the dynamics ``1 / a`` (`_settling`), at most `MAX_SKIPPED_SHARE` of
+    those rows."""
+    return min(_settling(a), int(MAX_SKIPPED_SHARE * scored))
+
+
+def _skipped_report(a: np.ndarray, recordings: Sequence[Recording],
+                    residuals: Sequence[np.ndarray]) -> str:
+    """What `_prepare` leaves out at the start of each of ``recordings``' residuals, in
+    words: the rows of each, and the settling time where the cap cuts it."""
+    settling = _settling(a)
+    scored = [int(np.isfinite(np.asarray(e, dtype=float).reshape(len(e), -1)[:, 0]).sum())
+              for e in residuals]
+    skipped = [_skipped_start(a, n) for n in scored]
+    parts = ", ".join(f"{left} of {n} on {rec.name}"
+                      for rec, left, n in zip(recordings, skipped, scored, strict=True))
+    note = (f" (its start transient settles in {settling} samples; at most "
+            f"{MAX_SKIPPED_SHARE:.0%} of a residual's scored samples are left out)"
+            if any(left < settling for left in skipped) else "")
+    return f"scored samples left out at the start: {parts}{note}"
+
+
 def _model_dynamics(
     recordings: Sequence[Recording],
     residuals: Sequence[np.ndarray],
@@ -315,9 +337,11 @@ def _model_dynamics(
                      "the evidence does not pass through it", name)
             return none
         found[name] = a
-        log.info("diagnosis through the model's dynamics: output %s, slowest pole |p| = %.4f, "
-                 "the first %d samples of each residual left out", name,
-                 float(np.max(np.abs(np.roots(a)))), _settling(a))
+        of_output = [k for k, rec in enumerate(recordings) if rec.y_names[0] == name]
+        log.info("diagnosis through the model's dynamics: output %s, slowest pole |p| = %.4f; "
+                 "%s", name, float(np.max(np.abs(np.roots(a)))),
+                 _skipped_report(a, [recordings[k] for k in of_output],
+                                 [residuals[k] for k in of_output]))
     return [found[rec.y_names[0]] for rec in recordings]
 
 
