@@ -145,3 +145,24 @@ def test_a_test_file_shorter_than_the_window_stops_before_training(tmp_path):
     assert str(short) in proc.stdout + proc.stderr
     assert not list((tmp_path / "run").rglob("*.ckpt")), "it trained before saying so"
     assert "Epoch" not in proc.stdout + proc.stderr
+
+
+@pytest.mark.slow
+def test_an_absurd_value_in_a_training_file_stops_before_training(tmp_path):
+    """One y of 1e300 once trained a model on NaN and exited 0 (issue #35)."""
+    train, tests = small_dataset(tmp_path, n_train=1500)
+    lines = train.read_text().splitlines()
+    cells = lines[41].split(",")
+    lines[41] = ",".join([*cells[:-1], "1e300"])  # line 42 of the file
+    train.write_text("\n".join(lines) + "\n")
+    proc = run_app(
+        "train",
+        *data_overrides(train, tests),
+        "trainer.max_epochs=1",
+        f"hydra.run.dir={tmp_path}/run",
+        *QUIET,
+        cwd=tmp_path,
+    )
+    output = one_line_error(proc, "in column 'y' at line 42 is beyond the physical range")
+    assert str(train) in output and "data.limits.y_abs_max" in output
+    assert not (tmp_path / "run" / "metrics.json").exists()
