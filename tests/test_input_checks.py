@@ -99,3 +99,16 @@ def test_creep_is_warned_about_only_where_a_filter_is_left_out(seconds, fs, expe
         assert lines == []
     else:
         assert len(lines) == 1 and expected in lines[0] and "sample at 200 Hz" in lines[0]
+
+
+def test_a_model_with_creep_filters_of_its_own_is_warned_about_those():
+    """model=linear / greybox carry ``creep_time_constants_s``: the warning names theirs."""
+    fs, n = 2000.0, 400  # 0.2 s
+    rec = Recording(u=np.sin(np.arange(n) / fs), y=np.zeros(n), fs=fs)
+    context = feature_context([rec])
+    assert warn_unshown(["creep"], context, {"creep_time_constants_s": [0.01, 0.05]}) == []
+    lines = warn_unshown(["creep"], context, {"name": "linear",
+                                              "creep_time_constants_s": [0.02, 1.0]})
+    assert len(lines) == 1 and "its slowest filter is 1 s" in lines[0]
+    assert "the filters of 1 s never move over it" in lines[0]
+    assert "record at least 2 s" in lines[0] and "used:" not in lines[0]

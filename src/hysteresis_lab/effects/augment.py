@@ -32,10 +32,13 @@ def feature_context(recordings: Sequence[Recording]) -> FeatureContext:
     )
 
 
-def warn_unshown(effects: Sequence[str], ctx: FeatureContext) -> list[str]:
+def warn_unshown(
+    effects: Sequence[str], ctx: FeatureContext, settings: dict[str, Any] | None = None
+) -> list[str]:
     """Log a warning for each declared effect the training data of ``ctx`` cannot show
-    (`Effect.unshown`: creep's slow filters on a short record); return the lines."""
-    lines = [line for name in effects if (line := get_effect(name).unshown(ctx))]
+    (`Effect.unshown`: creep's slow filters on a short record; ``settings``: the model's
+    config); return the lines."""
+    lines = [line for name in effects if (line := get_effect(name).unshown(ctx, settings))]
     for line in lines:
         log.warning(line)
     return lines

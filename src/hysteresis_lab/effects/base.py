@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -74,7 +75,10 @@ class Effect:
         together (one law for all of them)."""
         raise NotImplementedError(f"effect '{self.name}' does not act on the output")
 
-    def unshown(self, ctx: FeatureContext) -> str | None:
+    def unshown(
+        self, ctx: FeatureContext, settings: Mapping[str, Any] | None = None
+    ) -> str | None:
         """What of the effect training data of ``ctx`` (their duration and rate) cannot show,
-        and what data would: one line for a warning; None where they can show all of it."""
+        and what data would: one line for a warning; None where they can show all of it.
+        ``settings``: the model's config (an effect may read its own time scales there)."""
         return None

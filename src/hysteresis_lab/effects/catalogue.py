@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from typing import Any
+
 import numpy as np
 from scipy import signal
 
@@ -84,16 +87,22 @@ class Creep(Effect):
         # training data too short for any of them: the slowest filter it can still show
         return usable if len(usable) else np.array([min(slowest, taus[-1])])
 
-    def unshown(self, ctx: FeatureContext) -> str | None:
-        """The filters the training data are too short (or too coarsely sampled) for."""
-        taus = self.time_constants_s
+    def unshown(
+        self, ctx: FeatureContext, settings: Mapping[str, Any] | None = None
+    ) -> str | None:
+        """The filters the training data are too short (or too coarsely sampled) for: the
+        operators leave them out; a model with filters of its own (``settings``'
+        ``creep_time_constants_s``: the linear and grey-box models) keeps them, unidentified."""
+        own = (settings or {}).get("creep_time_constants_s")
+        taus = np.sort(np.asarray(own if own else self.time_constants_s, dtype=float))
         fastest, slowest = self._bounds(ctx)
+        fate = "never move over it" if own else "are left out"
         parts = []
         too_slow = taus[taus > slowest]
         if len(too_slow):
             parts.append(
                 f"its slowest filter is {taus[-1]:g} s but the longest training record is "
-                f"{ctx.duration_s:.3g} s, so the filters of {_seconds(too_slow)} are left out "
+                f"{ctx.duration_s:.3g} s, so the filters of {_seconds(too_slow)} {fate} "
                 f"(a filter needs a record {self.MIN_DURATION_PER_TAU:g}x its time constant); "
                 f"record at least {self.MIN_DURATION_PER_TAU * taus[-1]:g} s, or drop creep "
                 "from model.effects"
@@ -102,13 +111,15 @@ class Creep(Effect):
         if len(too_fast):
             parts.append(
                 f"its filters of {_seconds(too_fast)} span fewer than "
-                f"{self.MIN_SAMPLES_PER_TAU:g} samples at {ctx.fs:g} Hz and are left out; "
-                f"sample at {self.MIN_SAMPLES_PER_TAU / too_fast[0]:g} Hz or faster to use them"
+                f"{self.MIN_SAMPLES_PER_TAU:g} samples at {ctx.fs:g} Hz"
+                + ("" if own else " and are left out")
+                + f"; sample at {self.MIN_SAMPLES_PER_TAU / too_fast[0]:g} Hz or faster to "
+                "show them"
             )
         if not parts:
             return None
-        used = self.usable(ctx)
-        return (f"creep: {'; '.join(parts)} (used: {_seconds(used)}).")
+        used = "" if own else f" (used: {_seconds(self.usable(ctx))})"
+        return f"creep: {'; '.join(parts)}{used}."
 
 
 class Resonance(Effect):

@@ -242,7 +242,7 @@ def _run_data(
     splits = splits or build_splits(config.data)
     warn_weak_excitation(splits, config.data.window)
     data, context = augment_splits(splits, effects)
-    warn_unshown(effects, context)
+    warn_unshown(effects, context, config.model.to_config())
     if baseline is not None:
         data = baseline.append_to_splits(data, splits)
     if config.settings.evaluate:
