@@ -22,7 +22,8 @@ def test_a_spec_reads_the_settings_of_a_composed_data_config_and_gives_it_back()
     assert spec.val_fraction == 0.1 and spec.num_workers == 0 and spec.diagnose == ("extra.csv",)
     assert spec.recording_options == {"time": "t", "inputs": ["u"], "outputs": ["y"],
                                       "units": {"u": "V", "y": "um"},
-                                      "limits": {"u_abs_max": 1e9, "y_abs_max": 1e9}}
+                                      "limits": {"u_abs_max": 1e9, "y_abs_max": 1e9,
+                                                 "columns": {}}}
     resolved = plain_dict(cfg.data)
     assert spec.to_config() == resolved and spec.to_config()["splits"]["train"] == "run.csv"
     spec.to_config()["window"]["na"] = 99  # a copy: the spec keeps its config

@@ -269,7 +269,7 @@ def test_a_value_beyond_a_configured_limit_names_its_row(rec, tmp_path, suffix):
     writer = {".npz": write_npz, ".mat": write_mat, ".h5": write_hdf5}[suffix]
     path = writer(spiked, tmp_path / f"r{suffix}")
     with pytest.raises(DataError, match=r"value -250 in column 'v' at row 42 is beyond "
-                       r"the physical range \|u\| <= 200 V") as info:
+                       r"the physical range \|v\| <= 200 V") as info:
         read_recording(path, inputs=["u", "v"], limits={"u_abs_max": 200})
     assert_names_file_and_fix(info, path)
     assert read_recording(path, inputs=["u", "v"], limits={"u_abs_max": 300}).nu == 2
@@ -295,3 +295,18 @@ def test_malformed_limits_are_refused(rec, tmp_path, limits, message):
     with pytest.raises(DataError, match=message) as info:
         read_recording(path, inputs=["u", "v"], limits=limits)
     assert "Fix:" in str(info.value) and "data.limits" in str(info.value)
+
+
+def test_a_column_limit_bounds_that_column_only(rec, tmp_path):
+    """``data.limits.columns``: a MIMO set's channels of different ranges."""
+    path = write_csv(rec, tmp_path / "r.csv")  # |u|, |v| <= 1, |y| <= 20
+    limits = {"u_abs_max": 5, "columns": {"v": 0.5}}
+    with pytest.raises(DataError, match=r"in column 'v' at line \d+ is beyond the physical range "
+                       r"\|v\| <= 0\.5 V \(data\.limits\.columns\.v;") as info:
+        read_recording(path, inputs=["u", "v"], limits=limits)
+    assert "raise data.limits.columns.v" in info.value.fix
+    # the column's own bound wins over u_abs_max, either way
+    read_recording(path, inputs=["u", "v"], limits={"u_abs_max": 0.5, "columns": {"u": 2,
+                                                                                   "v": 2}})
+    with pytest.raises(DataError, match=r"data.limits.columns names \['w'\]"):
+        read_recording(path, inputs=["u", "v"], limits={"columns": {"w": 1}})

@@ -113,3 +113,10 @@ def test_data_limits_reach_every_file_of_data_csv(files, tmp_path):
                        r"beyond the physical range \|y\| <= 50 um") as info:
         build_splits(compose_data([*overrides, "data.limits.y_abs_max=50"]))
     assert "Fix:" in str(info.value)
+
+
+def test_a_column_limit_is_set_from_the_command_line(files, tmp_path):
+    overrides = [f"data.train={files['train']}", f"data.test=[{files['test1']}]"]
+    with pytest.raises(DataError, match=r"train\.csv: value .* in column 'u' at line \d+ is "
+                       r"beyond the physical range \|u\| <= 10 V \(data\.limits\.columns\.u;"):
+        build_splits(compose_data([*overrides, "+data.limits.columns.u=10"]))

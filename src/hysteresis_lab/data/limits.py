@@ -8,7 +8,7 @@ value with the file, the line (or row) a user finds it at, and the fix.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -23,10 +23,12 @@ DEFAULT_ABS_MAX = 1.0e9
 @dataclass(frozen=True)
 class ValueLimits:
     """The largest physical |value| of the inputs (``u_abs_max``) and the outputs
-    (``y_abs_max``), in the data set's units (``data.limits``)."""
+    (``y_abs_max``), in the data set's units, and of single columns by name (``columns``,
+    which take precedence: a MIMO set's channels of different ranges) (``data.limits``)."""
 
     u_abs_max: float = DEFAULT_ABS_MAX
     y_abs_max: float = DEFAULT_ABS_MAX
+    columns: Mapping[str, float] = field(default_factory=dict)
 
     @classmethod
     def from_config(cls, limits: Mapping[str, Any] | ValueLimits | None) -> ValueLimits:
@@ -40,25 +42,42 @@ class ValueLimits:
                 f"unknown key(s) {sorted(unknown)} in data.limits.",
                 source="data.limits",
                 fix="use u_abs_max and y_abs_max (the largest |input| and |output| a "
-                "recording may hold, in its units)",
+                "recording may hold, in its units) and columns: {<column>: <largest |value|>}",
             )
-        values = {}
-        for key, value in limits.items():
-            if value is None:
-                continue
-            try:
-                number = float(value)
-            except (TypeError, ValueError):
-                number = float("nan")
-            if not number > 0:  # also NaN
-                raise DataError(
-                    f"{key}={value!r} is not a positive number.",
-                    source="data.limits",
-                    fix=f"give data.limits.{key} in the data's units, e.g. "
-                    f"data.limits.{key}=1000 (or data.limits.{key}=inf for no limit)",
-                )
-            values[key] = number
-        return cls(**values)
+        columns = limits.pop("columns", None) or {}
+        if not isinstance(columns, Mapping):
+            raise DataError(
+                f"columns={columns!r} is not a mapping of column names to bounds.",
+                source="data.limits",
+                fix="give +data.limits.columns.<column>=<largest |value|>",
+            )
+        values = {k: _bound(k, v) for k, v in limits.items() if v is not None}
+        per_column = {str(k): _bound(f"columns.{k}", v) for k, v in columns.items()
+                      if v is not None}
+        return cls(**values, columns=per_column)
+
+    def bound(self, column: str, kind: str) -> tuple[float, str]:
+        """The bound on ``column`` (an input, ``kind`` "u", or an output, "y") and the
+        setting that gives it."""
+        if column in self.columns:
+            return self.columns[column], f"data.limits.columns.{column}"
+        return getattr(self, f"{kind}_abs_max"), f"data.limits.{kind}_abs_max"
+
+
+def _bound(key: str, value: Any) -> float:
+    """A positive bound (inf allowed), else a `DataError` naming ``data.limits.<key>``."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        number = float("nan")
+    if not number > 0:  # also NaN
+        raise DataError(
+            f"{key}={value!r} is not a positive number.",
+            source="data.limits",
+            fix=f"give data.limits.{key} in the data's units, e.g. "
+            f"data.limits.{key}=1000 (or data.limits.{key}=inf for no limit)",
+        )
+    return number
 
 
 def check_values(
@@ -93,9 +112,17 @@ def check_values(
                 fix="remove or interpolate the missing samples (an empty cell reads as NaN) "
                 "before loading",
             )
-    ranges = [(n, limits.u_abs_max, "u", units[0]) for n in inputs]
-    ranges += [(n, limits.y_abs_max, "y", units[1]) for n in outputs]
-    for name, bound, kind, unit in ranges:
+    unknown = sorted(set(limits.columns) - set(inputs) - set(outputs))
+    if unknown:
+        raise DataError(
+            f"data.limits.columns names {unknown}, which are not among the input and output "
+            f"columns {[*inputs, *outputs]}.",
+            source=source,
+            fix="name the columns as data.columns.inputs / outputs do",
+        )
+    ranges = [(n, "u", units[0]) for n in inputs] + [(n, "y", units[1]) for n in outputs]
+    for name, kind, unit in ranges:
+        bound, setting = limits.bound(name, kind)
         values = np.asarray(columns[name], dtype=float).ravel()
         beyond = np.abs(values) > bound
         if beyond.any():
@@ -103,9 +130,9 @@ def check_values(
             unit_text = f" {unit}" if unit else ""
             raise DataError(
                 f"value {values[first]:g} in column '{name}' at {where(first)} is beyond the "
-                f"physical range |{kind}| <= {bound:g}{unit_text} (data.limits.{kind}_abs_max; "
+                f"physical range |{name}| <= {bound:g}{unit_text} ({setting}; "
                 f"{int(beyond.sum())} such value(s)).",
                 source=source,
                 fix=f"correct or remove that sample (an overflow code or a corrupt row), or, "
-                f"if the signal really reaches it, raise data.limits.{kind}_abs_max",
+                f"if the signal really reaches it, raise {setting}",
             )
