@@ -53,6 +53,11 @@ def get_effect(name: str) -> Effect:
 
 def check_effects(names: Sequence[str]) -> None:
     """Refuse unknown effect names (listing the catalogue) and an effect named twice."""
+    if isinstance(names, str):  # model.effects=creep: a name, not a list of names
+        raise ConfigError(
+            f"model.effects={names!r} must be a list. Fix: model.effects=[{names}] (brackets "
+            "even for one effect)."
+        )
     for name in names:
         get_effect(name)
     repeated = sorted({name for name in names if list(names).count(name) > 1})
