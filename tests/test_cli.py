@@ -84,7 +84,7 @@ def test_evaluate_reproduces_the_training_metrics(trained_run, csv_data, tmp_pat
 @pytest.mark.parametrize(
     ("overrides", "message"),
     [
-        (["model=transformer"], "Could not find 'model/transformer'"),
+        (["model=transformer"], "unknown model 'transformer'. Valid: cnn, ffnn,"),
         (["model.name=transformer"], "unknown model 'transformer'. Available:"),
         (["+model.neuronz=5"], "has no parameter(s) ['neuronz']"),
         (["data.train=/nonexistent/file.csv"], "no such file"),

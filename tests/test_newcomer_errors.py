@@ -107,6 +107,14 @@ def test_train_help_writes_nothing(tmp_path):
     assert "is not available" not in proc.stderr
 
 
+@pytest.mark.parametrize("app", ["train", "loop"])
+def test_an_unknown_model_lists_the_public_ones_in_one_line(tmp_path, app):
+    proc = run_app(app, "model=doesnotexist", cwd=tmp_path)
+    output = one_line_error(proc, "unknown model 'doesnotexist'. Valid: cnn, ffnn, ")
+    assert "_network" not in output and list(tmp_path.iterdir()) == []
+    assert [line for line in output.splitlines() if line.strip()] == [output.strip()]
+
+
 @pytest.mark.slow
 def test_a_plain_train_run_writes_only_in_its_run_folder(tmp_path):
     train, tests = small_dataset(tmp_path, n_train=1500)

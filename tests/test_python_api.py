@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import hysteresis_lab as hl
-from helpers import REPO
+from helpers import REPO, run_app
 from hysteresis_lab.evaluation.metrics import rmse
 
 README = (REPO / "README.md").read_text()
@@ -72,3 +72,44 @@ def test_train_refuses_the_paper_task():
     cfg = hl.compose("experiment=paper")
     with pytest.raises(hl.HysteresisLabError, match="task=paper"):
         hl.train(cfg, "unused")
+
+
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ("model.lr=abc", "model.lr='abc' must be a number. Fix: model.lr=0.001"),
+        ("model.effects=creep", "model.effects='creep' must be a list. Fix: model.effects=[a,b]"),
+        ("model.num_layers=2.5", "model.num_layers=2.5 must be a whole number. Fix: "),
+    ],
+    ids=["lr", "effects", "num_layers"],
+)
+def test_the_api_checks_overrides_as_the_console_app_does_before_any_folder(
+    tmp_path, override, message
+):
+    out = tmp_path / "run"
+    with pytest.raises(hl.HysteresisLabError) as raised:
+        hl.train(hl.compose(override, "trainer.max_epochs=1"), out)
+    assert message in str(raised.value)
+    assert not out.exists(), "a run folder was made before the checks"
+    if override == "model.lr=abc":  # the console app says the very same line
+        proc = run_app("train", override, "trainer.max_epochs=1",
+                       f"hydra.run.dir={tmp_path}/cli", cwd=tmp_path)
+        assert proc.returncode == 2 and str(raised.value) in proc.stdout + proc.stderr
+
+
+def test_the_api_names_the_public_models_for_an_unknown_one():
+    with pytest.raises(hl.HysteresisLabError, match=(
+        r"^unknown model 'doesnotexist'\. Valid: cnn, ffnn, .*svm\. Fix: model=")) as raised:
+        hl.compose("model=doesnotexist")
+    assert "_network" not in str(raised.value)
+
+
+def test_save_model_to_an_unwritable_path_says_so_with_a_fix(tmp_path):
+    from hysteresis_lab.models.ffnn import FFNN
+
+    blocker = tmp_path / "a_file"
+    blocker.write_text("not a folder")
+    where = re.escape(str(blocker / "model.ckpt"))
+    with pytest.raises(hl.HysteresisLabError,
+                       match=rf"^{where}: cannot write the model file \(.*\)\. Fix: pass a path"):
+        hl.save_model(FFNN(nu=1, ny=1, num_layers=2, neurons=4), blocker / "model")

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import optuna
 import pytest
+import yaml
 from optuna.trial import TrialState
 
 from conftest import optional_dependency
@@ -92,10 +93,9 @@ def test_sweep_writes_results_and_resumes_without_repeating(tmp_path, csv_data):
     keys = [tuple(sorted(t.params.items())) for t in done]
     assert len(set(keys)) == len(keys), "a resumed sweep repeated a trial's parameters"
 
-    # the best config trains straight away
+    # the best config trains straight away, on the sweep's data without naming it again
     best = run_app(
         "train",
-        *csv_data,
         "experiment=best_ffnn_csv",
         "trainer.max_epochs=1",
         "evaluate=false",
@@ -104,6 +104,10 @@ def test_sweep_writes_results_and_resumes_without_repeating(tmp_path, csv_data):
         f"hydra.run.dir={tmp_path}/best_run",
     )
     assert best.returncode == 0, best.stderr[-3000:]
+    composed = yaml.safe_load((tmp_path / "best_run" / ".hydra" / "config.yaml").read_text())
+    assert composed["data"]["name"] == "csv"
+    assert [f"data.train={composed['data']['train']}",
+            f"data.test=[{','.join(composed['data']['test'])}]"] == csv_data[1:]
 
 
 @pytest.mark.slow
@@ -373,3 +377,31 @@ def test_two_workers_share_one_postgres_study(tmp_path, csv_data, postgres_url):
     for path in tmp_path.rglob("*"):
         if path.is_file() and path.suffix in {".yaml", ".log", ".json", ".csv"}:
             assert PG_PASSWORD not in path.read_text(errors="ignore"), path
+
+
+def test_the_best_trial_file_trains_on_the_data_the_sweep_used(tmp_path):
+    """experiment=best_<study> alone (no data overrides) composes the sweep's data node."""
+    from hydra import compose, initialize_config_module
+    from omegaconf import OmegaConf, open_dict
+
+    from hysteresis_lab.api import compose as api_compose
+    from hysteresis_lab.tuning.results import sweep_data, write_results
+
+    data = ["data=csv", "data.train=/recordings/run.csv", "data.test=[/recordings/sine.csv]",
+            "data.n_init=5", "+data.splits.extra=1"]
+    with initialize_config_module(config_module="hysteresis_lab.conf"):
+        sweep = compose(config_name="train", overrides=[*data, "hparams_search=ffnn"],
+                        return_hydra_config=True)
+    study = optuna.create_study(study_name="ffnn_csv")
+    study.add_trial(optuna.trial.create_trial(
+        params={"model.neurons": 17}, value=0.5,
+        distributions={"model.neurons": optuna.distributions.IntDistribution(8, 32)}))
+    write_results(study, "ffnn", {}, tmp_path / "ffnn_csv", tmp_path / "best" / "experiment",
+                  sweep_data(sweep))
+
+    best = api_compose("experiment=best_ffnn_csv", f"hydra.searchpath=[file://{tmp_path}/best]")
+    with open_dict(sweep):
+        del sweep["hydra"]
+    assert OmegaConf.to_container(best.data) == OmegaConf.to_container(sweep.data)
+    assert best.data.train == "/recordings/run.csv" and best.data.splits.extra == 1
+    assert best.model.name == "ffnn" and best.model.neurons == 17

@@ -20,7 +20,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from omegaconf import DictConfig
+from omegaconf import DictConfig, open_dict
 
 from hysteresis_lab.errors import ConfigError
 
@@ -38,18 +38,28 @@ CONFIG_MODULE = "hysteresis_lab.conf"
 
 def compose(*overrides: str, config: str = "train") -> DictConfig:
     """The packaged config ``config`` (``train``, ``loop``, ``evaluate``, ``simulate``) with
-    Hydra ``overrides`` such as ``"model=lstm"`` or ``"trainer.max_epochs=20"``, composed as
-    the console app of that name composes it."""
+    Hydra ``overrides`` such as ``"model=lstm"`` or ``"trainer.max_epochs=20"``, composed and
+    checked as the console app of that name does: an unknown group choice or an override
+    that changes a value's type (``model.lr=abc``) is a `ConfigError` naming the fix."""
     from hydra import compose as hydra_compose
     from hydra import initialize_config_module
 
+    from hysteresis_lab.cli._overrides import check_group_choices, check_overrides
+
+    check_group_choices(config, list(overrides))
     with warnings.catch_warnings():
         # outputs/optuna/best exists only after a finished sweep; until then its search-path
         # entry is empty, which is normal (the console apps mute the same warning)
         warnings.filterwarnings("ignore", message=r"provider=hydra\.searchpath in main, "
                                 r"path=outputs/optuna/best is not", category=UserWarning)
         with initialize_config_module(config_module=CONFIG_MODULE):
-            return hydra_compose(config_name=config, overrides=list(overrides))
+            cfg = hydra_compose(config_name=config, overrides=list(overrides),
+                                return_hydra_config=True)
+            hydra_cfg = cfg.hydra
+            with open_dict(cfg):
+                del cfg["hydra"]
+            check_overrides(cfg, hydra_cfg)
+    return cfg
 
 
 def load_data(cfg: DictConfig) -> DatasetSplits:

@@ -9,20 +9,27 @@ number (a whole number where the packaged value is one: layer counts, epochs, la
 ``true``/``false``, a list a list, a group of settings a group. Keys whose
 packaged value is a string, or ``null`` (bar those in `NULLABLE_NUMBERS`), are not checked
 (their type is open).
+
+A group choice (``model=<name>``, ``data=<name>``) is checked before Hydra composes anything:
+an unknown name is one line that lists the public choices (not the ``_``-prefixed internal
+entries such as ``_network``) and the fix. The console apps and `hysteresis_lab.api.compose`
+run the same two checks (`check_group_choices`, `check_overrides`).
 """
 
 from __future__ import annotations
 
 import logging
+import sys
+import warnings
 from typing import Any
 
 from hydra import compose
 from hydra.core.hydra_config import HydraConfig
 from hydra.core.override_parser.overrides_parser import OverridesParser
-from hydra.core.override_parser.types import OverrideType
+from hydra.core.override_parser.types import Override, OverrideType
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
-from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.errors import ConfigError, HysteresisLabError
 
 log = logging.getLogger(__name__)
 
@@ -99,9 +106,15 @@ def type_mismatches(cfg: DictConfig, reference: DictConfig, keys: list[str]) -> 
 def check_override_types(cfg: DictConfig) -> None:
     """Raise `ConfigError` naming every override of the running Hydra app that changed a
     value's type. Does nothing outside a Hydra app."""
-    if not HydraConfig.initialized():
-        return
-    hydra_cfg = HydraConfig.get()
+    if HydraConfig.initialized():
+        check_overrides(cfg, HydraConfig.get())
+
+
+def check_overrides(cfg: DictConfig, hydra_cfg: DictConfig) -> None:
+    """Raise `ConfigError` naming every override that changed a value's type: the task
+    overrides, group choices and search path read from ``hydra_cfg`` (the ``hydra`` node of
+    the composed config: `HydraConfig` in an app, ``return_hydra_config`` in the API).
+    Needs an initialised Hydra (an app, or ``initialize_config_module``)."""
     choices = {
         group: choice
         for group, choice in hydra_cfg.runtime.choices.items()
@@ -135,3 +148,61 @@ def check_override_types(cfg: DictConfig) -> None:
     problems = type_mismatches(cfg, reference, keys)
     if problems:
         raise ConfigError("invalid override(s): " + "; ".join(problems))
+
+
+def _group_choices(overrides: list[str]) -> list[Override]:
+    """The overrides that may choose a config group (``key=value``, value a plain name)."""
+    try:
+        parsed = OverridesParser.create().parse_overrides(overrides)
+    except Exception:  # Hydra reports a malformed override itself
+        return []
+    return [
+        o for o in parsed
+        if o.type in (OverrideType.CHANGE, OverrideType.ADD) and o.package is None
+        and "." not in o.key_or_group and not o.key_or_group.startswith("hydra")
+        and isinstance(o.value(), str)
+    ]
+
+
+def check_group_choices(config_name: str, overrides: list[str]) -> None:
+    """Raise `ConfigError` for a group choice that names no config (``model=doesnotexist``):
+    one line listing the public choices and the fix. Run before composing: Hydra's own
+    message lists internal entries and exits 1 with no fix."""
+    choices = _group_choices(overrides)
+    if not choices:
+        return
+    from hydra._internal.config_loader_impl import ConfigLoaderImpl
+    from hydra._internal.utils import create_config_search_path
+
+    loader = ConfigLoaderImpl(create_config_search_path("pkg://hysteresis_lab.conf"))
+    search_path = [o for o in overrides if o.startswith("hydra.searchpath")]
+    for override in choices:
+        group, name = override.key_or_group, override.value()
+        with warnings.catch_warnings():  # outputs/optuna/best is missing until a sweep ends
+            warnings.simplefilter("ignore", UserWarning)
+            try:
+                options = loader.get_group_options(group, config_name=config_name,
+                                                   overrides=search_path)
+            except Exception as exc:  # no catalogue, no check: Hydra reports what it finds
+                log.debug("group choice %s not checked (%s)", group, exc)
+                continue
+        public = [o for o in options if not o.startswith("_")]
+        if not public or name in options:  # not a group (seed=1), or a known choice
+            continue
+        plugin = ("; a plugin's model needs its package installed (it registers its config "
+                  "under the 'hysteresis_lab.configs' entry points)" if group == "model" else "")
+        raise ConfigError(
+            f"unknown {group} '{name}'. Valid: {', '.join(public)}. Fix: {group}=<one of "
+            f"those>, e.g. {group}={public[0]}{plugin}."
+        )
+
+
+def exit_on_unknown_choice(config_name: str, argv: list[str] | None = None) -> None:
+    """`check_group_choices` on a console app's command line: one logged line and exit
+    status 2 (as `report_errors`) where a group choice is unknown."""
+    overrides = [a for a in (sys.argv[1:] if argv is None else argv) if not a.startswith("-")]
+    try:
+        check_group_choices(config_name, overrides)
+    except HysteresisLabError as exc:
+        logging.getLogger("hysteresis_lab").error("%s", exc)
+        sys.exit(2)

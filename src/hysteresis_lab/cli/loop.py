@@ -15,6 +15,7 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
 from hysteresis_lab.cli._app import CONFIG_PATH, report_errors
+from hysteresis_lab.cli._overrides import exit_on_unknown_choice
 
 log = logging.getLogger(__name__)
 
@@ -57,6 +58,7 @@ def _main(cfg: DictConfig) -> None:
 
 def main() -> None:
     """Console-script entry point."""
+    exit_on_unknown_choice("loop")
     _main()
 
 

@@ -21,6 +21,7 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
 from hysteresis_lab.cli._app import CONFIG_PATH, report_errors
+from hysteresis_lab.cli._overrides import exit_on_unknown_choice
 from hysteresis_lab.errors import ConfigError
 
 log = logging.getLogger(__name__)
@@ -73,6 +74,7 @@ def main() -> None:
         message=r"provider=hydra\.searchpath in main, path=outputs/optuna/best is not",
         category=UserWarning,
     )
+    exit_on_unknown_choice("train")
     _main()
 
 

@@ -32,29 +32,45 @@ def _plain(value: Any) -> Any:
 
 
 def save_model(model: SystemModel, path: Path) -> Path:
-    """Write ``model`` next to ``path``: ``.ckpt`` for networks, ``.skops`` for the SVM."""
+    """Write ``model`` next to ``path``: ``.ckpt`` for networks, ``.skops`` for the SVM. A
+    path that cannot be written (a file where a folder should be, no permission, a full disk)
+    is a `DataError` naming it and the fix."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    name = getattr(model, "registry_name", "") or type(model).__name__
+    target = path.with_suffix(".ckpt" if isinstance(model, torch.nn.Module) else ".skops")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        _write(model, target)
+    except OSError as exc:
+        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise DataError(
+            f"cannot write the model file ({reason}).",
+            source=str(target),
+            fix="pass a path in a folder you may write to (e.g. outputs/model), not below "
+            "a file or in a read-only place, and check the disk has room",
+        ) from None
+    return target
+
+
+def _write(model: SystemModel, target: Path) -> None:
     if isinstance(model, torch.nn.Module):
-        target = path.with_suffix(".ckpt")
-        hparams = _plain(dict(model.hparams))
+        name = getattr(model, "registry_name", "") or type(model).__name__
         checkpoint = {
             "format": FORMAT,
             "model_name": name,
-            "hyper_parameters": hparams,
+            "hyper_parameters": _plain(dict(model.hparams)),
             "state_dict": model.state_dict(),
         }
         baseline = getattr(model, "baseline", None)
         if baseline is not None:  # the model reads its free run: it travels along
             checkpoint["baseline"] = baseline.to_checkpoint()
-        torch.save(checkpoint, target)
-        return target
+        try:
+            torch.save(checkpoint, target)
+        except RuntimeError as exc:  # how torch reports a file it cannot open
+            raise OSError(str(exc)) from exc
+        return
     import skops.io
 
-    target = path.with_suffix(".skops")
     skops.io.dump(model, target)
-    return target
 
 
 def load_model(path: Path | str) -> SystemModel:

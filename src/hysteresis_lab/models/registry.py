@@ -2,6 +2,8 @@
 
 Group ``hysteresis_lab.models``; the entry-point name is what ``model=<name>`` selects. A
 class is checked against the model interface (`hysteresis_lab.models.interface`) when it loads.
+A plugin whose entry point fails to import is left out of `available_models` (one warning
+naming it); only naming it is an error.
 """
 
 from __future__ import annotations
@@ -10,6 +12,7 @@ from importlib.metadata import EntryPoint, entry_points
 
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.interface import check_model_class
+from hysteresis_lab.plugins import load_or_skip
 
 GROUP = "hysteresis_lab.models"
 
@@ -19,8 +22,10 @@ def _entry_points() -> dict[str, EntryPoint]:
 
 
 def available_models() -> list[str]:
-    """Names of all registered architectures."""
-    return sorted(_entry_points())
+    """Names of the registered architectures that load (a broken plugin's are left out, with
+    one warning naming it)."""
+    return sorted(name for name, point in _entry_points().items()
+                  if load_or_skip(point) is not None)
 
 
 def get_model_class(name: str) -> type:

@@ -11,7 +11,10 @@ from typing import Any
 
 import optuna
 import yaml
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.core.override_parser.types import OverrideType
 from matplotlib.figure import Figure
+from omegaconf import DictConfig, OmegaConf
 from optuna.trial import TrialState
 
 from hysteresis_lab.tuning.bookkeeping import counted
@@ -32,13 +35,43 @@ def first_best_trial(study: optuna.Study) -> int | None:
     return min(t.number for t in complete if t.value <= best)
 
 
-def best_config(study: optuna.Study, model_name: str) -> dict[str, Any]:
-    """A ``# @package _global_`` experiment config with the best trial's tuned values."""
+def sweep_data(config: DictConfig) -> dict[str, Any]:
+    """The data the sweep's trials trained on, as the sweep's command line chose it: its
+    ``data`` choice and every ``data.*`` value the command line set (``data.train=...``),
+    read from the ``hydra`` node of the sweep's config; empty outside a Hydra app."""
+    hydra_cfg = config.get("hydra") if isinstance(config, DictConfig) else None
+    if hydra_cfg is None:
+        return {}
+    choice = OmegaConf.select(hydra_cfg, "runtime.choices.data", default=None)
+    data: dict[str, Any] = {"choice": choice, "values": {}}
+    parsed = OverridesParser.create().parse_overrides(
+        list(OmegaConf.select(hydra_cfg, "overrides.task", default=[]) or []))
+    for override in parsed:
+        key = override.key_or_group
+        if not key.startswith("data.") or override.package is not None:
+            continue
+        if override.is_sweep_override():  # tuned: among the best trial's parameters
+            continue
+        if override.type == OverrideType.DEL:
+            log.warning("the best-trial file cannot repeat the override %s: add it to the "
+                        "training command yourself", override.input_line)
+            continue
+        data["values"][key.removeprefix("data.")] = override.value()
+    return data
+
+
+def best_config(
+    study: optuna.Study, model_name: str, data: dict[str, Any] | None = None
+) -> dict[str, Any]:
+    """A ``# @package _global_`` experiment config with the best trial's tuned values and the
+    sweep's data (`sweep_data`), so that it trains on what the trial trained on."""
     params = dict(study.best_trial.params)
-    model = {k.removeprefix("model."): v for k, v in params.items() if k.startswith("model.")}
-    other = {k: v for k, v in params.items() if not k.startswith("model.")}
-    config: dict[str, Any] = {"defaults": [{"override /model": model_name}], "model": model}
-    for dotted, value in other.items():
+    defaults: list[dict[str, Any]] = [{"override /model": model_name}]
+    if data and data.get("choice"):
+        defaults.append({"override /data": data["choice"]})
+    config: dict[str, Any] = {"defaults": defaults, "model": {}}
+    values = {f"data.{k}": v for k, v in (data or {}).get("values", {}).items()}
+    for dotted, value in {**values, **params}.items():
         node = config
         *parents, leaf = dotted.split(".")
         for key in parents:
@@ -53,8 +86,10 @@ def write_results(
     fixed: dict[str, Any],
     directory: Path,
     experiment_dir: Path,
+    data: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """Write trials.csv, best_<study>.yaml, history and importance PNGs, summary.json."""
+    """Write trials.csv, best_<study>.yaml, history and importance PNGs, summary.json.
+    ``data``: the sweep's data (`sweep_data`), repeated in best_<study>.yaml."""
     directory.mkdir(parents=True, exist_ok=True)
     trials = study.get_trials(deepcopy=False)
     write_trials_csv(trials, directory / "trials.csv")
@@ -75,8 +110,10 @@ def write_results(
     header = (
         f"# @package _global_\n# Best of Optuna study '{study.study_name}' "
         f"(trial {best.number}, validation MSE {best.value:.4e}).\n"
+        "# It trains on the sweep's data: its data choice and data.* settings are below.\n"
     )
-    config_path.write_text(header + yaml.safe_dump(best_config(study, model_name), sort_keys=False))
+    config = best_config(study, model_name, data)
+    config_path.write_text(header + yaml.safe_dump(config, sort_keys=False))
     summary.update(
         {
             "best_value": best.value,

@@ -31,7 +31,7 @@ from optuna.trial import TrialState
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.tuning import bookkeeping
 from hysteresis_lab.tuning.choices import make_pruner, make_sampler
-from hysteresis_lab.tuning.results import write_results
+from hysteresis_lab.tuning.results import sweep_data, write_results
 from hysteresis_lab.tuning.storage import STORAGE_ENV, open_storage, redact, resolve_storage_url
 
 log = logging.getLogger(__name__)
@@ -159,6 +159,7 @@ def run_sweep(
         fixed,
         results_dir / settings.study_name,
         results_dir / "best" / "experiment",
+        sweep_data(config),
     )
 
 
