@@ -8,16 +8,25 @@ import json
 import subprocess
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from hysteresis_lab.analysis.loop_checks import (
     ceiling,
     check_splits,
     refit_choices,
+    round_model,
+    run_data_config,
     run_fresh_loop,
 )
+from hysteresis_lab.data.factory import build_splits
+from hysteresis_lab.effects.augment import for_model
 from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.evaluation.evaluate import scoring_start
+from hysteresis_lab.evaluation.predict import free_run
 from hysteresis_lab.evaluation.provenance import commit_stamp
+from hysteresis_lab.models.io import load_model
+from hysteresis_lab.sim.positioner import Positioner
 
 #: a small simulator run: a short multisine, two short test sines
 SMALL_DEFAULT = ["data=default", "+data.splits.n_train=4000", "+data.splits.max_test_samples=3000",
@@ -100,15 +109,37 @@ def test_refit_choice_scores_the_start_and_every_refit(loop_run):
 @pytest.mark.slow
 def test_ceiling_scores_round_0_and_the_effects_own_output(loop_run):
     """Round 0's free-run RMSE as the loop scored it; the simulator's hysteresis (undeclared)
-    acts on every test; its share of the error is a share."""
+    acts on every test; its size and share of the residual are those of its own output."""
     scored = json.loads((loop_run / "round_0" / "metrics.json").read_text())["tests"]
     rows = ceiling(loop_run, "hysteresis", 0, clip_input=50.0)
     assert [row["test"] for row in rows] == list(scored) == ["sine_10Hz", "sine_50Hz"]
-    for row in rows:
+    # the round's residual e and the hysteresis' own output d, rebuilt here: d from the
+    # simulator run noise-free with the block on and off on each test input
+    data_cfg = run_data_config(loop_run)
+    splits = build_splits(data_cfg)
+    model = load_model(round_model(loop_run, 0))
+    predictions = free_run(model, for_model(model, splits.test), model.window)
+    skip = scoring_start(model.window, splits.n_init)
+    quiet = {**data_cfg["effects"], "noise": {"enabled": False},
+             "quantisation": {"enabled": False}}
+    switched = [{**quiet, "hysteresis": {**quiet["hysteresis"], "enabled": on}}
+                for on in (True, False)]
+    for row, rec, prediction in zip(rows, splits.test, predictions, strict=True):
         assert row["rmse_free_run"] == pytest.approx(scored[row["test"]]["rmse_free_run"],
                                                      rel=1e-5)
-        assert row["effect_size_um"] > 0.05 and -1 <= row["corr"] <= 1
-        assert 0 <= row["max_cut_pct"] <= 100
+        on, off = (Positioner(effects).simulate(rec.u[:, 0], rec.fs) for effects in switched)
+        d = on - off
+        assert row["effect_size_um"] == pytest.approx(np.sqrt(np.mean(d**2)), rel=1e-6)
+        assert row["effect_size_um"] > 0.05  # the hysteresis acts on this test
+        e, d = (rec.y - prediction)[skip:, 0], d[skip:]
+        e, d = e - e.mean(), d - d.mean()
+        assert row["effect_rms"] == pytest.approx(np.sqrt(np.mean(d**2)), rel=1e-6)
+        # subtracting the best multiple of d cuts the residual by max_cut_pct, and the
+        # correlation's sign is that multiple's
+        best = (e @ d) / (d @ d)
+        cut = 1 - np.linalg.norm(e - best * d) / np.linalg.norm(e)
+        assert row["max_cut_pct"] == pytest.approx(100 * cut, rel=1e-6, abs=1e-9)
+        assert np.sign(row["corr"]) == np.sign(best) != 0
         # the same model on inputs clipped at 50 V (of 100 V) is scored, and differs
         assert row["rmse_clipped_input"] != row["rmse_free_run"]
     with pytest.raises(ConfigError, match="unknown simulator block"):

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import site
 import subprocess
 import sys
 import zipfile
@@ -19,6 +20,28 @@ def run(*args: str | Path, cwd: Path, env: dict | None = None) -> subprocess.Com
     return subprocess.run(
         [str(a) for a in args], cwd=cwd, capture_output=True, text=True, timeout=600, env=env
     )
+
+
+def inner_venv(venv: Path) -> Path:
+    """A venv of this Python that sees this environment's packages but not its
+    ``hysteresis_lab``: ``--system-site-packages`` alone would see the base interpreter's
+    site-packages, not those of a venv the tests run in. The outer site directories are
+    added as plain paths (a ``.pth`` file), so their own ``.pth`` files, e.g. an editable
+    install's finder, are not run; pip comes from there too."""
+    made = run(sys.executable, "-m", "venv", "--without-pip", venv, cwd=venv.parent)
+    assert made.returncode == 0, made.stderr[-3000:]
+    python = venv / "bin" / "python"
+    inner = run(python, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])",
+                cwd=venv.parent, env=clean_env())
+    outer = [*site.getsitepackages(), *([site.getusersitepackages()] if site.ENABLE_USER_SITE
+                                         else [])]
+    Path(inner.stdout.strip(), "outer_site_packages.pth").write_text("\n".join(outer) + "\n")
+    return python
+
+
+def clean_env() -> dict[str, str]:
+    """This environment without the checkout or the outer venv on the path."""
+    return {k: v for k, v in os.environ.items() if k not in {"PYTHONPATH", "VIRTUAL_ENV"}}
 
 
 @pytest.mark.slow
@@ -38,16 +61,15 @@ def test_an_installed_wheel_runs_its_commands_outside_the_checkout(tmp_path):
     assert {"hysteresis_lab/conf/train.yaml", "hysteresis_lab/conf/data/csv.yaml"} <= set(names)
 
     venv = tmp_path / "venv"
-    made = run(sys.executable, "-m", "venv", "--system-site-packages", venv, cwd=tmp_path)
-    assert made.returncode == 0, made.stderr[-3000:]
-    python = venv / "bin" / "python"
-    installed = run(python, "-m", "pip", "install", "--no-deps", "--no-index", wheel, cwd=tmp_path)
+    python = inner_venv(venv)
+    installed = run(python, "-m", "pip", "install", "--no-deps", "--no-index", "--force-reinstall",
+                    wheel, cwd=tmp_path, env=clean_env())
     assert installed.returncode == 0, installed.stderr[-3000:]
 
     # outside the checkout, with nothing of it on the path: only the wheel's files are used
     cwd = tmp_path / "elsewhere"
     cwd.mkdir()
-    env = {k: v for k, v in os.environ.items() if k not in {"PYTHONPATH", "VIRTUAL_ENV"}}
+    env = clean_env()
     where = run(
         python, "-c", "import hysteresis_lab; print(hysteresis_lab.__file__)", cwd=cwd, env=env
     )

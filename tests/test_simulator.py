@@ -9,6 +9,9 @@ import pytest
 import yaml
 from omegaconf import OmegaConf
 
+import hysteresis_lab as hl
+from hysteresis_lab.data.factory import build_splits
+from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.errors import ConfigError, DataError
 from hysteresis_lab.signals import multisine, sine
 from hysteresis_lab.sim import Positioner, PositionerConfig, simulate_recording
@@ -292,6 +295,37 @@ def test_default_dataset_shapes_names_and_determinism():
     np.testing.assert_array_equal(again.test[3].y, data.test[3].y)
     other = make_default_dataset(seed=1)
     assert not np.array_equal(other.train[0].u, data.train[0].u)
+
+
+def line_spectrum(u: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray]:
+    """A periodic input's spectrum on the multisine's lines (1 ... 500 Hz, every 1 Hz) and
+    the largest amplitude off them (V)."""
+    spectrum = np.fft.rfft(u[:, 0]) * 2 / len(u)
+    freqs = np.fft.rfftfreq(len(u), 1.0 / fs)
+    lines = (freqs > 0) & (freqs <= 500.0) & np.isclose(freqs, np.round(freqs))
+    return spectrum[lines], np.abs(spectrum[~lines]).max()
+
+
+def test_data_default_validates_on_a_second_realisation_of_the_multisine():
+    """``data=default`` validates on a multisine of its own (README: "a second multisine
+    recording"): the training multisine's lines, flat amplitude and ±100 V peak, other random
+    phases, so not a repeat of the (periodic) training input."""
+    cfg = hl.compose("data=default", "+data.splits.n_train=40000",
+                     "+data.splits.test_frequencies=[500]", "+data.splits.max_test_samples=400")
+    splits = build_splits(DataSpec.from_config(cfg.data))
+    (train,), (val,) = splits.train, splits.val
+    assert val.name == "multisine_validation" and val.n_samples == cfg.data.splits.val_samples
+    assert not np.allclose(val.u[:, 0], train.u[: val.n_samples, 0])
+    (train_lines, train_off), (val_lines, val_off) = (
+        line_spectrum(rec.u, splits.fs) for rec in (train, val))
+    assert len(val_lines) == len(train_lines) == 500 and max(train_off, val_off) < 1e-9
+    for lines in (train_lines, val_lines):  # one amplitude on every line
+        assert np.ptp(np.abs(lines)) < 1e-9 * np.abs(lines).max()
+    assert np.abs(val_lines[0]) == pytest.approx(np.abs(train_lines[0]), rel=0.15)
+    assert np.max(np.abs(val.u)) == pytest.approx(np.max(np.abs(train.u))) == 100.0
+    # other phases: independent uniform phases differ by pi/2 on average, equal ones by 0
+    phase_gap = np.abs(np.angle(val_lines * np.conj(train_lines)))
+    assert phase_gap.mean() > 1.0
 
 
 def test_default_dataset_accepts_effects_overrides():

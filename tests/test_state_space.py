@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from conftest import optional_dependency
 from hysteresis_lab.data.segments import SegmentDataModule
 from hysteresis_lab.evaluation.predict import free_run, n_step, one_step
 from hysteresis_lab.models.io import load_model, save_model
@@ -110,7 +111,7 @@ def build_model_class(name: str):
 
 def test_onnx_step_simulates_like_the_model(untrained, tmp_path):
     """The exported step file, fed its own state, reproduces the model's free run."""
-    ort = pytest.importorskip("onnxruntime")
+    ort = optional_dependency("onnxruntime")
     from hysteresis_lab.models.export import export_onnx
 
     model, dm = untrained
