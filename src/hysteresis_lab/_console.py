@@ -11,7 +11,7 @@ import logging
 import sys
 import warnings
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 
 #: ``log.info(..., extra=SUMMARY)``: a line the terminal shows also where it shows only a
 #: summary (`terminal` with ``summary_only``: the loop's one line per round)
@@ -36,6 +36,9 @@ NOISE_LOG_LINES = (
     "HPU available:",
     "IPU available:",
     "`Trainer.fit` stopped: `max_epochs=",  # the normal end; the epoch display shows it
+    "LOCAL_RANK:",  # CUDA_VISIBLE_DEVICES of a one-device fit
+    # advice to call torch.set_float32_matmul_precision, which no setting here reaches
+    "You are using a CUDA device",
 )
 
 #: the loggers Lightning gives their own console handler on import
@@ -107,8 +110,9 @@ def route_lightning_logging() -> None:
 def terminal(summary_only: bool = False) -> Iterator[None]:
     """Run a console app's task with a tidy terminal: Lightning's lines once and without its
     noise, log lines written above a progress bar instead of into it; with ``summary_only``
-    the terminal shows only warnings, errors and the lines logged with `SUMMARY` (the log
-    file keeps everything). Warnings become log lines (``py.warnings``) while it runs."""
+    the terminal shows only warnings, errors, the lines logged with `SUMMARY` and the first
+    device line (the log file keeps everything). Warnings become log lines (``py.warnings``)
+    while it runs."""
     from tqdm.contrib.logging import logging_redirect_tqdm
 
     route_lightning_logging()
@@ -120,8 +124,10 @@ def terminal(summary_only: bool = False) -> Iterator[None]:
     for handler, log_filter in added:
         handler.addFilter(log_filter)
     logging.captureWarnings(True)  # warnings that pass the filters: log lines, above the bar
+    # (no console handler, e.g. hydra/job_logging=disabled: nothing to redirect, none added)
+    redirect = logging_redirect_tqdm() if console_handlers() else nullcontext()
     try:
-        with logging_redirect_tqdm():
+        with redirect:
             yield
     finally:
         logging.captureWarnings(False)
