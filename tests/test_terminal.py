@@ -70,6 +70,9 @@ def test_a_training_shows_one_progress_display_each_line_once_and_its_files_last
     assert len(bars) == 2, bars
     assert bars[0].startswith("Epoch 2/2: 100%") and "val_loss=" in bars[0]
     assert bars[1].startswith("Scoring 2 test recording(s): 100%")
+    # no log line glued to a progress bar (logging writes above the bar)
+    glued = [line for line in lines if "%|" in line and ("] - " in line or "INFO:" in line)]
+    assert not glued, glued
     for noise in ("Sanity Checking", "Validation", "Total params", "Tip:", "litlogger",
                   "TPU available", "deprecated", "v_num"):
         assert noise not in output, noise
