@@ -211,18 +211,25 @@ def test_paper_experiment_writes_table2_and_figure1(tmp_path):
     proc = run_app(*args, timeout=900)
     assert proc.returncode == 0, proc.stderr[-3000:]
     results = json.loads((tmp_path / "paper_results.json").read_text())
-    assert set(results) == {"ffnn", "lstm", "cnn", "svm"}
+    # the study's four, and this project's grey-box as a fifth column beyond the study
+    assert list(results) == ["ffnn", "lstm", "cnn", "svm", "greybox"]
     assert set(results["lstm"]["tests"]) == {"sine_1Hz", "sine_50Hz", "sine_500Hz"}
+    assert set(results["greybox"]["tests"]) == set(results["lstm"]["tests"])
     table = (tmp_path / "table2.md").read_text()
     assert "One-step-ahead prediction" in table and "Free-run simulation" in table
     assert "svm RMSE [um]" in table and "**mean**" in table
+    assert "grey-box (this project, beyond the study) RMSE [um]" in table
     rows = (tmp_path / "table2.csv").read_text().splitlines()
-    assert len(rows) == 1 + 4 * (3 + 2) * 2  # header + models x (tests + mean, std) x modes
+    assert len(rows) == 1 + 5 * (3 + 2) * 2  # header + models x (tests + mean, std) x modes
+    assert sum(row.startswith("greybox,") for row in rows) == (3 + 2) * 2
     assert (tmp_path / "figure1.png").stat().st_size > 20_000
+    output = proc.stdout + proc.stderr  # the last lines: each model's mean, then the files
+    assert "grey-box (this project, beyond the study) free-run RMSE" in output
+    assert f"run folder: {tmp_path}" in output and "table2.md, table2.csv" in output
     # run again in the same folder (a stopped run resumed): every finished fit is reused
     again = run_app(*args, timeout=900)
     assert again.returncode == 0, again.stderr[-3000:]
-    assert (again.stdout + again.stderr).count("reusing the finished fit") == 4
+    assert (again.stdout + again.stderr).count("reusing the finished fit") == 5
     assert json.loads((tmp_path / "paper_results.json").read_text()) == results
 
 

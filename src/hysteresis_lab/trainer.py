@@ -12,6 +12,7 @@ from typing import Any
 
 import lightning as L
 from lightning.pytorch.callbacks import TQDMProgressBar
+from lightning.pytorch.callbacks.progress.tqdm_progress import Tqdm, convert_inf
 from omegaconf import DictConfig, OmegaConf
 
 #: batches between progress-bar refreshes (one per batch costs a small network ~10 % of its time)
@@ -83,6 +84,31 @@ class TrainerSettings:
         return {**values, **self.extra}
 
 
+class EpochProgressBar(TQDMProgressBar):
+    """Lightning's progress bar as one line per fit: the epochs (``Epoch k/N``, ``Free-run
+    epoch k/N`` on the free-run error) with the
+    losses; no separate bars for the sanity check and the validation passes (the fits here
+    validate only to measure a loss), no logger version among the losses."""
+
+    def init_sanity_tqdm(self) -> Tqdm:
+        return Tqdm(disable=True)
+
+    def init_validation_tqdm(self) -> Tqdm:
+        return Tqdm(disable=True)  # the validation loss shows on the epoch bar
+
+    def on_train_epoch_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        bar = self.train_progress_bar
+        total = f"/{trainer.max_epochs}" if trainer.max_epochs and trainer.max_epochs > 0 else ""
+        stage = "Free-run epoch" if getattr(pl_module, "simulation_mode", False) else "Epoch"
+        bar.set_description(f"{stage} {trainer.current_epoch + 1}{total}", refresh=False)
+        bar.reset(total=convert_inf(self.total_train_batches))
+
+    def get_metrics(self, trainer: L.Trainer, pl_module: L.LightningModule) -> dict[str, Any]:
+        metrics = super().get_metrics(trainer, pl_module)
+        metrics.pop("v_num", None)
+        return metrics
+
+
 def _field_names() -> set[str]:
     return {f.name for f in dataclasses.fields(TrainerSettings)} - {"extra", "configured"}
 
@@ -94,9 +120,10 @@ def build_trainer(
 ) -> L.Trainer:
     """A Lightning ``Trainer`` from ``settings``; ``overrides`` (one stage's logger,
     checkpointing, root folder) win over them. Its progress bar, when enabled, refreshes
-    every `PROGRESS_BAR_REFRESH_BATCHES` batches."""
+    every `PROGRESS_BAR_REFRESH_BATCHES` batches and shows the epochs only
+    (`EpochProgressBar`)."""
     arguments = {**settings.trainer_arguments(), **overrides}
     all_callbacks = list(callbacks)
     if arguments.get("enable_progress_bar") is not False:
-        all_callbacks.append(TQDMProgressBar(refresh_rate=PROGRESS_BAR_REFRESH_BATCHES))
+        all_callbacks.append(EpochProgressBar(refresh_rate=PROGRESS_BAR_REFRESH_BATCHES))
     return L.Trainer(**arguments, callbacks=all_callbacks)

@@ -14,6 +14,7 @@ import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
+from hysteresis_lab._console import SUMMARY, filter_library_warnings, log_file, terminal
 from hysteresis_lab.cli._app import CONFIG_PATH, report_errors
 from hysteresis_lab.cli._overrides import exit_on_unknown_choice
 
@@ -38,6 +39,9 @@ def run(cfg: DictConfig) -> dict:
         )
     loop_settings = LoopSettings(**settings)  # checked before any data is built
     output_dir = Path(HydraConfig.get().runtime.output_dir)
+    full_log = log_file()
+    log.info("loop in %s: one line per round here%s", output_dir,
+             f", each fit's own lines in {full_log}" if full_log else "", extra=SUMMARY)
     data = DataSpec.from_config(cfg.data)
     return run_loop(
         OmegaConf.to_container(cfg.model, resolve=True),
@@ -53,11 +57,13 @@ def run(cfg: DictConfig) -> dict:
 
 @hydra.main(config_path=CONFIG_PATH, config_name="loop")
 def _main(cfg: DictConfig) -> None:
-    run(cfg)
+    with terminal(summary_only=True):
+        run(cfg)
 
 
 def main() -> None:
     """Console-script entry point."""
+    filter_library_warnings()
     exit_on_unknown_choice("loop")
     _main()
 

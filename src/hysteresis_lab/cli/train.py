@@ -13,13 +13,13 @@ The return value is the validation MSE (scaled units), the objective of sweeps.
 from __future__ import annotations
 
 import logging
-import warnings
 from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
+from hysteresis_lab._console import filter_library_warnings, terminal
 from hysteresis_lab.cli._app import CONFIG_PATH, report_errors
 from hysteresis_lab.cli._overrides import exit_on_unknown_choice
 from hysteresis_lab.errors import ConfigError
@@ -57,23 +57,45 @@ def run(cfg: DictConfig) -> float | None:
         OmegaConf.to_container(cfg.sweep_trial) if "sweep_trial" in cfg else None
     )
     result = train_from_config(cfg, output_dir, callbacks=[pruning] if pruning else None)
+    log_run_files(output_dir)
     return result.val_mse
+
+
+def log_run_files(output_dir: Path) -> None:
+    """The run's last lines: where each file it wrote is."""
+    from hysteresis_lab.run_folder import RunFolder
+
+    folder = RunFolder(output_dir)
+    model = folder.model_file()
+    figures = [folder.figure(name) for name in ("hysteresis_loops", "residuals")]
+    tensorboard = output_dir / folder.TENSORBOARD
+    checkpoints = [name for name in (folder.CHECKPOINTS, folder.FREE_RUN_CHECKPOINTS)
+                   if (output_dir / name).is_dir()]
+    logs = sorted(output_dir.glob("*.log"))
+    entries = {
+        "model": model and f"{model.name} (hysteresis-lab-evaluate checkpoint={output_dir})",
+        "scores": folder.metrics.is_file() and folder.METRICS,
+        "figures": ", ".join(path.name for path in figures if path.is_file()),
+        "TensorBoard": tensorboard.is_dir()
+        and f"{folder.TENSORBOARD}/ (tensorboard --logdir {tensorboard})",
+        "checkpoints": ", ".join(f"{name}/" for name in checkpoints),
+        "full log": logs and logs[0].name,
+    }
+    log.info("run folder: %s", output_dir)
+    for label, entry in entries.items():
+        if entry:
+            log.info("  %-12s %s", label, entry)
 
 
 @hydra.main(config_path=CONFIG_PATH, config_name="train")
 def _main(cfg: DictConfig) -> float | None:
-    return run(cfg)
+    with terminal():
+        return run(cfg)
 
 
 def main() -> None:
     """Console-script entry point."""
-    # outputs/optuna/best exists only after a finished sweep (experiment=best_<study>); until
-    # then its search-path entry is empty, which is normal, not worth a warning
-    warnings.filterwarnings(
-        "ignore",
-        message=r"provider=hydra\.searchpath in main, path=outputs/optuna/best is not",
-        category=UserWarning,
-    )
+    filter_library_warnings()
     exit_on_unknown_choice("train")
     _main()
 

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import logging
+import sys
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -37,19 +39,22 @@ def evaluate_model(
     n_init: int = 0,
     n_steps: int | None = None,
     device: str | None = None,
+    progress: bool = False,
 ) -> Evaluation:
     """One-step-ahead prediction, free-run simulation and (optionally) n-step prediction.
 
     Scores start at `scoring_start` (the initial conditions every mode takes from the
-    measurement are not scored).
+    measurement are not scored). ``progress``: a progress bar over the modes (all
+    recordings run together in each).
     """
     check_n_step(n_steps)  # before the other modes' work, not after it
-    modes: dict[str, list[np.ndarray]] = {
-        "one_step": one_step(model, recordings, window),
-        "free_run": free_run(model, recordings, window, device=device),
+    runs: dict[str, Callable[[], list[np.ndarray]]] = {
+        "one_step": lambda: one_step(model, recordings, window),
+        "free_run": lambda: free_run(model, recordings, window, device=device),
     }
     if n_steps is not None:
-        modes[f"{int(n_steps)}_step"] = n_step(model, recordings, window, int(n_steps))
+        runs[f"{int(n_steps)}_step"] = lambda: n_step(model, recordings, window, int(n_steps))
+    modes = _run_modes(runs, len(recordings), progress)
     n_skip = scoring_start(window, n_init)
     result = Evaluation()
     for position, rec in enumerate(recordings):
@@ -70,3 +75,22 @@ def evaluate_model(
             metrics["r2_free_run"],
         )
     return result
+
+
+def _run_modes(
+    runs: dict[str, Callable[[], list[np.ndarray]]], n_recordings: int, progress: bool
+) -> dict[str, list[np.ndarray]]:
+    """Each mode's predictions, with a progress bar over the modes when ``progress``."""
+    from tqdm import tqdm
+
+    modes: dict[str, list[np.ndarray]] = {}
+    with tqdm(total=len(runs), desc=f"Scoring {n_recordings} test recording(s)", unit="mode",
+              disable=not progress, file=sys.stdout, dynamic_ncols=True,
+              bar_format="{desc}: {percentage:3.0f}%|{bar}| {n}/{total} modes "
+              "[{elapsed}{postfix}]") as bar:
+        for mode, run in runs.items():
+            bar.set_postfix_str(mode.replace("_", "-"))
+            modes[mode] = run()
+            bar.update()
+        bar.set_postfix_str("done")
+    return modes

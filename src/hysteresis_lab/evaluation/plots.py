@@ -55,13 +55,16 @@ def loops_figure(
     predictions: Mapping[str, Mapping[str, np.ndarray]],
     title: str = "",
     max_points: int = 4000,
+    labels: Mapping[str, str] | None = None,
 ) -> Figure:
     """Figure-1-style grid: measured and predicted output against input, one panel per test
     recording and output (each output drawn against the input that drives it most).
 
     ``predictions[recording name][mode]`` is an (N, ny) array; modes are drawn in their own
     colour (free run solid red, one-step dashed orange), the measurement in black.
+    ``labels``: the legend's name of a key of ``predictions`` (else the key, ``_`` as spaces).
     """
+    labels = labels or {}
     panels, cols = _panels(recordings)
     fig, axes = _grid(len(panels), cols=cols)
     for ax, (rec, output) in zip(axes.flat, panels, strict=False):
@@ -77,7 +80,7 @@ def loops_figure(
                 color=color,
                 ls=style,
                 lw=0.9,
-                label=mode.replace("_", " "),
+                label=labels.get(mode, mode.replace("_", " ")),
             )
         ax.set_title(rec.output_label(output), fontsize=9)
         u_name = f"{rec.u_names[source]} " if rec.nu > 1 else "u "

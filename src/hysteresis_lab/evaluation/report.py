@@ -42,18 +42,23 @@ def write_json(document: Mapping[str, Any], path: Path) -> Path:
     return path
 
 
-def table2_markdown(results: Mapping[str, Mapping[str, Any]]) -> str:
+def table2_markdown(
+    results: Mapping[str, Mapping[str, Any]], labels: Mapping[str, str] | None = None
+) -> str:
     """Table-2-style markdown: R² and RMSE per test signal for every model, one table per mode.
 
-    ``results`` maps model name to its metrics document (see `metrics_document`).
+    ``results`` maps model name to its metrics document (see `metrics_document`); ``labels``
+    names a model's columns (else its name).
     """
     models = list(results)
+    names = {m: (labels or {}).get(m, m) for m in models}
     tests = list(next(iter(results.values()))["tests"])
     unit = next(iter(results.values()))["units"].get("y", "")
     lines: list[str] = []
     for mode in MODES:
         lines += [f"### {MODE_TITLES[mode]}", ""]
-        header = ["test"] + [f"{m} R²" for m in models] + [f"{m} RMSE [{unit}]" for m in models]
+        header = (["test"] + [f"{names[m]} R²" for m in models]
+                  + [f"{names[m]} RMSE [{unit}]" for m in models])
         lines.append("| " + " | ".join(header) + " |")
         lines.append("|" + "---|" * len(header))
         rows = [(name, lambda doc, name=name: doc["tests"].get(name, {})) for name in tests]
@@ -67,11 +72,15 @@ def table2_markdown(results: Mapping[str, Mapping[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-def write_table2(results: Mapping[str, Mapping[str, Any]], directory: Path) -> tuple[Path, Path]:
-    """Write ``table2.md`` and the long-format ``table2.csv`` (model, test, mode, r2, rmse)."""
+def write_table2(
+    results: Mapping[str, Mapping[str, Any]], directory: Path,
+    labels: Mapping[str, str] | None = None,
+) -> tuple[Path, Path]:
+    """Write ``table2.md`` (columns named by ``labels``, see `table2_markdown`) and the
+    long-format ``table2.csv`` (model, test, mode, r2, rmse)."""
     directory.mkdir(parents=True, exist_ok=True)
     md_path = directory / "table2.md"
-    md_path.write_text(table2_markdown(results))
+    md_path.write_text(table2_markdown(results, labels))
     csv_path = directory / "table2.csv"
     with csv_path.open("w", newline="") as handle:
         writer = csv.writer(handle)

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from hysteresis_lab import fit_record
+from hysteresis_lab._console import SUMMARY
 from hysteresis_lab.analysis.diagnosis import TESTS, EffectScore, diagnose, evidence_lags
 from hysteresis_lab.analysis.excitation import operator_excitation
 from hysteresis_lab.analysis.loop_figures import ResidualEvidence
@@ -50,7 +51,13 @@ from hysteresis_lab.run_folder import LoopFolder, RunFolder
 from hysteresis_lab.trainer import TrainerSettings
 from hysteresis_lab.workflows.loop_advice import excitation_advice
 from hysteresis_lab.workflows.loop_data import LoopData, Stretch, loop_data
-from hysteresis_lab.workflows.loop_report import loop_markdown, start_label, write_round_figures
+from hysteresis_lab.workflows.loop_report import (
+    loop_markdown,
+    result_line,
+    round_line,
+    start_label,
+    write_round_figures,
+)
 from hysteresis_lab.workflows.pipeline import RunResult, evaluation_device, train_and_evaluate
 
 log = logging.getLogger(__name__)
@@ -258,6 +265,8 @@ def _run_rounds(run: _LoopRun, state: _LoopState) -> None:
         goes_on = goes_on and _choose_next_effect(run, state, entry)
         write_round_figures(run.folder, number, entry, state.evidence, run.context,
                             run.settings.min_score)
+        report = {"units": {"y": run.data.fit.test[0].y_units}, "rounds": state.rounds}
+        log.info("%s", round_line(report, number), extra=SUMMARY)
         if not goes_on:
             return
 
@@ -388,14 +397,16 @@ def _choose_next_effect(run: _LoopRun, state: _LoopState, entry: dict[str, Any])
 
 
 def _write_report(run: _LoopRun, state: _LoopState, report: dict[str, Any]) -> None:
-    """``loop_report.json`` / ``.md``, the before/after figure, and the report in the log."""
+    """``loop_report.json`` / ``.md`` and the before/after figure; the result and where the
+    report is, in the log."""
     write_json(report, run.folder.report_json)
-    markdown = loop_markdown(report)
-    run.folder.report_md.write_text(markdown)
+    run.folder.report_md.write_text(loop_markdown(report))
     if state.kept:
         _before_after_figure(run.data.fit, state.kept[0][0], state.kept[-1][0], state.rounds,
                              state.effects, run.folder.before_after_figure)
-    log.info("\n%s", markdown)
+    log.info("%s", result_line(report), extra=SUMMARY)
+    log.info("report: %s (beside it: %s, each round's fit in round_<n>/)",
+             run.folder.report_md, run.folder.REPORT_JSON, extra=SUMMARY)
 
 
 def _decision(

@@ -64,6 +64,52 @@ def _save(folder: LoopFolder, path: Any, figure: Any) -> str:
     return folder.relative(path)
 
 
+# ---------------------------------------------------------------------------- terminal
+def round_line(report: Mapping[str, Any], number: int) -> str:
+    """Round ``number`` in one terminal line: the effect it tried, the evidence that named
+    it, kept or dropped, and the held-out loss and the tests' mean free-run RMSE before ->
+    after (the start: its scores)."""
+    r, unit = report["rounds"][number], report["units"]["y"]
+    decision = r.get("decision")
+    if decision is None:
+        what = "the start, " if number == 0 else ""
+        loss = (r.get("held_out") or {}).get("loss")
+        held = "" if loss is None else f", held-out loss {loss:.4g}"
+        line = (f"round {number} ({what}effects {r['effects'] or '[]'}): test free-run RMSE "
+                f"{r['mean_rmse_free_run']:.4g} {unit}{held}")
+        return line + (f"; {r['note']}" if r.get("note") and not r.get("diagnosis") else "")
+    effect, held = decision["effect"], decision["held_out_loss"]
+    named = [d for d in report["rounds"][decision["against_round"]].get("diagnosis", [])
+             if d["effect"] == effect]
+    evidence = (f" (explained {named[0]['score']:.1%} of round {decision['against_round']}'s "
+                f"held-out residual, p {named[0]['p_value']:.2g})" if named else "")
+    after_loss = "not judged" if held["after"] is None else f"{held['after']:.4g}"
+    line = (f"round {number}: + {effect}{evidence}, "
+            f"{'kept' if decision['kept'] else 'dropped'}: held-out loss "
+            f"{held['before']:.4g} -> {after_loss}")
+    if decision["kept"] or "rejected_refit" in r:
+        before, after = before_after(report, number)
+        b, a = before["mean_rmse_free_run"], after["mean_rmse_free_run"]
+        line += f", test free-run RMSE {b:.4g} -> {a:.4g} {unit} ({_change(b, a)})"
+    return line
+
+
+def result_line(report: Mapping[str, Any]) -> str:
+    """The loop's result in one terminal line: the standing model, the tests' mean free-run
+    RMSE from the start to it, and why the loop ended."""
+    rounds, unit = report["rounds"], report["units"]["y"]
+    end = rounds[-1].get("note") if rounds else None
+    why = f"; {end}" if end else ""
+    if report.get("stopped"):
+        why = f"; stopped: {report['stopped']}"
+    if report.get("result") is None:
+        return f"no result: the start model's free run diverges{why}"
+    result = rounds[report["result"]]
+    first, last = rounds[0]["mean_rmse_free_run"], result["mean_rmse_free_run"]
+    return (f"result: round {report['result']}, effects {result['effects'] or '[]'}: test "
+            f"free-run RMSE {first:.4g} -> {last:.4g} {unit} ({_change(first, last)}){why}")
+
+
 # ---------------------------------------------------------------------------- markdown
 def loop_markdown(report: Mapping[str, Any]) -> str:
     """The notebook page: a section per round, then the result and the data roles."""

@@ -1,5 +1,9 @@
 """The study's experiment: every architecture on one data set, then Table 2 and Figure 1.
 
+The study's four (FFNN, LSTM, CNN, SVM) are joined by this project's physical grey-box model,
+a fifth column of Table 2 and a fifth curve of Figure 1 labelled as beyond the study
+(`column_label`); ``experiment=paper ~paper.models.greybox`` leaves it out.
+
 On a CPU the networks are small, so one training process cannot keep every core busy (two
 threads train an LSTM only ~1.4x faster than one). ``workers="auto"`` therefore trains the
 models in parallel processes, one per core up to the number of models, each with its share of
@@ -40,6 +44,12 @@ log = logging.getLogger(__name__)
 
 LOG_FORMAT = "[%(asctime)s][%(name)s][%(levelname)s] - %(message)s"
 PROGRESS_EVERY_S = 10.0  # a worker reports its epoch progress at most this often
+
+#: the study's architectures; any other model of ``paper.models`` is this project's own
+STUDY_MODELS = ("ffnn", "lstm", "cnn", "svm")
+#: the name a model beyond the study goes by in Table 2 and Figure 1
+DISPLAY_NAMES = {"greybox": "grey-box"}
+FIGURE1_TITLE = "Free-run simulation: measured (black) and predicted displacement against voltage"
 
 
 @dataclass
@@ -210,6 +220,22 @@ def _relay_progress(queue: Any) -> None:
         log.info("[%s] %s", key, message)
 
 
+def column_label(key: str) -> str:
+    """A model's name in Table 2 and Figure 1: the study's as they are, any other marked as
+    beyond the study (``grey-box (this project, beyond the study)``)."""
+    if key in STUDY_MODELS:
+        return key
+    return f"{DISPLAY_NAMES.get(key, key)} (this project, beyond the study)"
+
+
+def figure1(recordings: list[Any], free_run: Mapping[str, Mapping[str, np.ndarray]]) -> Any:
+    """Figure 1: each model's free run (``free_run[recording][model]``) over the measured
+    loops, one panel per test recording; the legend names the models by `column_label`."""
+    keys = {key for runs in free_run.values() for key in runs}
+    return loops_figure(recordings, free_run, title=FIGURE1_TITLE,
+                        labels={key: column_label(key) for key in keys})
+
+
 def run_paper(
     models: Mapping[str, Mapping[str, Any]],
     data: DataSpec,
@@ -267,21 +293,38 @@ def run_paper(
             relay.join(timeout=10)
         entries = {key: done[key] for key in models}  # the config's order
     documents = {key: entry.document for key, entry in entries.items()}
-    md_path, csv_path = write_table2(documents, output_dir)
-    write_json(documents, output_dir / "paper_results.json")
+    labels = {key: column_label(key) for key in documents}
+    md_path, csv_path = write_table2(documents, output_dir, labels)
+    results_path = write_json(documents, output_dir / "paper_results.json")
     free_run = {
         rec.name: {key: entry.free_run[rec.name] for key, entry in entries.items()}
         for rec in splits.test
     }
-    figure = save_figure(
-        loops_figure(
-            splits.test,
-            free_run,
-            title="Free-run simulation: measured (black) and "
-            "predicted displacement against voltage",
-        ),
-        output_dir / "figure1.png",
-    )
-    log.info("Table 2: %s, %s; Figure 1: %s", md_path, csv_path, figure)
-    log.info("\n%s", md_path.read_text())
+    figure = save_figure(figure1(splits.test, free_run), output_dir / "figure1.png")
+    _log_paper_result(documents, labels, output_dir, [md_path, csv_path, figure, results_path])
     return entries
+
+
+def _log_paper_result(
+    documents: Mapping[str, Mapping[str, Any]], labels: Mapping[str, str], output_dir: Path,
+    files: list[Path],
+) -> None:
+    """The run's last lines: each model's mean scores (Table 2's mean row), and where the
+    table, the figure and each model's run folder are."""
+    width = max(len(label) for label in labels.values())
+    log.info("Table 2, mean over the %d test recordings:",
+             len(next(iter(documents.values()))["tests"]))
+    for key, document in documents.items():
+        mean, unit = document["mean"], document["units"].get("y", "")
+        log.info("  %-*s free-run RMSE %.4g %s, one-step RMSE %.4g %s", width, labels[key],
+                 mean["rmse_free_run"], unit, mean["rmse_one_step"], unit)
+    md_path, csv_path, figure, results_path = files
+    log.info("run folder: %s", output_dir)
+    log.info("  %-12s %s, %s", "Table 2", md_path.name, csv_path.name)
+    log.info("  %-12s %s", "Figure 1", figure.name)
+    log.info("  %-12s %s", "all scores", results_path.name)
+    log.info("  %-12s %s (each a run folder: model, metrics.json, figures)", "per model",
+             ", ".join(f"{key}/" for key in documents))
+    logs = sorted(output_dir.glob("*.log"))
+    if logs:
+        log.info("  %-12s %s", "full log", logs[0].name)

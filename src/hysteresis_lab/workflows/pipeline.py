@@ -84,6 +84,12 @@ def evaluation_device(trainer: TrainerSettings) -> str:
     return "cpu"
 
 
+def shows_progress(trainer: TrainerSettings) -> bool:
+    """Whether a run shows progress bars (training's and scoring's): unless the trainer
+    settings turn Lightning's off."""
+    return trainer.enable_progress_bar is not False
+
+
 @dataclass(frozen=True)
 class RunSettings:
     """How one run trains and what it writes, beyond the model, data and trainer configs.
@@ -351,7 +357,7 @@ def _score_and_report(
     folder = RunFolder(output_dir)
     evaluation = evaluate_model(
         trained.model, data.test, window, n_init=data.n_init, n_steps=settings.n_steps,
-        device=evaluation_device(config.trainer),
+        device=evaluation_device(config.trainer), progress=shows_progress(config.trainer),
     )
     units = {"u": data.test[0].u_units, "y": data.test[0].y_units}
     rejected_refit = _keep_rejected_refit(config, data, trained, window, units)
@@ -461,7 +467,7 @@ def _reused_fit(
     window = model_window(model)
     evaluation = evaluate_model(
         model, data.test, window, n_init=data.n_init, n_steps=n_steps,
-        device=evaluation_device(trainer),
+        device=evaluation_device(trainer), progress=shows_progress(trainer),
     )
     folder = RunFolder(output_dir)
     document = folder.read_metrics()
