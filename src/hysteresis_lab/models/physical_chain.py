@@ -35,7 +35,7 @@ from hysteresis_lab.models.base import NarxModule
 log = logging.getLogger(__name__)
 
 #: most steps a fit takes back (`PhysicalChainModule.training_step`)
-MAX_STEP_BACKS = 20
+MAX_STEP_BACKS = 10
 #: the burn-in to the learned shared initial state (samples) when the data do not say
 BURN_IN_DEFAULT = 1000
 

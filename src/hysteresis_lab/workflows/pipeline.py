@@ -247,8 +247,13 @@ def _stage_trainer(
             data = baseline.append_to_splits(data, splits)
         datamodule, model = _build(stage, data, context, stage.model.effects, previous,
                                    baseline)
+        # every stage's curves under the run's TensorBoard folder, one run each
+        logger = None if not config.settings.use_tensorboard else TensorBoardLogger(
+            save_dir=str(config.output_dir / RunFolder.TENSORBOARD),
+            name=str(folder.relative_to(config.output_dir)), version="",
+            default_hp_metric=False)
         return fit(model, datamodule, config.trainer, folder,
-                   logger=_tensorboard_logger(stage), callbacks=callbacks,
+                   logger=logger, callbacks=callbacks,
                    keep_start_unless_beaten=previous is not None,
                    min_gain=config.settings.min_refit_gain)
 
