@@ -42,6 +42,8 @@ amplitudes beyond the training data as its physics does.
 from __future__ import annotations
 
 import logging
+import math
+import re
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -60,6 +62,7 @@ from hysteresis_lab.blocks import (
     estimate_mode,
     estimate_static_gain,
 )
+from hysteresis_lab.blocks._util import inv_softplus
 from hysteresis_lab.blocks.estimate import estimate_modes
 from hysteresis_lab.blocks.modal import ModalDynamics
 from hysteresis_lab.blocks.step import StepState, frozen
@@ -79,6 +82,10 @@ MAX_MIMO_MODES = 32
 #: solved by least squares a strong generic loop at the start costs more than it explains
 #: (FSM start, 14 modes: 0.39 / 0.31 / 0.37 um at 0.2, 0.37 / 0.27 / 0.34 um at 0.05)
 MIMO_BOUC_WEN_ALPHA = 0.05
+#: a hysteresis cell grown on the fitted chain starts at this hysteretic share (Bouc–Wen
+#: ``alpha`` is log-parametrised: it cannot start at zero; Adam's steps on its logarithm bring
+#: it to an O(0.1) share in a few hundred steps)
+GROWN_CELL_SHARE = 1e-3
 #: the MIMO modes' frequencies learn at this share of ``model.lr`` (`configure_optimizers`)
 MODE_FREQUENCY_LR_FACTOR = 0.02
 
@@ -99,6 +106,9 @@ class GreyBox(PhysicalChainModule):
     """Amplifier, delay, hysteresis, creep and modes in series (see the module docstring)."""
 
     carried_effects = BLOCK_EFFECTS
+    #: the hysteresis cell sits ahead of the gain and the modes: they were fitted to the
+    #: cell's absence, and the whole chain refits when it is grown
+    whole_refit_effects = ("hysteresis",)
 
     @classmethod
     def built_in_effects(cls, settings: Mapping[str, Any]) -> tuple[str, ...]:
@@ -317,9 +327,32 @@ class GreyBox(PhysicalChainModule):
             x = x + self.residual(torch.cat([v_lags, x_lags], dim=-1))[:, 0]
         return x[:, None]
 
+    @classmethod
+    def growth_stages(
+        cls, settings: Mapping[str, Any]
+    ) -> list[tuple[str, dict[str, Any], str | None]]:
+        """`PhysicalChainModule.growth_stages` with the hysteresis cell as the first effect
+        grown: the chain without its cell (``hysteresis=none``) first, then the cell from
+        (nearly) no hysteresis, then the declared effects."""
+        if settings.get("hysteresis", "bouc_wen") == "none":
+            return super().growth_stages(settings)
+        effects = [e for e in settings.get("effects") or [] if e != "hysteresis"]
+        stages = super().growth_stages({**settings, "effects": effects})
+        linear = {**stages[0][1], "hysteresis": "none"}
+        cell = ("hysteresis", dict(stages[0][1]), "hysteresis")
+        grown = [stages[0][:1] + (linear, None), cell, *stages[1:]]
+        grown[-1] = (grown[-1][0], dict(settings), grown[-1][2])
+        return grown
+
     def _start_new_parameter(self, name: str, value: torch.Tensor, previous: NarxModule) -> None:
         """A new block starts where it changes nothing: creep weights 0, a new mode at
-        weight 0 (MIMO: residues 0) beside the fitted ones."""
+        weight 0 (MIMO: residues 0) beside the fitted ones, a new hysteresis cell at (nearly)
+        no hysteresis (Bouc–Wen ``alpha`` `GROWN_CELL_SHARE`, play operators' weights that
+        share beside a unit linear weight)."""
+        cell = re.match(r"^(hysteresis|cells\.\d+)\.(raw_alpha|raw_w0|raw_weights)$", name)
+        if cell is not None:
+            self._start_new_cell_parameter(cell.group(2), value)
+            return
         if self.mimo:
             if name in ("dynamics.residues", "dynamics.quadrature"):
                 fitted = previous.get_parameter(name)
@@ -332,6 +365,16 @@ class GreyBox(PhysicalChainModule):
             self._grow_mode(previous.mode)
         elif name.startswith("creep."):
             value.zero_()
+
+    @staticmethod
+    def _start_new_cell_parameter(name: str, value: torch.Tensor) -> None:
+        """A new hysteresis cell's parameter at (nearly) no hysteresis."""
+        if name == "raw_alpha":  # log-parametrised: as near zero as it can still grow from
+            value.fill_(math.log(GROWN_CELL_SHARE / value.numel()))
+        elif name == "raw_w0":
+            value.fill_(inv_softplus(1.0))
+        else:
+            value.fill_(inv_softplus(GROWN_CELL_SHARE / value.numel()))
 
     def _grow_mode(self, fitted: SecondOrderMode) -> None:
         """The fitted modes, plus new ones at zero weight."""

@@ -19,7 +19,8 @@ constant input reaches) instead of at rest. `initial_state` is that state for th
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import logging
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -31,6 +32,10 @@ from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.base import NarxModule
 
+log = logging.getLogger(__name__)
+
+#: most steps a fit takes back (`PhysicalChainModule.training_step`)
+MAX_STEP_BACKS = 10
 #: the burn-in to the learned shared initial state (samples) when the data do not say
 BURN_IN_DEFAULT = 1000
 
@@ -48,8 +53,13 @@ class PhysicalChainModule(NarxModule):
     new_block_lr_factor = 10.0
     predicts_from_outputs = False
 
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
+    def __init__(self, *args: Any, grow: bool = True, **kwargs: Any) -> None:
+        """``grow``: declared effects are grown on the fitted linear model, one stage each
+        (`growth_stages`, `hysteresis_lab.workflows.grow`); false: trained all at once."""
         super().__init__(*args, **kwargs)
+        if not isinstance(grow, bool):
+            raise ConfigError(f"model.grow={grow!r} must be true or false. Fix: model.grow=true "
+                              "(grow the declared effects on the fitted linear model) or false.")
         #: the learned input the shared initial state settles at (None: from rest)
         self.start_input: nn.Parameter | None = None
         if (self.hparams.get("trained_on") or {}).get("shared_initial_state"):
@@ -63,11 +73,64 @@ class PhysicalChainModule(NarxModule):
         self.start_input = nn.Parameter((self.u_offset[:n] / self.u_scale[:n]).double().clone())
         self.register_buffer("burn_in", torch.tensor(int(samples or BURN_IN_DEFAULT)))
 
+    @classmethod
+    def growth_stages(
+        cls, settings: Mapping[str, Any]
+    ) -> list[tuple[str, dict[str, Any], str | None]]:
+        """The stages a declared model grows through, the way the loop grows one: the model
+        without effects first, then one declared effect more per stage, in the order the
+        physics puts them (`carried_effects`); each ``(label, settings, added effect)``, the
+        last holding every declared effect (``settings`` as given)."""
+        declared = [str(e) for e in settings.get("effects") or []]
+        order = [e for e in cls.carried_effects or () if e in declared]
+        order += [e for e in declared if e not in order]
+        stages: list[tuple[str, dict[str, Any], str | None]] = [
+            ("linear", {**settings, "effects": []}, None)]
+        for number, effect in enumerate(order):
+            grown = dict(settings) if number == len(order) - 1 else {
+                **settings, "effects": order[: number + 1]}
+            stages.append((effect, grown, effect))
+        return stages
+
     def _channel_routes(
         self, effects: Sequence[str], feature_context: dict[str, Any] | None, effect_path: str
     ) -> list[str]:
         """Effects are blocks here; their operator channels are not read."""
         return ["base"] * self.nu
+
+    # ------------------------------------------------------------------ training
+    def training_step(self, batch: Any, batch_idx: int) -> torch.Tensor | None:
+        """`NarxModule.training_step`; a step after which the free run is no longer finite
+        (a feedback force pushed past the closed loop's stability, a pole past the unit
+        circle) is taken back and the learning rates halved (`_step_back`), at most
+        `MAX_STEP_BACKS` times per fit: Adam's first steps move every new parameter by the
+        rate whatever its gradient, and one such step can leave the stable region."""
+        loss = super().training_step(batch, batch_idx)
+        if loss is not None:
+            self._last_finite = {name: p.detach().clone() for name, p in self.named_parameters()}
+        elif self._last_finite is not None and self._step_backs < MAX_STEP_BACKS:
+            self._step_back()
+        return loss
+
+    def _step_back(self) -> None:
+        """Put back the parameters of the last step whose free run was finite and halve
+        every learning rate."""
+        assert self._last_finite is not None
+        with torch.no_grad():
+            for name, parameter in self.named_parameters():
+                parameter.copy_(self._last_finite[name])
+        optimizers = self.optimizers(use_pl_optimizer=False)
+        for optimizer in optimizers if isinstance(optimizers, list) else [optimizers]:
+            for group in optimizer.param_groups:
+                group["lr"] *= 0.5
+        self._step_backs += 1
+        log.warning("a training step left the stable region (non-finite free run): taken back, "
+                    "learning rates halved (%d of at most %d)", self._step_backs,
+                    MAX_STEP_BACKS)
+
+    def on_fit_start(self) -> None:
+        self._last_finite: dict[str, torch.Tensor] | None = None
+        self._step_backs = 0
 
     # ------------------------------------------------------------------ the model
     def chain(self, v: torch.Tensor) -> torch.Tensor:  # pragma: no cover

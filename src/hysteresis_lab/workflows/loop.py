@@ -49,6 +49,7 @@ from hysteresis_lab.models.baseline import SETTING as BASELINE_SETTING
 from hysteresis_lab.models.spec import ModelSpec
 from hysteresis_lab.run_folder import LoopFolder, RunFolder
 from hysteresis_lab.trainer import TrainerSettings
+from hysteresis_lab.workflows.grow import REFIT_LR_FACTORS, refit_mode, refit_rates
 from hysteresis_lab.workflows.loop_advice import excitation_advice
 from hysteresis_lab.workflows.loop_data import LoopData, Stretch, loop_data
 from hysteresis_lab.workflows.loop_report import (
@@ -93,7 +94,7 @@ class LoopSettings:
     #: a refit runs at each of these multiples of ``model.lr`` and the one with the lowest
     #: validation free-run loss goes on to the keep-or-reject test (``model.refit_lr``, when
     #: set, is the only rate tried)
-    refit_lr_factors: tuple[float, ...] = (0.1, 1.0)
+    refit_lr_factors: tuple[float, ...] = REFIT_LR_FACTORS
     #: run again in the folder of a stopped loop (``hydra.run.dir``), each fit that finished
     #: there with the same settings, data and start is reused, not trained again
     resume: bool = True
@@ -765,11 +766,8 @@ def _refit_variants(model_cls: type | None, model_cfg: Mapping[str, Any], previo
 
 def _refit_rates(model_cfg: Mapping[str, Any], settings: LoopSettings) -> list[float]:
     """The learning rates a refit runs at: ``model.refit_lr`` if set, else the loop's
-    multiples of ``model.lr``."""
-    if model_cfg.get("refit_lr") is not None:
-        return [float(model_cfg["refit_lr"])]
-    lr = float(model_cfg.get("lr", 1e-3))
-    return [factor * lr for factor in settings.refit_lr_factors]
+    multiples of ``model.lr`` (`grow.refit_rates`)."""
+    return refit_rates(model_cfg, settings.refit_lr_factors)
 
 
 def _refit_loss(result: RunResult) -> float:
@@ -779,23 +777,9 @@ def _refit_loss(result: RunResult) -> float:
 
 
 def _refit_mode(refit: str, added: str | None, model_cls: type | None = None) -> str:
-    """``refit``, except for an effect that enters through the input block (it changes what
-    the fitted network sees, the corrected input) or acts on the output (the gain a fit
-    lowered to meet a clipped output comes back under the clip) or in its feedback, or one
-    the model class
-    names in ``whole_refit_effects`` (a dead zone ahead of linear dynamics, a restoring force
-    in their feedback): the model refits whole."""
-    if refit != "new_inputs" or added is None:
-        return refit
-    block = get_effect(added).block
-    if block in ("input", *MODEL_OUTPUT_BLOCKS):
-        log.info("'%s' acts on the model's %s: the whole model refits", added, block)
-        return "full"
-    if added in getattr(model_cls, "whole_refit_effects", ()):
-        log.info("'%s' changes what %s's dynamics were fitted to: the whole model refits",
-                 added, getattr(model_cls, "__name__", "the model"))
-        return "full"
-    return refit
+    """How a round's refit trains (`grow.refit_mode`: the whole model where the added
+    effect changes what the fitted part was fitted to)."""
+    return refit_mode(added, model_cls, refit)
 
 
 def _previous_network(results: list[RunResult]) -> Any | None:

@@ -10,6 +10,7 @@ final metrics as hparams).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
@@ -48,6 +49,7 @@ from hysteresis_lab.training import (
     check_trainer_settings,
     fit,
 )
+from hysteresis_lab.workflows.grow import TrainStage, grow, growth_stages
 
 log = logging.getLogger(__name__)
 
@@ -216,17 +218,53 @@ def run_model(
     fit_record.forget(config.output_dir)
     datamodule, model = _build(config, data, context, effects, warm_start, baseline)
     logger = _tensorboard_logger(config)
-    trained = fit(
-        model, datamodule, config.trainer, config.output_dir, logger=logger,
-        callbacks=callbacks, keep_start_unless_beaten=warm_start is not None,
-        min_gain=settings.min_refit_gain,
-    )
+    if warm_start is None and len(growth_stages(config.model)) > 1:
+        trained = grow(config.model, config.output_dir,
+                       _stage_trainer(config, splits, baseline, callbacks))
+    else:
+        trained = fit(
+            model, datamodule, config.trainer, config.output_dir, logger=logger,
+            callbacks=callbacks, keep_start_unless_beaten=warm_start is not None,
+            min_gain=settings.min_refit_gain,
+        )
     model_path = save_model(trained.model, RunFolder(config.output_dir).model_stem)
     log.info("saved %s", model_path)
     if not settings.evaluate:
         return _unscored_result(config, data, trained, datamodule.window)
     return _score_and_report(config, data, trained, datamodule.window, model_path, logger,
                              record_key)
+
+
+def _stage_trainer(
+    config: RunConfig, splits: DatasetSplits, baseline: Baseline | None,
+    callbacks: list[Any] | None,
+) -> TrainStage:
+    """Trains one growth stage (`hysteresis_lab.workflows.grow`) of ``config``'s model: its
+    settings, in its folder, warm-started from the model it grows from (None: from the
+    data), with that refit mode; the start is kept unless the refit beats it."""
+
+    def train_stage(settings: Mapping[str, Any], folder: Path, previous: Any | None,
+                    refit: str) -> TrainResult:
+        stage = dataclasses.replace(
+            config, model=dataclasses.replace(config.model, settings=dict(settings)),
+            output_dir=folder, settings=dataclasses.replace(config.settings, refit=refit))
+        folder.mkdir(parents=True, exist_ok=True)
+        data, context = augment_splits(splits, stage.model.effects)
+        if baseline is not None:
+            data = baseline.append_to_splits(data, splits)
+        datamodule, model = _build(stage, data, context, stage.model.effects, previous,
+                                   baseline)
+        # every stage's curves under the run's TensorBoard folder, one run each
+        logger = None if not config.settings.use_tensorboard else TensorBoardLogger(
+            save_dir=str(config.output_dir / RunFolder.TENSORBOARD),
+            name=str(folder.relative_to(config.output_dir)), version="",
+            default_hp_metric=False)
+        return fit(model, datamodule, config.trainer, folder,
+                   logger=logger, callbacks=callbacks,
+                   keep_start_unless_beaten=previous is not None,
+                   min_gain=config.settings.min_refit_gain)
+
+    return train_stage
 
 
 def _prepare_run(config: RunConfig) -> None:
