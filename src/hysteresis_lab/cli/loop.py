@@ -15,11 +15,13 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
 from hysteresis_lab.cli._app import CONFIG_PATH, report_errors
+from hysteresis_lab.cli._interrupt import interruptible, run_console_app
 
 log = logging.getLogger(__name__)
 
 
 @report_errors
+@interruptible(resumable=True)
 def run(cfg: DictConfig) -> dict:
     """Build the data, run the loop, return the report."""
     from hysteresis_lab.data.factory import build_splits
@@ -57,7 +59,7 @@ def _main(cfg: DictConfig) -> None:
 
 def main() -> None:
     """Console-script entry point."""
-    _main()
+    run_console_app(_main)
 
 
 if __name__ == "__main__":

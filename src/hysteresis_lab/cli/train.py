@@ -21,12 +21,14 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
 from hysteresis_lab.cli._app import CONFIG_PATH, report_errors
+from hysteresis_lab.cli._interrupt import interruptible, run_console_app
 from hysteresis_lab.errors import ConfigError
 
 log = logging.getLogger(__name__)
 
 
 @report_errors
+@interruptible(resumable=True)
 def run(cfg: DictConfig) -> float | None:
     """Run the task the composed config describes; return the sweep objective."""
     from hysteresis_lab.data.spec import DataSpec
@@ -73,7 +75,7 @@ def main() -> None:
         message=r"provider=hydra\.searchpath in main, path=outputs/optuna/best is not",
         category=UserWarning,
     )
-    _main()
+    run_console_app(_main)
 
 
 if __name__ == "__main__":
