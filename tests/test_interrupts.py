@@ -90,6 +90,21 @@ def test_a_rerun_with_other_settings_is_refused_and_one_without_resume_starts_ov
     assert len(fresh) == 1 and not set(fresh) & set(stale)  # the interrupted run's are gone
 
 
+class _Fail(L.Callback):
+    def on_train_epoch_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if trainer.current_epoch == 2:
+            raise RuntimeError("a bug")
+
+
+def test_a_fit_that_failed_leaves_nothing_to_resume(tmp_path):
+    with pytest.raises(RuntimeError, match="a bug"):
+        _train(tmp_path, 5, [_Fail()])
+    folder = RunFolder(tmp_path)
+    assert not folder.fit_in_progress.exists() and not folder.last_checkpoints()
+    _train(tmp_path, 3, [])  # other settings: not refused, nothing to resume
+    assert len(_checkpoints(tmp_path)) == 1
+
+
 def test_a_run_folder_is_held_by_one_process_at_a_time(tmp_path):
     in_use = rf"in use by another run \(process {os.getpid()}\).*Fix: "
     with hold_run_folder(tmp_path), pytest.raises(ConfigError, match=in_use), \

@@ -109,10 +109,12 @@ class EpochReporter(L.Callback):
     def __init__(self, key: str, queue: Any, every_s: float = PROGRESS_EVERY_S) -> None:
         self.key, self.queue, self.every_s = key, queue, every_s
         self.started = self.last = 0.0
+        self.first = 0  # the epoch training (re)started at: a resumed fit's are done
 
     def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         self.started = time.monotonic()
         self.last = -self.every_s
+        self.first = trainer.current_epoch
 
     def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         done, total = trainer.current_epoch + 1, trainer.max_epochs
@@ -121,7 +123,7 @@ class EpochReporter(L.Callback):
             return
         self.last = now
         elapsed = now - self.started
-        left = elapsed / done * (total - done)
+        left = elapsed / max(done - self.first, 1) * (total - done)
         val = trainer.callback_metrics.get("val_loss")
         message = f"epoch {done}/{total}, {_duration(elapsed)} elapsed, ~{_duration(left)} left"
         if val is not None:

@@ -201,7 +201,6 @@ def run_model(
 ) -> RunResult:
     """`train_and_evaluate` on a `RunConfig`: prepare the data, reuse a finished fit or
     train, then score and write the run folder."""
-    settings = config.settings
     _prepare_run(config)
     effects = config.model.effects
     baseline = baseline_of(config.model)
@@ -216,7 +215,31 @@ def run_model(
     )
     # this fit overwrites the folder's files: an older record must not vouch for them
     fit_record.forget(config.output_dir)
-    datamodule, model = _build(config, data, context, effects, warm_start, baseline)
+    try:
+        result = _train_and_score(config, data, context, warm_start, baseline, callbacks,
+                                  record_key, resume)
+    except Exception:  # an error, not an interruption: a rerun starts afresh
+        RunFolder(config.output_dir).finish_fit()
+        raise
+    RunFolder(config.output_dir).finish_fit()
+    return result
+
+
+def _train_and_score(
+    config: RunConfig,
+    data: DatasetSplits,
+    context: Any,
+    warm_start: Any | None,
+    baseline: Baseline | None,
+    callbacks: list[Any] | None,
+    record_key: str | None,
+    resume: bool,
+) -> RunResult:
+    """Build and fit the model (going on from an interrupted fit: ``resume``), save it, then
+    score it and write the run folder's documents (`RunSettings.evaluate`)."""
+    settings = config.settings
+    datamodule, model = _build(config, data, context, config.model.effects, warm_start,
+                               baseline)
     logger = _tensorboard_logger(config)
     trained = fit(
         model, datamodule, config.trainer, config.output_dir, logger=logger,
@@ -226,20 +249,19 @@ def run_model(
     model_path = save_model(trained.model, RunFolder(config.output_dir).model_stem)
     log.info("saved %s", model_path)
     if not settings.evaluate:
-        result = _unscored_result(config, data, trained, datamodule.window)
-    else:
-        result = _score_and_report(config, data, trained, datamodule.window, model_path, logger,
-                                   record_key)
-    RunFolder(config.output_dir).finish_fit()
-    return result
+        return _unscored_result(config, data, trained, datamodule.window)
+    return _score_and_report(config, data, trained, datamodule.window, model_path, logger,
+                             record_key)
 
 
 def _resume_interrupted_fit(config: RunConfig, key: str) -> bool:
     """Whether the fit goes on from the last checkpoints of an interrupted one in the output
     folder (same fingerprint ``key``); marks this fit unfinished there until it is."""
+    if not config.model.is_network:  # nothing to resume: it fits in one step
+        return False
     folder = RunFolder(config.output_dir)
     interrupted = folder.read_fit_in_progress()
-    resume = config.model.is_network and config.settings.resume and interrupted == key
+    resume = config.settings.resume and interrupted == key
     if interrupted is not None and interrupted != key and config.settings.resume:
         raise ConfigError(
             f"{config.output_dir} holds a training interrupted with other settings (model, "
@@ -247,8 +269,6 @@ def _resume_interrupted_fit(config: RunConfig, key: str) -> bool:
             f"resume it, use another folder (hydra.run.dir=...), or delete "
             f"{folder.fit_in_progress} to start over there."
         )
-    if resume:
-        log.info("%s: resuming the interrupted training there", config.output_dir)
     folder.start_fit(key)
     return resume
 
