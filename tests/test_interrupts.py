@@ -17,7 +17,7 @@ import pytest
 from helpers import data_overrides, popen_app, run_app, small_dataset
 from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.errors import ConfigError
-from hysteresis_lab.interrupts import RunInterrupted, signals_deferred, stop_on_signals
+from hysteresis_lab.interrupts import RunInterrupted, signals_deferred, stopping_on_signals
 from hysteresis_lab.run_folder import RunFolder
 from hysteresis_lab.run_lock import hold_run_folder
 from hysteresis_lab.workflows.pipeline import train_and_evaluate
@@ -135,32 +135,45 @@ def test_a_killed_runs_lock_does_not_block_the_next_run(tmp_path):
 
 @pytest.mark.parametrize(("signum", "status"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 def test_a_stop_signal_raises_run_interrupted_with_the_shells_status(signum, status):
-    before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        stop_on_signals()
-        with pytest.raises(RunInterrupted) as stopped:
-            os.kill(os.getpid(), signum)
-            time.sleep(5)  # the handler runs at once; this never ends normally
-    finally:
-        for s, handler in before.items():
-            signal.signal(s, handler)
+    with stopping_on_signals(), pytest.raises(RunInterrupted) as stopped:
+        os.kill(os.getpid(), signum)
+        time.sleep(5)  # the handler runs at once; this never ends normally
     assert stopped.value.exit_status == status and stopped.value.name == signum.name
 
 
+class _LoseASignal:
+    """``signum`` arrives in its ``__del__``, whose exceptions Python ignores (as a data
+    loader's, shutting down its workers)."""
+
+    def __init__(self, signum: int) -> None:
+        self.signum = signum
+
+    def __del__(self) -> None:
+        os.kill(os.getpid(), self.signum)
+        time.sleep(0.2)
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_stop_whose_exception_was_lost_stops_the_training_at_its_next_batch(tmp_path, signum):
+    class LoseOneAfterTheSecondEpoch(L.Callback):
+        def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+            if trainer.current_epoch == 1:
+                _LoseASignal(signum)  # collected at once: the RunInterrupted it raised is lost
+
+    counted = _CountEpochs()
+    with stopping_on_signals(), pytest.raises(RunInterrupted):
+        _train(tmp_path, 5, [LoseOneAfterTheSecondEpoch(), counted])
+    assert counted.trained <= 3  # stopped at the third epoch (its first batch) at the latest
+
+
 def test_a_signal_inside_a_deferred_block_acts_at_its_end():
-    before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
     finished = False
-    try:
-        stop_on_signals()
-        with pytest.raises(RunInterrupted) as stopped:
-            with signals_deferred():  # a checkpoint being written
-                os.kill(os.getpid(), signal.SIGTERM)
-                time.sleep(0.2)
-                finished = True
-            time.sleep(5)
-    finally:
-        for s, handler in before.items():
-            signal.signal(s, handler)
+    with stopping_on_signals(), pytest.raises(RunInterrupted) as stopped:
+        with signals_deferred():  # a checkpoint being written
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(0.2)
+            finished = True
+        time.sleep(5)
     assert finished and stopped.value.exit_status == 143
 
 

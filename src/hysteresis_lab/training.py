@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import inspect
 import logging
+import signal
 import time
 import warnings
 from collections.abc import Callable, Iterator, Mapping
@@ -17,12 +18,12 @@ import numpy as np
 import torch
 from lightning.pytorch.callbacks import EarlyStopping, LearningRateMonitor, ModelCheckpoint
 from lightning.pytorch.loggers import TensorBoardLogger
-from lightning.pytorch.utilities.exceptions import MisconfigurationException
+from lightning.pytorch.utilities.exceptions import MisconfigurationException, SIGTERMException
 
 from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.data.segments import simulation_data
 from hysteresis_lab.errors import ConfigError, DivergedError
-from hysteresis_lab.interrupts import signals_deferred
+from hysteresis_lab.interrupts import RunInterrupted, raise_if_stopped, signals_deferred
 from hysteresis_lab.models.baseline import SETTING as BASELINE_SETTING
 from hysteresis_lab.models.interface import SystemModel
 from hysteresis_lab.models.settings import Stage
@@ -272,7 +273,7 @@ def _fit_one_step(
     directory = output_dir / RunFolder.CHECKPOINTS
     last = _stage_start(directory, resume)
     checkpoint = _best_checkpoint(directory)
-    all_callbacks: list[Any] = [checkpoint, *(callbacks or [])]
+    all_callbacks: list[Any] = [checkpoint, _StopWhenAsked(), *(callbacks or [])]
     if logger is not None:
         all_callbacks.append(LearningRateMonitor(logging_interval="epoch"))
     trainer = build_trainer(
@@ -383,12 +384,27 @@ def _stage_start(directory: Path, resume: bool) -> Path | None:
 
 @contextlib.contextmanager
 def _resuming(last: Path | None) -> Iterator[None]:
-    """Lightning's warning that the checkpoint folder is not empty is no news when a stage
-    resumes from the ``last`` checkpoint in it."""
+    """A stage's training: Lightning's warning that the checkpoint folder is not empty is no
+    news when it resumes from the ``last`` checkpoint there; Lightning's own stop on SIGTERM
+    (an exit with status 0, where `RunInterrupted` got lost) is a `RunInterrupted`."""
     with warnings.catch_warnings():
         if last is not None:
             warnings.filterwarnings("ignore", message=r"Checkpoint directory .* not empty")
-        yield
+        try:
+            yield
+        except SIGTERMException:
+            raise RunInterrupted(signal.SIGTERM) from None
+
+
+class _StopWhenAsked(L.Callback):
+    """Stops training at the next batch when a stop signal's exception got lost
+    (`raise_if_stopped`)."""
+
+    def on_train_batch_end(self, *args: Any) -> None:
+        raise_if_stopped()
+
+    def on_validation_batch_end(self, *args: Any) -> None:
+        raise_if_stopped()
 
 
 class _StayStopped(L.Callback):
@@ -464,7 +480,7 @@ def _fit_free_run(
     segments = simulation_data(datamodule, model, steps)
     last = _stage_start(output_dir / folder, resume)
     checkpoint = _best_checkpoint(output_dir / folder)
-    all_callbacks: list[Any] = [checkpoint, *(callbacks or [])]
+    all_callbacks: list[Any] = [checkpoint, _StopWhenAsked(), *(callbacks or [])]
     patience = model.training_settings.patience
     if patience:
         early_stopping = EarlyStopping(monitor="val_loss", mode="min", patience=patience)

@@ -15,7 +15,7 @@ from typing import Any, TypeVar
 
 from hydra.core.hydra_config import HydraConfig
 
-from hysteresis_lab.interrupts import RunInterrupted, stop_on_signals
+from hysteresis_lab.interrupts import RunInterrupted, stop_on_signals, stop_signal
 from hysteresis_lab.run_folder import RunFolder
 from hysteresis_lab.run_lock import hold_run_folder
 
@@ -37,10 +37,17 @@ def interruptible(resumable: bool) -> Callable[[Callable[..., T]], Callable[...,
             stop_on_signals()
             try:
                 with hold_run_folder(output_dir):
-                    return task(cfg, *args, **kwargs)
+                    result = task(cfg, *args, **kwargs)
             except RunInterrupted as exc:
                 log.error("%s", interrupted_message(exc, output_dir, resumable))
                 sys.exit(exc.exit_status)
+            late = stop_signal()  # its exception was lost, and the run finished
+            if late is not None:
+                stopped = RunInterrupted(late)
+                log.error("stopped by %s as the run ended (exit status %d); %s holds its "
+                          "complete results", stopped.name, stopped.exit_status, output_dir)
+                sys.exit(stopped.exit_status)
+            return result
 
         return wrapper
 
