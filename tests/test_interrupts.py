@@ -90,6 +90,38 @@ def test_a_rerun_with_other_settings_is_refused_and_one_without_resume_starts_ov
     assert len(fresh) == 1 and not set(fresh) & set(stale)  # the interrupted run's are gone
 
 
+class _Frozen(L.Callback):
+    """Learning rate 0: the validation loss never improves, so early stopping (patience 1)
+    ends the stage after its second epoch."""
+
+    def on_train_epoch_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        for group in trainer.optimizers[0].param_groups:
+            group["lr"] = 0.0
+
+
+class _StopAtTheEnd(L.Callback):
+    def on_fit_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        raise RunInterrupted(signal.SIGINT)
+
+
+def test_a_stage_that_early_stopping_ended_trains_no_further_epoch_when_resumed(tmp_path):
+    free_run = {**FFNN, "objective": "simulation", "horizon": 20, "patience": 1}
+
+    def train(callbacks):
+        return train_and_evaluate(
+            free_run, DATA, TRAINER.with_changes(max_epochs=10), tmp_path,
+            splits=narx_data(600), use_tensorboard=False, plots=False, callbacks=callbacks,
+        )
+
+    first = _CountEpochs()
+    with pytest.raises(RunInterrupted):
+        train([_Frozen(), first, _StopAtTheEnd()])
+    assert first.trained == 2  # stopped early, then interrupted before the fit was saved
+    resumed = _CountEpochs()
+    train([_Frozen(), resumed])
+    assert resumed.trained == 0 and RunFolder(tmp_path).model_file() is not None
+
+
 class _Fail(L.Callback):
     def on_train_epoch_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         if trainer.current_epoch == 2:

@@ -50,6 +50,8 @@ class RunFolder:
     FREE_RUN_CHECKPOINTS: ClassVar[str] = "checkpoints_free_run"
     #: Lightning's checkpoint of a stage's last finished epoch (what a rerun resumes from)
     LAST_CHECKPOINT: ClassVar[str] = "last.ckpt"
+    #: ``last.ckpt`` while it is written (a killed process may leave it)
+    PARTIAL_CHECKPOINT: ClassVar[str] = "last.partial.ckpt"
     FIT_IN_PROGRESS: ClassVar[str] = "fit_in_progress.json"
     LOCK: ClassVar[str] = "run.lock"
 
@@ -88,9 +90,11 @@ class RunFolder:
         return self.path / self.LOCK
 
     def last_checkpoints(self) -> list[Path]:
-        """The stages' ``last.ckpt`` files (those of an unfinished fit)."""
+        """The stages' ``last.ckpt`` files (those of an unfinished fit) and any partly
+        written one."""
         stages = (self.CHECKPOINTS, self.FREE_RUN_CHECKPOINTS)
-        found = (self.path / stage / self.LAST_CHECKPOINT for stage in stages)
+        names = (self.LAST_CHECKPOINT, self.PARTIAL_CHECKPOINT)
+        found = (self.path / stage / name for stage in stages for name in names)
         return [path for path in found if path.is_file()]
 
     def figure(self, name: str) -> Path:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import inspect
 import logging
+import os
 import signal
 import time
 import warnings
@@ -16,7 +17,12 @@ from typing import Any
 import lightning as L
 import numpy as np
 import torch
-from lightning.pytorch.callbacks import EarlyStopping, LearningRateMonitor, ModelCheckpoint
+from lightning.pytorch.callbacks import (
+    Checkpoint,
+    EarlyStopping,
+    LearningRateMonitor,
+    ModelCheckpoint,
+)
 from lightning.pytorch.loggers import TensorBoardLogger
 from lightning.pytorch.utilities.exceptions import MisconfigurationException, SIGTERMException
 
@@ -273,7 +279,8 @@ def _fit_one_step(
     directory = output_dir / RunFolder.CHECKPOINTS
     last = _stage_start(directory, resume)
     checkpoint = _best_checkpoint(directory)
-    all_callbacks: list[Any] = [checkpoint, _StopWhenAsked(), *(callbacks or [])]
+    all_callbacks: list[Any] = [checkpoint, _LastEpoch(directory), _StopWhenAsked(),
+                                *(callbacks or [])]
     if logger is not None:
         all_callbacks.append(LearningRateMonitor(logging_interval="epoch"))
     trainer = build_trainer(
@@ -343,16 +350,32 @@ def _check_max_epochs(settings: TrainerSettings) -> None:
 
 
 def _best_checkpoint(directory: Path) -> ModelCheckpoint:
-    """Keeps the one checkpoint with the lowest ``val_loss``, and the last epoch's as
-    ``last.ckpt`` (to resume an interrupted fit from; `RunFolder.finish_fit` deletes it)."""
+    """Keeps the one checkpoint with the lowest ``val_loss``."""
     return _CheckpointWrittenWhole(
         dirpath=directory,
         filename="best-{epoch:03d}-{val_loss:.3e}",
         monitor="val_loss",
         mode="min",
         save_top_k=1,
-        save_last=True,
+        save_last=False,
     )
+
+
+class _LastEpoch(Checkpoint):
+    """Writes the training state after every epoch to ``last.ckpt`` in ``directory``, what an
+    interrupted fit resumes from (`RunFolder.finish_fit` deletes it). A `Checkpoint`, so that
+    Lightning calls it after the best checkpoint's callback and early stopping, whose state it
+    keeps; the file is replaced whole, and a stop signal waits for it
+    (Lightning's own ``save_last`` writes only epochs that improved)."""
+
+    def __init__(self, directory: Path) -> None:
+        self.path = Path(directory) / RunFolder.LAST_CHECKPOINT
+
+    def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        partial = self.path.with_name(RunFolder.PARTIAL_CHECKPOINT)
+        with signals_deferred():
+            trainer.save_checkpoint(partial)
+            os.replace(partial, self.path)
 
 
 class _CheckpointWrittenWhole(ModelCheckpoint):
@@ -480,7 +503,8 @@ def _fit_free_run(
     segments = simulation_data(datamodule, model, steps)
     last = _stage_start(output_dir / folder, resume)
     checkpoint = _best_checkpoint(output_dir / folder)
-    all_callbacks: list[Any] = [checkpoint, _StopWhenAsked(), *(callbacks or [])]
+    all_callbacks: list[Any] = [checkpoint, _LastEpoch(output_dir / folder), _StopWhenAsked(),
+                                *(callbacks or [])]
     patience = model.training_settings.patience
     if patience:
         early_stopping = EarlyStopping(monitor="val_loss", mode="min", patience=patience)
