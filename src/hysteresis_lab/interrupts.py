@@ -15,6 +15,7 @@ import functools
 import os
 import signal
 import sys
+import threading
 from collections.abc import Iterator
 from types import FrameType
 from typing import Any
@@ -70,8 +71,10 @@ def _quiet_when_lost(unraisable: Any, *, fallback: Any = None) -> None:
 
 
 def stop_on_signals(signals: tuple[int, ...] = STOP_SIGNALS) -> dict[int, Any]:
-    """``signals`` raise `RunInterrupted` from now on (call in the main thread); returns the
-    handlers they had."""
+    """``signals`` raise `RunInterrupted` from now on; returns the handlers they had. Only the
+    main thread handles signals: called in another (a launcher's), it changes nothing."""
+    if threading.current_thread() is not threading.main_thread():
+        return {}
     _State.stopping, _State.pending, _State.pid = None, None, os.getpid()
     previous = {signum: signal.getsignal(signum) for signum in signals}
     for signum in signals:
