@@ -12,6 +12,10 @@ on disk, named in one place.
       hysteresis_loops.png, residuals.png
       tensorboard/                      TensorBoard logs (``logger=none``: absent)
       checkpoints/, checkpoints_free_run/   Lightning's best-epoch checkpoints of each stage
+                                        (and its last.ckpt while the fit is unfinished)
+      fit_in_progress.json              a fit that has not finished: its fingerprint, so that
+                                        a rerun resumes it from the last.ckpt files
+      run.lock                          held (flock) by the process that runs in the folder
 
 `pipeline` writes it, the loop sets a losing refit aside in it, `hysteresis-lab-evaluate` and
 the benchmark scripts read it: all through `RunFolder`.
@@ -44,6 +48,12 @@ class RunFolder:
     CHECKPOINTS: ClassVar[str] = "checkpoints"
     #: the free-run fine-tuning stage's (after a one-step stage)
     FREE_RUN_CHECKPOINTS: ClassVar[str] = "checkpoints_free_run"
+    #: Lightning's checkpoint of a stage's last finished epoch (what a rerun resumes from)
+    LAST_CHECKPOINT: ClassVar[str] = "last.ckpt"
+    #: ``last.ckpt`` while it is written (a killed process may leave it)
+    PARTIAL_CHECKPOINT: ClassVar[str] = "last.partial.ckpt"
+    FIT_IN_PROGRESS: ClassVar[str] = "fit_in_progress.json"
+    LOCK: ClassVar[str] = "run.lock"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "path", Path(self.path))
@@ -71,6 +81,22 @@ class RunFolder:
     def rejected_refit_metrics(self) -> Path:
         return self.path / self.REJECTED_REFIT_METRICS
 
+    @property
+    def fit_in_progress(self) -> Path:
+        return self.path / self.FIT_IN_PROGRESS
+
+    @property
+    def lock(self) -> Path:
+        return self.path / self.LOCK
+
+    def last_checkpoints(self) -> list[Path]:
+        """The stages' ``last.ckpt`` files (those of an unfinished fit) and any partly
+        written one."""
+        stages = (self.CHECKPOINTS, self.FREE_RUN_CHECKPOINTS)
+        names = (self.LAST_CHECKPOINT, self.PARTIAL_CHECKPOINT)
+        found = (self.path / stage / name for stage in stages for name in names)
+        return [path for path in found if path.is_file()]
+
     def figure(self, name: str) -> Path:
         """A figure of the run (``hysteresis_loops``, ``residuals``) as PNG."""
         return self.path / f"{name}.png"
@@ -84,6 +110,22 @@ class RunFolder:
         return _first_existing(self.rejected_refit_stem, self.MODEL_SUFFIXES)
 
     # ------------------------------------------------------------------ documents
+    def read_fit_in_progress(self) -> str | None:
+        """The fingerprint of the unfinished fit in the folder, None when there is none."""
+        try:
+            return str(json.loads(self.fit_in_progress.read_text())["fingerprint"])
+        except (OSError, ValueError, KeyError, TypeError):
+            return None
+
+    def start_fit(self, fingerprint: str) -> None:
+        """Mark a fit with ``fingerprint`` unfinished (until `finish_fit`)."""
+        write_json({"fingerprint": fingerprint}, self.fit_in_progress)
+
+    def finish_fit(self) -> None:
+        """The fit finished: nothing to resume, so its ``last.ckpt`` files and mark go."""
+        for path in [*self.last_checkpoints(), self.fit_in_progress]:
+            path.unlink(missing_ok=True)
+
     def read_metrics(self) -> dict[str, Any]:
         return json.loads(self.metrics.read_text())
 

@@ -5,7 +5,10 @@ from __future__ import annotations
 import contextlib
 import inspect
 import logging
+import os
+import signal
 import time
+import warnings
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -14,13 +17,19 @@ from typing import Any
 import lightning as L
 import numpy as np
 import torch
-from lightning.pytorch.callbacks import EarlyStopping, LearningRateMonitor, ModelCheckpoint
+from lightning.pytorch.callbacks import (
+    Checkpoint,
+    EarlyStopping,
+    LearningRateMonitor,
+    ModelCheckpoint,
+)
 from lightning.pytorch.loggers import TensorBoardLogger
-from lightning.pytorch.utilities.exceptions import MisconfigurationException
+from lightning.pytorch.utilities.exceptions import MisconfigurationException, SIGTERMException
 
 from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.data.segments import simulation_data
 from hysteresis_lab.errors import ConfigError, DivergedError
+from hysteresis_lab.interrupts import RunInterrupted, raise_if_stopped, signals_deferred
 from hysteresis_lab.models.baseline import SETTING as BASELINE_SETTING
 from hysteresis_lab.models.interface import SystemModel
 from hysteresis_lab.models.settings import Stage
@@ -96,6 +105,7 @@ def fit(
     one_step: bool = True,
     keep_start_unless_beaten: bool = False,
     min_gain: float = 0.0,
+    resume: bool = False,
 ) -> TrainResult:
     """Fit ``model``; nets keep the checkpoint with the best validation loss.
 
@@ -104,6 +114,9 @@ def fit(
     ``keep_start_unless_beaten`` (a warm-started refit): the weights ``model`` starts with
     are kept unless training beats them on the validation free-run loss (one-step MSE with
     the one-step objective) by more than the share ``min_gain``.
+    ``resume``: each stage goes on from its ``last.ckpt`` in ``output_dir`` (an interrupted
+    fit of the same model and settings); without it, or without that file, the stage starts
+    afresh and the checkpoints an earlier fit left in its folder are deleted first.
     """
     if isinstance(model, L.LightningModule):
         _check_max_epochs(settings)
@@ -112,7 +125,7 @@ def fit(
         if keep_start_unless_beaten and isinstance(model, L.LightningModule)
         else None
     )
-    result = _fit(model, datamodule, settings, output_dir, logger, callbacks, one_step)
+    result = _fit(model, datamodule, settings, output_dir, logger, callbacks, one_step, resume)
     if start is not None:
         _keep_start_unless_beaten(result, start, datamodule, settings, min_gain)
     return result
@@ -180,6 +193,7 @@ def _fit(
     logger: TensorBoardLogger | None,
     callbacks: list[Any] | None,
     one_step: bool,
+    resume: bool = False,
 ) -> TrainResult:
     """`fit` without the comparison with the starting weights."""
     datamodule.setup()
@@ -202,7 +216,7 @@ def _fit(
         model.stage_lr = stage_lr(model, "simulation")
         best, _, val_mse = _fit_free_run(
             *stages, steps, int(settings.max_epochs), callbacks, RunFolder.CHECKPOINTS,
-            starting_checkpoint=None, keep_start=True, finite_start=True,
+            starting_checkpoint=None, keep_start=True, finite_start=True, resume=resume,
         )
         model.stage_lr = None
         seconds = time.perf_counter() - start
@@ -212,19 +226,20 @@ def _fit(
         model.stage_lr = stage_lr(model, "fine_tune")
         best, improved, val_mse = _fit_free_run(
             *stages, steps, int(fine_tune_epochs), None, RunFolder.FREE_RUN_CHECKPOINTS,
-            starting_checkpoint=None, keep_start=True,
+            starting_checkpoint=None, keep_start=True, resume=resume,
         )
         if not improved:  # the new inputs were not learned: refit from the warm start
             log.info("refitting the warm-started network on the one-step error first")
             one_step = True
+            resume = False  # the free-run folder holds that first stage's checkpoints
     if one_step or steps == 0:
         model.stage_lr = stage_lr(model, "one_step")
-        best, val_mse = _fit_one_step(*stages, callbacks)
+        best, val_mse = _fit_one_step(*stages, callbacks, resume)
         if steps > 0:
             model.stage_lr = stage_lr(model, "fine_tune")
             best, _, val_mse = _fit_free_run(
                 *stages, steps, int(fine_tune_epochs), None, RunFolder.FREE_RUN_CHECKPOINTS,
-                starting_checkpoint=best, keep_start=True,
+                starting_checkpoint=best, keep_start=True, resume=resume,
             )
     model.stage_lr = None
     seconds = time.perf_counter() - start
@@ -258,10 +273,14 @@ def _fit_one_step(
     output_dir: Path,
     logger: TensorBoardLogger | None,
     callbacks: list[Any] | None,
+    resume: bool = False,
 ) -> tuple[Path | None, float]:
     """The study's training on the one-step error; the best checkpoint's path and loss."""
-    checkpoint = _best_checkpoint(output_dir / RunFolder.CHECKPOINTS)
-    all_callbacks: list[Any] = [checkpoint, *(callbacks or [])]
+    directory = output_dir / RunFolder.CHECKPOINTS
+    last = _stage_start(directory, resume)
+    checkpoint = _best_checkpoint(directory)
+    all_callbacks: list[Any] = [checkpoint, _LastEpoch(directory), _StopWhenAsked(),
+                                *(callbacks or [])]
     if logger is not None:
         all_callbacks.append(LearningRateMonitor(logging_interval="epoch"))
     trainer = build_trainer(
@@ -270,7 +289,8 @@ def _fit_one_step(
         logger=logger if logger is not None else False,
         default_root_dir=str(output_dir),
     )
-    trainer.fit(model, datamodule=datamodule)
+    with _resuming(last):
+        trainer.fit(model, datamodule=datamodule, ckpt_path=last)
     best, val_mse = _restore_best(model, checkpoint)
     log.info("best validation MSE %.4e (scaled); checkpoint %s", val_mse, best)
     return best, val_mse
@@ -331,7 +351,7 @@ def _check_max_epochs(settings: TrainerSettings) -> None:
 
 def _best_checkpoint(directory: Path) -> ModelCheckpoint:
     """Keeps the one checkpoint with the lowest ``val_loss``."""
-    return ModelCheckpoint(
+    return _CheckpointWrittenWhole(
         dirpath=directory,
         filename="best-{epoch:03d}-{val_loss:.3e}",
         monitor="val_loss",
@@ -339,6 +359,87 @@ def _best_checkpoint(directory: Path) -> ModelCheckpoint:
         save_top_k=1,
         save_last=False,
     )
+
+
+class _LastEpoch(Checkpoint):
+    """Writes the training state after every epoch to ``last.ckpt`` in ``directory``, what an
+    interrupted fit resumes from (`RunFolder.finish_fit` deletes it). A `Checkpoint`, so that
+    Lightning calls it after the best checkpoint's callback and early stopping, whose state it
+    keeps; the file is replaced whole, and a stop signal waits for it
+    (Lightning's own ``save_last`` writes only epochs that improved)."""
+
+    def __init__(self, directory: Path) -> None:
+        self.path = Path(directory) / RunFolder.LAST_CHECKPOINT
+
+    def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        partial = self.path.with_name(RunFolder.PARTIAL_CHECKPOINT)
+        with signals_deferred():
+            trainer.save_checkpoint(partial)
+            os.replace(partial, self.path)
+
+
+class _CheckpointWrittenWhole(ModelCheckpoint):
+    """A `ModelCheckpoint` that a stop signal does not interrupt while it writes (and
+    deletes the best it replaces): an interrupted run keeps whole checkpoints, and no best
+    beside the new one."""
+
+    def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        with signals_deferred():
+            super().on_train_epoch_end(trainer, pl_module)
+
+    def on_validation_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        with signals_deferred():
+            super().on_validation_end(trainer, pl_module)
+
+
+def _stage_start(directory: Path, resume: bool) -> Path | None:
+    """The ``last.ckpt`` a stage resumes from (``resume`` and the file there); else None,
+    after deleting the checkpoints an earlier fit left in ``directory`` (they are not this
+    fit's, and would stay beside its best)."""
+    last = directory / RunFolder.LAST_CHECKPOINT
+    if resume and last.is_file():
+        log.info("resuming the interrupted training from %s", last)
+        return last
+    for stale in directory.glob("*.ckpt"):
+        stale.unlink()
+    return None
+
+
+@contextlib.contextmanager
+def _resuming(last: Path | None) -> Iterator[None]:
+    """A stage's training: Lightning's warning that the checkpoint folder is not empty is no
+    news when it resumes from the ``last`` checkpoint there; Lightning's own stop on SIGTERM
+    (an exit with status 0, where `RunInterrupted` got lost) is a `RunInterrupted`."""
+    with warnings.catch_warnings():
+        if last is not None:
+            warnings.filterwarnings("ignore", message=r"Checkpoint directory .* not empty")
+        try:
+            yield
+        except SIGTERMException:
+            raise RunInterrupted(signal.SIGTERM) from None
+
+
+class _StopWhenAsked(L.Callback):
+    """Stops training at the next batch when a stop signal's exception got lost
+    (`raise_if_stopped`)."""
+
+    def on_train_batch_end(self, *args: Any) -> None:
+        raise_if_stopped()
+
+    def on_validation_batch_end(self, *args: Any) -> None:
+        raise_if_stopped()
+
+
+class _StayStopped(L.Callback):
+    """A stage resumed after early stopping had ended it trains no further epoch (Lightning
+    does not keep ``should_stop`` in a checkpoint, only the early stopping's state)."""
+
+    def __init__(self, early_stopping: EarlyStopping) -> None:
+        self.early_stopping = early_stopping
+
+    def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if self.early_stopping.stopped_epoch > 0:
+            trainer.should_stop = True
 
 
 def _scaled_predictor(model: L.LightningModule) -> Callable[[np.ndarray], np.ndarray]:
@@ -385,6 +486,7 @@ def _fit_free_run(
     starting_checkpoint: Path | None,
     keep_start: bool,
     finite_start: bool = False,
+    resume: bool = False,
 ) -> tuple[Path | None, bool, float]:
     """Simulation-error training: minimise the free-run MSE over ``steps``-sample segments.
 
@@ -394,15 +496,19 @@ def _fit_free_run(
     starting weights are a candidate too (a fitted network, or a model started from the
     data): when no epoch beat them on that loss, they stay and ``starting_checkpoint`` and
     False are returned. ``finite_start``: an initial model whose free run is not finite is
-    an error (the model trains from it alone). Returns the checkpoint, whether training
+    an error (the model trains from it alone). ``resume``: go on from the stage's
+    ``last.ckpt`` when there is one (see `fit`). Returns the checkpoint, whether training
     improved on the start, and the validation free-run MSE (scaled) of the weights kept.
     """
     segments = simulation_data(datamodule, model, steps)
+    last = _stage_start(output_dir / folder, resume)
     checkpoint = _best_checkpoint(output_dir / folder)
-    all_callbacks: list[Any] = [checkpoint, *(callbacks or [])]
+    all_callbacks: list[Any] = [checkpoint, _LastEpoch(output_dir / folder), _StopWhenAsked(),
+                                *(callbacks or [])]
     patience = model.training_settings.patience
     if patience:
-        all_callbacks.append(EarlyStopping(monitor="val_loss", mode="min", patience=patience))
+        early_stopping = EarlyStopping(monitor="val_loss", mode="min", patience=patience)
+        all_callbacks += [early_stopping, _StayStopped(early_stopping)]
     # feedback through many steps: keep updates bounded
     clip = 1.0 if settings.gradient_clip_val is None else settings.gradient_clip_val
     stage_settings = settings.with_changes(max_epochs=epochs, gradient_clip_val=clip)
@@ -430,7 +536,8 @@ def _fit_free_run(
                 "scaling (data.scaling) and the model's initial settings."
             )
         try:
-            trainer.fit(model, datamodule=segments)
+            with _resuming(last):
+                trainer.fit(model, datamodule=segments, ckpt_path=last)
         except DivergedError as exc:
             if finite_start:
                 raise

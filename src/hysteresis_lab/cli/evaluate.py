@@ -17,6 +17,7 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
 from hysteresis_lab.cli._app import CONFIG_PATH, report_errors
+from hysteresis_lab.cli._interrupt import interruptible, run_console_app
 from hysteresis_lab.cli._overrides import exit_on_unknown_choice
 from hysteresis_lab.errors import ConfigError
 
@@ -24,6 +25,7 @@ log = logging.getLogger(__name__)
 
 
 @report_errors
+@interruptible(resumable=False)
 def run(cfg: DictConfig) -> dict:
     """Load the model, score it on the data config's test recordings, write metrics.json."""
     from hysteresis_lab.data.factory import build_splits
@@ -105,7 +107,7 @@ def _main(cfg: DictConfig) -> None:
 def main() -> None:
     """Console-script entry point."""
     exit_on_unknown_choice("evaluate")
-    _main()
+    run_console_app(_main)
 
 
 if __name__ == "__main__":

@@ -16,12 +16,14 @@ from omegaconf import DictConfig, OmegaConf
 
 from hysteresis_lab._console import SUMMARY, filter_library_warnings, log_file, terminal
 from hysteresis_lab.cli._app import CONFIG_PATH, report_errors
+from hysteresis_lab.cli._interrupt import interruptible, run_console_app
 from hysteresis_lab.cli._overrides import exit_on_unknown_choice
 
 log = logging.getLogger(__name__)
 
 
 @report_errors
+@interruptible(resumable=True)
 def run(cfg: DictConfig) -> dict:
     """Build the data, run the loop, return the report."""
     from hysteresis_lab.data.factory import build_splits
@@ -65,7 +67,7 @@ def main() -> None:
     """Console-script entry point."""
     filter_library_warnings()
     exit_on_unknown_choice("loop")
-    _main()
+    run_console_app(_main)
 
 
 if __name__ == "__main__":

@@ -21,6 +21,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from hysteresis_lab._console import filter_library_warnings, terminal
 from hysteresis_lab.cli._app import CONFIG_PATH, report_errors
+from hysteresis_lab.cli._interrupt import interruptible, run_console_app
 from hysteresis_lab.cli._overrides import exit_on_unknown_choice
 from hysteresis_lab.errors import ConfigError
 
@@ -28,6 +29,7 @@ log = logging.getLogger(__name__)
 
 
 @report_errors
+@interruptible(resumable=True)
 def run(cfg: DictConfig) -> float | None:
     """Run the task the composed config describes; return the sweep objective."""
     from hysteresis_lab.data.spec import DataSpec
@@ -97,7 +99,7 @@ def main() -> None:
     """Console-script entry point."""
     filter_library_warnings()
     exit_on_unknown_choice("train")
-    _main()
+    run_console_app(_main)
 
 
 if __name__ == "__main__":

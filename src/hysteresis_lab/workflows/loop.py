@@ -239,6 +239,7 @@ def run_loop(
             use_tensorboard=use_tensorboard,
             min_refit_gain=settings.min_refit_gain,
             reuse=settings.resume,
+            resume=settings.resume,
         ),
         judge=functools.partial(held_out, data=data, device=evaluation_device(trainer)),
         folder=LoopFolder(output_dir),

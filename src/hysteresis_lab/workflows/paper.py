@@ -18,6 +18,7 @@ from __future__ import annotations
 import logging
 import multiprocessing
 import os
+import signal
 import threading
 import time
 from collections.abc import Mapping
@@ -36,6 +37,7 @@ from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.evaluation.plots import loops_figure, save_figure
 from hysteresis_lab.evaluation.report import write_json, write_table2
+from hysteresis_lab.interrupts import RunInterrupted, stopping_on_signals
 from hysteresis_lab.trainer import TrainerSettings
 from hysteresis_lab.training import check_trainer_settings, is_network, model_layout
 from hysteresis_lab.workflows.pipeline import evaluation_device, plain_dict, train_and_evaluate
@@ -104,7 +106,7 @@ def _run_job(job: _Job, callbacks: list[Any] | None = None) -> PaperEntry:
     result = train_and_evaluate(
         job.model_cfg, job.data, job.trainer, job.output_dir, seed=job.seed,
         splits=job.splits, use_tensorboard=job.use_tensorboard, reuse=job.resume,
-        callbacks=callbacks,
+        resume=job.resume, callbacks=callbacks,
     )
     free_run = {name: p["free_run"] for name, p in result.evaluation.predictions.items()}
     return PaperEntry(result.document, free_run)
@@ -117,10 +119,12 @@ class EpochReporter(L.Callback):
     def __init__(self, key: str, queue: Any, every_s: float = PROGRESS_EVERY_S) -> None:
         self.key, self.queue, self.every_s = key, queue, every_s
         self.started = self.last = 0.0
+        self.first = 0  # the epoch training (re)started at: a resumed fit's are done
 
     def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         self.started = time.monotonic()
         self.last = -self.every_s
+        self.first = trainer.current_epoch
 
     def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         done, total = trainer.current_epoch + 1, trainer.max_epochs
@@ -129,7 +133,7 @@ class EpochReporter(L.Callback):
             return
         self.last = now
         elapsed = now - self.started
-        left = elapsed / done * (total - done)
+        left = elapsed / max(done - self.first, 1) * (total - done)
         val = trainer.callback_metrics.get("val_loss")
         message = f"epoch {done}/{total}, {_duration(elapsed)} elapsed, ~{_duration(left)} left"
         if val is not None:
@@ -163,9 +167,11 @@ _progress_queue: Any = None  # the parent's progress queue, in a worker process
 
 
 def _init_worker(queue: Any) -> None:
-    """Worker process start: keep the parent's progress queue."""
+    """Worker process start: keep the parent's progress queue; leave Ctrl-C (sent to the
+    whole process group) to the parent, which stops the workers (`_stop_workers`)."""
     global _progress_queue
     _progress_queue = queue
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _run_job_in_worker(job: _Job) -> PaperEntry:
@@ -201,7 +207,8 @@ def _run_job_in_worker(job: _Job) -> PaperEntry:
         if queue is not None:
             queue.put((job.key, f"started (log: {job.output_dir / 'train.log'})"))
         reporter = [EpochReporter(job.key, queue)] if queue is not None else None
-        entry = _run_job(job, reporter)
+        with stopping_on_signals((signal.SIGTERM,)):  # the job stops where the parent asks
+            entry = _run_job(job, reporter)
         if queue is not None:
             queue.put((job.key, f"done in {_duration(time.monotonic() - started)}"))
         return entry
@@ -211,6 +218,18 @@ def _run_job_in_worker(job: _Job) -> PaperEntry:
                 root.removeHandler(handler)
                 package_log.removeHandler(handler)
                 handler.close()
+
+
+def _stop_workers(pool: ProcessPoolExecutor) -> None:
+    """Cancel the jobs not started; stop the running ones (SIGTERM: each worker's fit keeps
+    its last whole checkpoint) and wait for their workers to end."""
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in processes:
+        if process.is_alive():
+            process.terminate()
+    for process in processes:
+        process.join(timeout=60)
 
 
 def _relay_progress(queue: Any) -> None:
@@ -287,7 +306,11 @@ def run_paper(
                 processes, mp_context=context, initializer=_init_worker, initargs=(queue,)
             ) as pool:
                 futures = {job.key: pool.submit(_run_job_in_worker, job) for job in jobs}
-                done = {key: future.result() for key, future in futures.items()}
+                try:
+                    done = {key: future.result() for key, future in futures.items()}
+                except (RunInterrupted, KeyboardInterrupt):
+                    _stop_workers(pool)
+                    raise
         finally:
             queue.put(None)
             relay.join(timeout=10)

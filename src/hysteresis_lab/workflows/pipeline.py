@@ -32,7 +32,7 @@ from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.effects.augment import augment_splits, context_to_dict, warn_unshown
 from hysteresis_lab.effects.registry import check_effects
-from hysteresis_lab.errors import DataError
+from hysteresis_lab.errors import ConfigError, DataError
 from hysteresis_lab.evaluation.evaluate import Evaluation, evaluate_model, scoring_start
 from hysteresis_lab.evaluation.plots import loops_figure, residuals_figure, save_figure
 from hysteresis_lab.evaluation.predict import check_n_step
@@ -100,7 +100,10 @@ class RunSettings:
     (`NarxModule.train_new_inputs_only`), ``"full"`` every weight; the start is kept unless
     the refit beats it on validation by more than the share ``min_refit_gain``. ``reuse``: a
     fit that finished in the output folder with the same settings, data and start
-    (`hysteresis_lab.fit_record`) is loaded and scored instead of trained.
+    (`hysteresis_lab.fit_record`) is loaded and scored instead of trained. ``resume``: a
+    network fit interrupted in the output folder with the same settings, data and start goes
+    on from its last checkpoints (`RunFolder.FIT_IN_PROGRESS`); one with other settings is
+    refused; without ``resume`` it starts afresh.
     """
 
     seed: int = 0
@@ -111,6 +114,7 @@ class RunSettings:
     refit: str = "full"
     min_refit_gain: float = 0.0
     reuse: bool = False
+    resume: bool = True
 
 
 @dataclass(frozen=True)
@@ -151,6 +155,7 @@ def train_and_evaluate(
     refit: str = "full",
     min_refit_gain: float = 0.0,
     reuse: bool = False,
+    resume: bool = True,
 ) -> RunResult:
     """Fit the model ``model_cfg`` (its config, or spec) on the data set ``data`` (loaded unless
     ``splits`` are given), score it on every test recording.
@@ -166,7 +171,8 @@ def train_and_evaluate(
         data,
         trainer,
         output_dir,
-        RunSettings(seed, use_tensorboard, n_steps, plots, evaluate, refit, min_refit_gain, reuse),
+        RunSettings(seed, use_tensorboard, n_steps, plots, evaluate, refit, min_refit_gain, reuse,
+                    resume),
     )
     return run_model(config, splits=splits, callbacks=callbacks, warm_start=warm_start)
 
@@ -204,7 +210,6 @@ def run_model(
 ) -> RunResult:
     """`train_and_evaluate` on a `RunConfig`: prepare the data, reuse a finished fit or
     train, then score and write the run folder."""
-    settings = config.settings
     _prepare_run(config)
     effects = config.model.effects
     baseline = baseline_of(config.model)
@@ -214,9 +219,39 @@ def run_model(
         reused = _reuse_finished_fit(config, record_key, data)
         if reused is not None:
             return reused
+    resume = _resume_interrupted_fit(
+        config, _fingerprint(config, splits, warm_start, baseline, ignore=DISPLAY_SETTINGS)
+    )
     # this fit overwrites the folder's files: an older record must not vouch for them
     fit_record.forget(config.output_dir)
-    datamodule, model = _build(config, data, context, effects, warm_start, baseline)
+    try:
+        result = _train_and_score(config, splits, data, context, warm_start, baseline,
+                                  callbacks, record_key, resume)
+    except Exception:  # an error, not an interruption: a rerun starts afresh
+        RunFolder(config.output_dir).finish_fit()
+        raise
+    RunFolder(config.output_dir).finish_fit()
+    return result
+
+
+def _train_and_score(
+    config: RunConfig,
+    splits: DatasetSplits,
+    data: DatasetSplits,
+    context: Any,
+    warm_start: Any | None,
+    baseline: Baseline | None,
+    callbacks: list[Any] | None,
+    record_key: str | None,
+    resume: bool,
+) -> RunResult:
+    """Build and fit the model (going on from an interrupted fit: ``resume``; a declared
+    physical model grows from ``splits`` through its stages, `hysteresis_lab.workflows.grow`,
+    each from the start), save it, then score it and write the run folder's documents
+    (`RunSettings.evaluate`)."""
+    settings = config.settings
+    datamodule, model = _build(config, data, context, config.model.effects, warm_start,
+                               baseline)
     logger = _tensorboard_logger(config)
     if warm_start is None and len(growth_stages(config.model)) > 1:
         trained = grow(config.model, config.output_dir,
@@ -225,7 +260,7 @@ def run_model(
         trained = fit(
             model, datamodule, config.trainer, config.output_dir, logger=logger,
             callbacks=callbacks, keep_start_unless_beaten=warm_start is not None,
-            min_gain=settings.min_refit_gain,
+            min_gain=settings.min_refit_gain, resume=resume,
         )
     model_path = save_model(trained.model, RunFolder(config.output_dir).model_stem)
     log.info("saved %s", model_path)
@@ -267,6 +302,25 @@ def _stage_trainer(
     return train_stage
 
 
+def _resume_interrupted_fit(config: RunConfig, key: str) -> bool:
+    """Whether the fit goes on from the last checkpoints of an interrupted one in the output
+    folder (same fingerprint ``key``); marks this fit unfinished there until it is."""
+    if not config.model.is_network:  # nothing to resume: it fits in one step
+        return False
+    folder = RunFolder(config.output_dir)
+    interrupted = folder.read_fit_in_progress()
+    resume = config.settings.resume and interrupted == key
+    if interrupted is not None and interrupted != key and config.settings.resume:
+        raise ConfigError(
+            f"{config.output_dir} holds a training interrupted with other settings (model, "
+            "data, trainer, seed or start differ). Fix: rerun it with its own settings to "
+            f"resume it, use another folder (hydra.run.dir=...), or delete "
+            f"{folder.fit_in_progress} to start over there."
+        )
+    folder.start_fit(key)
+    return resume
+
+
 def _prepare_run(config: RunConfig) -> None:
     """Check the trainer settings (networks), make the output folder, seed every generator."""
     if config.model.is_network:
@@ -302,9 +356,25 @@ def _fit_record_key(
     settings = config.settings
     if not (settings.reuse and settings.evaluate):
         return None
+    return _fingerprint(config, splits, warm_start, baseline)
+
+
+#: trainer settings that change what a fit shows, not what it computes: an interrupted fit
+#: resumes with other values of them
+DISPLAY_SETTINGS = ("enable_progress_bar", "enable_model_summary", "log_every_n_steps")
+
+
+def _fingerprint(
+    config: RunConfig, splits: DatasetSplits, warm_start: Any | None,
+    baseline: Baseline | None = None, ignore: tuple[str, ...] = (),
+) -> str:
+    """A digest of everything the fit depends on (`fit_record.fingerprint`), but the
+    trainer settings ``ignore`` names."""
+    settings = config.settings
+    trainer = {k: v for k, v in config.trainer.to_config().items() if k not in ignore}
     fingerprinted = {
         "model": config.model.to_config(), "data": config.data.to_config(),
-        "trainer": config.trainer.to_config(),
+        "trainer": trainer,
         "seed": settings.seed, "n_steps": settings.n_steps,
         "refit": settings.refit if warm_start is not None else None,
         "min_refit_gain": settings.min_refit_gain,
