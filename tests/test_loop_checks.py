@@ -50,7 +50,8 @@ def loop_run(tmp_path_factory) -> Path:
 
 
 def test_a_loop_run_that_fails_says_why(tmp_path):
-    with pytest.raises(RuntimeError, match="(?s)model=transformer failed:.*'model/transformer'"):
+    with pytest.raises(RuntimeError,
+                       match="(?s)model=transformer failed:.*unknown model 'transformer'"):
         run_fresh_loop(["model=transformer"], tmp_path / "loop")
 
 
