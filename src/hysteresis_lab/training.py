@@ -374,7 +374,7 @@ class _LastEpoch(Checkpoint):
     def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         partial = self.path.with_name(RunFolder.PARTIAL_CHECKPOINT)
         with signals_deferred():
-            trainer.save_checkpoint(partial)
+            trainer.save_checkpoint(partial, weights_only=False)  # a whole resumable state
             os.replace(partial, self.path)
 
 
