@@ -126,7 +126,12 @@ class NarxModule(L.LightningModule, NetworkModel):
         self.simulation_mode = False
         #: the learning rate of the running training stage, set by `hysteresis_lab.training`
         self.stage_lr: float | None = None
+        #: (gradient_clip_val, gradient_clip_algorithm) of the running stage, set by
+        #: `hysteresis_lab.training` (a Trainer may not clip under manual optimisation)
+        self.gradient_clipping: tuple[float, str | None] | None = None
         self._skipped_batches = 0
+        # manual: a Lightning step may carry a block of batches (see `training_step`)
+        self.automatic_optimization = False
 
     def _register_scaler(self, scaler: dict[str, Sequence[float]], nu: int, ny: int) -> None:
         """Normalisation buffers (saved with the weights): offsets and scales per channel."""
@@ -382,9 +387,10 @@ class NarxModule(L.LightningModule, NetworkModel):
         """True after `train_new_inputs_only`."""
         return bool(getattr(self, "_kept_values", None))
 
-    def on_train_batch_end(self, outputs: Any, batch: Any, batch_idx: int) -> None:
-        """With `train_new_inputs_only`: put back the old entries of the partly trained
-        tensors (their gradient is masked, but Adam's weight decay would still shrink them)."""
+    def _keep_old_entries(self) -> None:
+        """After an optimiser step with `train_new_inputs_only`: put back the old entries of
+        the partly trained tensors (their gradient is masked, but Adam's weight decay would
+        still shrink them)."""
         if not (self.new_inputs_only and self.training_settings.weight_decay):
             return
         with torch.no_grad():
@@ -423,17 +429,37 @@ class NarxModule(L.LightningModule, NetworkModel):
         return self.loss_fn(self(x), target)
 
     def training_step(self, batch: Any, batch_idx: int) -> torch.Tensor | None:
-        loss = self._loss(batch)
-        if not torch.isfinite(loss):
-            # a diverging free run (or a bad step) must not update the weights: skip it
-            self._skipped_batches += 1
+        """One optimiser step per batch of ``batch``: a batch, or a block of batches
+        (`hysteresis_lab.data.blocks`: Lightning's fixed cost per step is then paid once per
+        block). Optimisation is manual (`automatic_optimization` is False) for that; the
+        order per batch is Lightning's own: loss, zero_grad, backward, clipping, step."""
+        optimizer = self.optimizers()
+        block_sum, block_rows = None, 0
+        for part in batches_of(batch):
+            loss = self._loss(part)
+            if not torch.isfinite(loss):
+                # a diverging free run (or a bad step) must not update the weights: skip it
+                self._skipped_batches += 1
+                continue
+            optimizer.zero_grad()
+            self.manual_backward(loss)
+            if self.gradient_clipping is not None:
+                value, algorithm = self.gradient_clipping
+                self.clip_gradients(optimizer, gradient_clip_val=value,
+                                    gradient_clip_algorithm=algorithm)
+            optimizer.step()
+            self._keep_old_entries()
+            # The epoch's batch-size-weighted mean, logged once in `on_train_epoch_end`: a
+            # `self.log` per step costs Lightning ~0.4 ms, a fifth of a small network's step.
+            size = part[0].shape[0]
+            weighted = loss.detach().float() * size
+            block_sum = weighted if block_sum is None else block_sum + weighted
+            block_rows += size
+        if block_sum is None:
             return None
-        # The epoch's batch-size-weighted mean, logged once in `on_train_epoch_end`: a
-        # `self.log` per step costs Lightning ~0.4 ms, a fifth of a small network's step.
-        size = batch[0].shape[0]
-        self._train_loss_sum = self._train_loss_sum + loss.detach().float() * size
-        self._train_loss_count += size
-        return loss
+        self._train_loss_sum = self._train_loss_sum + block_sum
+        self._train_loss_count += block_rows
+        return block_sum / block_rows
 
     def on_train_epoch_start(self) -> None:
         self._train_loss_sum = torch.zeros((), device=self.device)
@@ -456,13 +482,34 @@ class NarxModule(L.LightningModule, NetworkModel):
         if self._train_loss_count:
             mean = self._train_loss_sum / self._train_loss_count
             self.log("train_loss", mean, on_step=False, on_epoch=True, prog_bar=True)
+        self._step_schedulers()
+
+    def _step_schedulers(self) -> None:
+        """Step the epoch-interval learning-rate schedulers (manual optimisation leaves that
+        to the module) where Lightning would: after the epoch's validation; a plateau
+        scheduler reads ``val_loss``."""
+        schedulers = self.lr_schedulers()
+        for scheduler in schedulers if isinstance(schedulers, list) else [schedulers]:
+            if scheduler is None:
+                continue
+            if isinstance(scheduler, torch.optim.lr_scheduler.ReduceLROnPlateau):
+                metric = self.trainer.callback_metrics.get("val_loss")
+                if metric is not None:
+                    scheduler.step(metric)
+            else:
+                scheduler.step()
 
     def validation_step(self, batch: Any, batch_idx: int) -> torch.Tensor:
-        loss = self._loss(batch)
-        self.log(
-            "val_loss", loss, on_step=False, on_epoch=True, prog_bar=True,
-            batch_size=batch[0].shape[0],
-        )
+        """The loss of a batch, or the rows-weighted mean loss of a block of batches (the
+        epoch's ``val_loss`` is the same weighted mean over every validation window)."""
+        total, rows = None, 0
+        for part in batches_of(batch):
+            size = part[0].shape[0]
+            weighted = self._loss(part) * size
+            total = weighted if total is None else total + weighted
+            rows += size
+        loss = total / rows
+        self.log("val_loss", loss, on_step=False, on_epoch=True, prog_bar=True, batch_size=rows)
         return loss
 
     #: in a whole refit after `warm_start_from`, the rate of the wholly new parameters (an
@@ -500,11 +547,19 @@ class NarxModule(L.LightningModule, NetworkModel):
             scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(
                 optimizer, factor=0.5, patience=5
             )
+            # manual optimisation: `_step_schedulers` steps it on val_loss (a "monitor" key
+            # would only earn Lightning's warning that it is ignored)
+            monitor = {"monitor": "val_loss"} if self.automatic_optimization else {}
             return {
                 "optimizer": optimizer,
-                "lr_scheduler": {"scheduler": scheduler, "monitor": "val_loss"},
+                "lr_scheduler": {"scheduler": scheduler, **monitor},
             }
         return optimizer
+
+
+def batches_of(batch: Any) -> list[Any]:
+    """The batches of a loader item: a batch ``(x, target)`` alone, or a block of them."""
+    return [batch] if isinstance(batch[0], torch.Tensor) else list(batch)
 
 
 def mlp(n_in: int, n_out: int, hidden: int, n_hidden_layers: int) -> nn.Sequential:
