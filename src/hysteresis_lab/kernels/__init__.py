@@ -18,5 +18,5 @@ chains (``greybox``, ``linear``) need no kernel here: their blocks are numba rec
 already (`hysteresis_lab.blocks`).
 
 Modules: `interface` (the kernel protocol and the NumPy flat kernel), `jit_ops` (numba
-building blocks shared by the compiled kernels), `cnn`, `lstm`, `svm`, `subnet`.
+building blocks shared by the compiled kernels), `ffnn`, `cnn`, `lstm`, `svm`, `subnet`.
 """
