@@ -137,3 +137,34 @@ def test_plateau_schedule_steps_on_the_validation_loss(splits):
     assert scheduler.last_epoch == 2
     assert float(scheduler.best) == pytest.approx(float(model.trainer.callback_metrics["val_loss"]),
                                                   rel=1e-6) or scheduler.num_bad_epochs > 0
+
+
+class _BackwardCounter(L.Callback):
+    def __init__(self) -> None:
+        self.calls = 0
+
+    def on_before_backward(self, trainer, pl_module, loss) -> None:
+        self.calls += 1
+
+
+def test_steps_are_counted_and_step_hooks_still_run_where_overridden(splits):
+    """The direct step (no Lightning wrapper around backward and the optimiser step) still
+    counts every step, and a callback with a backward hook gets the full path: both train
+    the same weights."""
+    dm = WindowDataModule(splits, scaling="standard", batch_size=64, batches_per_step=8)
+    dm.setup()
+    batches = -(-len(dm._tensors["train"]) // 64)
+    torch.manual_seed(0)
+    start = build_model(CONFIGS["ffnn"], dm)
+    direct, hooked = copy.deepcopy(start), copy.deepcopy(start)
+    _lightning(direct, dm, epochs=2)
+    assert direct._direct_steps(direct.optimizers())
+    assert direct.trainer.global_step == 2 * batches
+    counter = _BackwardCounter()
+    trainer = L.Trainer(**TRAINER.with_changes(max_epochs=2).trainer_arguments(),
+                        logger=False, enable_checkpointing=False, callbacks=[counter])
+    trainer.fit(hooked, datamodule=dm)
+    assert not hooked._direct_steps(hooked.optimizers())
+    assert counter.calls == 2 * batches and trainer.global_step == 2 * batches
+    for key, value in direct.state_dict().items():
+        assert torch.allclose(value, hooked.state_dict()[key], rtol=0, atol=1e-7), key
