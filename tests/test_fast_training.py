@@ -64,8 +64,10 @@ def test_datamodule_blocks_cover_every_window_once(splits):
 
 
 def _bare(model: L.LightningModule, dm: WindowDataModule, epochs: int,
-          clip: float | None = None) -> L.LightningModule:
-    """Plain PyTorch training with the plain loader's batches, Adam and the cosine schedule."""
+          clip: float | None = None, losses: list[tuple[float, int]] | None = None
+          ) -> L.LightningModule:
+    """Plain PyTorch training with the plain loader's batches, Adam and the cosine schedule;
+    ``losses`` gets each step's (loss, batch size)."""
     x, target = dm._tensors["train"].tensors
     lr = model.training_settings.lr
     optimizer = torch.optim.Adam(model.parameters(), lr=lr)
@@ -73,6 +75,8 @@ def _bare(model: L.LightningModule, dm: WindowDataModule, epochs: int,
     for batches in _plain_batches(len(x), dm.batch_size, dm.seed, epochs):
         for rows in batches:
             loss = torch.nn.functional.mse_loss(model(x[rows]), target[rows])
+            if losses is not None:
+                losses.append((float(loss), len(rows)))
             optimizer.zero_grad()
             loss.backward()
             if clip is not None:
@@ -121,7 +125,11 @@ def test_trainer_gradient_clipping_is_applied_by_the_module(splits, tmp_path: Pa
     clipped = copy.deepcopy(start)
     # one epoch: the best checkpoint fit keeps is the last one
     fit(clipped, dm, TRAINER.with_changes(max_epochs=1, gradient_clip_val=1e-3), tmp_path)
-    bare_clipped = _bare(copy.deepcopy(start), dm, epochs=1, clip=1e-3).state_dict()
+    losses: list[tuple[float, int]] = []
+    bare_clipped = _bare(copy.deepcopy(start), dm, epochs=1, clip=1e-3, losses=losses).state_dict()
+    mean = sum(loss * size for loss, size in losses) / sum(size for _, size in losses)
+    logged = float(clipped.trainer.callback_metrics["train_loss"])
+    assert logged == pytest.approx(mean, rel=1e-5)  # the epoch's loss, not the clip value
     bare_free = _bare(copy.deepcopy(start), dm, epochs=1).state_dict()
     for key, value in clipped.state_dict().items():
         assert torch.allclose(value, bare_clipped[key], rtol=1e-5, atol=1e-6), key

@@ -457,8 +457,8 @@ class NarxModule(L.LightningModule, NetworkModel):
             else:
                 self.manual_backward(loss)
             if self.gradient_clipping is not None:
-                value, algorithm = self.gradient_clipping
-                self.clip_gradients(optimizer, gradient_clip_val=value,
+                clip, algorithm = self.gradient_clipping
+                self.clip_gradients(optimizer, gradient_clip_val=clip,
                                     gradient_clip_algorithm=algorithm)
             if direct:  # the torch step between the bookkeeping Lightning's step does
                 optimizer._on_before_step()
