@@ -62,6 +62,7 @@ class _StepLosses(L.Callback):
 
 def test_logged_training_loss_is_the_last_epochs_weighted_mean(splits):
     dm = datamodule_for("ffnn", splits)
+    dm.batches_per_step = 1  # a Lightning step per batch: the callback sees every batch
     steps = _StepLosses()
     trainer = L.Trainer(**TRAINER.with_changes(max_epochs=2).trainer_arguments(), logger=False,
                         enable_checkpointing=False, callbacks=[steps])

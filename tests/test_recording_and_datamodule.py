@@ -92,7 +92,7 @@ def test_random_90_10_split_of_windows():
     assert sorted(together.tolist()) == list(range(10, 1010))
     # random, not the last 10 %: validation targets spread over the recording
     assert dm.val_windows.index.min() < 300 and dm.val_windows.index.max() > 700
-    x, target = next(iter(dm.train_dataloader()))
+    x, target = next(iter(dm.train_dataloader()))[0]  # a block's first batch
     assert x.shape == (128, 20) and target.shape == (128, 1) and x.dtype == torch.float32
     # paper scaling: u = k / 100 V, y = -k / 20 um
     assert torch.allclose(x[:, 9] * 100.0, -target[:, 0] * 20.0 - 1.0)
@@ -108,7 +108,7 @@ def test_sequence_layout_batches_and_explicit_validation_recordings():
     dm = WindowDataModule(splits, WindowSpec(), layout="sequence", batch_size=16)
     dm.setup()
     assert len(dm.val_windows) == 50 and len(dm.train_windows) == 290
-    x, target = next(iter(dm.val_dataloader()))
+    x, target = next(iter(dm.val_dataloader()))[0]  # a block's first batch
     assert x.shape == (16, 10, 3) and target.shape == (16, 1)
     (test_loader,) = dm.test_dataloader()
     assert len(test_loader.dataset) == 70

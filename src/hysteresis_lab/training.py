@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import inspect
 import logging
 import os
@@ -284,7 +285,7 @@ def _fit_one_step(
     if logger is not None:
         all_callbacks.append(LearningRateMonitor(logging_interval="epoch"))
     trainer = build_trainer(
-        settings,
+        _clipping_in_module(model, settings),
         all_callbacks,
         logger=logger if logger is not None else False,
         default_root_dir=str(output_dir),
@@ -294,6 +295,18 @@ def _fit_one_step(
     best, val_mse = _restore_best(model, checkpoint)
     log.info("best validation MSE %.4e (scaled); checkpoint %s", val_mse, best)
     return best, val_mse
+
+
+def _clipping_in_module(model: L.LightningModule, settings: TrainerSettings) -> TrainerSettings:
+    """Under manual optimisation (`NarxModule`) the module clips the gradients and the
+    Trainer must not: hand ``gradient_clip_val`` (and ``gradient_clip_algorithm``) over."""
+    if model.automatic_optimization:
+        return settings
+    extra = dict(settings.extra)
+    algorithm = extra.pop("gradient_clip_algorithm", None)
+    value = settings.gradient_clip_val
+    model.gradient_clipping = (float(value), algorithm) if value else None
+    return dataclasses.replace(settings, gradient_clip_val=None, extra=extra)
 
 
 def is_network(model: Mapping[str, Any] | ModelSpec) -> bool:
@@ -524,7 +537,8 @@ def _fit_free_run(
         if stage_logger:
             all_callbacks.append(LearningRateMonitor(logging_interval="epoch"))
         trainer = build_trainer(
-            stage_settings, all_callbacks, logger=stage_logger, default_root_dir=str(output_dir)
+            _clipping_in_module(model, stage_settings), all_callbacks, logger=stage_logger,
+            default_root_dir=str(output_dir),
         )
         starting_loss = float(
             trainer.validate(model, datamodule=segments, verbose=False)[0]["val_loss"]

@@ -14,6 +14,7 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, TensorDataset
 
+from hysteresis_lab.data.blocks import block_loader
 from hysteresis_lab.data.datamodules import WindowDataModule, random_holdout
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.errors import ConfigError
@@ -100,18 +101,16 @@ class SegmentDataModule(L.LightningDataModule):
         return np.stack(us), np.stack(ys)
 
     def train_dataloader(self) -> DataLoader:
+        """Shuffled batches sliced from the segments in memory (the batches of
+        ``DataLoader(..., shuffle=True, generator=...)``, without its per-sample collation)."""
         self.setup()
         generator = torch.Generator().manual_seed(self.windows.seed)
-        return DataLoader(
-            self._data["train"],
-            batch_size=self.windows.batch_size,
-            shuffle=True,
-            generator=generator,
-        )
+        return block_loader(self._data["train"].tensors, self.windows.batch_size,
+                            shuffle=True, generator=generator)
 
     def val_dataloader(self) -> DataLoader:
         self.setup()
-        return DataLoader(self._data["val"], batch_size=self.windows.batch_size)
+        return block_loader(self._data["val"].tensors, self.windows.batch_size)
 
 
 class RecordingDataModule(L.LightningDataModule):

@@ -5,8 +5,9 @@ decides the evaluation's speed. A model offers a kernel through one of two hooks
 `hysteresis_lab.evaluation.predict` uses it when the model runs on the CPU:
 
 * ``free_run_kernel(u_scaled, window)`` returns a `interface.FreeRunKernel` (step by step,
-  or every step at once with ``run_all``): FFNN and SVR (`interface.FlatKernel`,
-  `svm`), LSTM (`lstm`), CNN (`cnn`);
+  or every step at once with ``run_all``): FFNN (`ffnn`: compiled ``run_all``, the NumPy
+  step of `interface.FlatKernel` for restarts), SVR (`interface.FlatKernel`, `svm`), LSTM
+  (`lstm`), CNN (`cnn`);
 * ``compiled_free_run(...)`` of a state-space model: SUBNET (`subnet`).
 
 **The reference path** is each model's own torch (or scikit-learn) prediction stepped in
@@ -18,5 +19,5 @@ chains (``greybox``, ``linear``) need no kernel here: their blocks are numba rec
 already (`hysteresis_lab.blocks`).
 
 Modules: `interface` (the kernel protocol and the NumPy flat kernel), `jit_ops` (numba
-building blocks shared by the compiled kernels), `cnn`, `lstm`, `svm`, `subnet`.
+building blocks shared by the compiled kernels), `ffnn`, `cnn`, `lstm`, `svm`, `subnet`.
 """

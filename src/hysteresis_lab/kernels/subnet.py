@@ -35,9 +35,11 @@ def _mlp(
             b[j] = biases[offset_b + j]
         for i in range(fan_in):
             ai = a[i]
-            row = offset_w + i * fan_out
+            # an unsigned index: no wraparound test per element, so the loop vectorises
+            # into contiguous loads (a signed runtime offset makes LLVM gather instead)
+            row = np.uint64(offset_w + i * fan_out)
             for j in range(fan_out):
-                b[j] += ai * weights[row + j]
+                b[j] += ai * weights[row + np.uint64(j)]
         for j in range(fan_out):
             a[j] = b[j] if d == last or b[j] > 0.0 else 0.0
         offset_w += fan_in * fan_out

@@ -27,12 +27,15 @@ baseline's free run (``model.baseline``, `hysteresis_lab.models.baseline`) comes
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar
 
 import lightning as L
 import numpy as np
 import torch
+from lightning.pytorch.plugins.precision import Precision
+from lightning.pytorch.strategies import SingleDeviceStrategy
 from torch import nn
 
 from hysteresis_lab.data.windows import Layout, WindowSpec, assemble
@@ -50,6 +53,11 @@ from hysteresis_lab.models.settings import (
 )
 
 log = logging.getLogger(__name__)
+
+#: the hooks Lightning calls around backward and the optimiser step (see `_direct_steps`)
+_STEP_HOOKS = ("on_before_backward", "on_after_backward", "on_before_optimizer_step")
+#: what a `LightningOptimizer` does around the torch step: the manual loop's step count
+_STEP_BOOKKEEPING = ("_on_before_step", "_on_after_step", "optimizer")
 
 
 class NarxModule(L.LightningModule, NetworkModel):
@@ -126,7 +134,12 @@ class NarxModule(L.LightningModule, NetworkModel):
         self.simulation_mode = False
         #: the learning rate of the running training stage, set by `hysteresis_lab.training`
         self.stage_lr: float | None = None
+        #: (gradient_clip_val, gradient_clip_algorithm) of the running stage, set by
+        #: `hysteresis_lab.training` (a Trainer may not clip under manual optimisation)
+        self.gradient_clipping: tuple[float, str | None] | None = None
         self._skipped_batches = 0
+        # manual: a Lightning step may carry a block of batches (see `training_step`)
+        self.automatic_optimization = False
 
     def _register_scaler(self, scaler: dict[str, Sequence[float]], nu: int, ny: int) -> None:
         """Normalisation buffers (saved with the weights): offsets and scales per channel."""
@@ -382,9 +395,10 @@ class NarxModule(L.LightningModule, NetworkModel):
         """True after `train_new_inputs_only`."""
         return bool(getattr(self, "_kept_values", None))
 
-    def on_train_batch_end(self, outputs: Any, batch: Any, batch_idx: int) -> None:
-        """With `train_new_inputs_only`: put back the old entries of the partly trained
-        tensors (their gradient is masked, but Adam's weight decay would still shrink them)."""
+    def _keep_old_entries(self) -> None:
+        """After an optimiser step with `train_new_inputs_only`: put back the old entries of
+        the partly trained tensors (their gradient is masked, but Adam's weight decay would
+        still shrink them)."""
         if not (self.new_inputs_only and self.training_settings.weight_decay):
             return
         with torch.no_grad():
@@ -423,20 +437,67 @@ class NarxModule(L.LightningModule, NetworkModel):
         return self.loss_fn(self(x), target)
 
     def training_step(self, batch: Any, batch_idx: int) -> torch.Tensor | None:
-        loss = self._loss(batch)
-        if not torch.isfinite(loss):
-            # a diverging free run (or a bad step) must not update the weights: skip it
-            self._skipped_batches += 1
+        """One optimiser step per batch of ``batch``: a batch, or a block of batches
+        (`hysteresis_lab.data.blocks`: Lightning's fixed cost per step is then paid once per
+        block). Optimisation is manual (`automatic_optimization` is False) for that; the
+        order per batch is Lightning's own: loss, zero_grad, backward, clipping, step."""
+        optimizer = self.optimizers()
+        direct = self._direct_steps(optimizer)
+        block_sum, block_rows = 0.0, 0
+        for part in batches_of(batch):
+            loss = self._loss(part)
+            value = float(loss.detach())  # one read: the finiteness test and the epoch mean
+            if not math.isfinite(value):
+                # a diverging free run (or a bad step) must not update the weights: skip it
+                self._skipped_batches += 1
+                continue
+            optimizer.zero_grad()
+            if direct:
+                loss.backward()
+            else:
+                self.manual_backward(loss)
+            if self.gradient_clipping is not None:
+                clip, algorithm = self.gradient_clipping
+                self.clip_gradients(optimizer, gradient_clip_val=clip,
+                                    gradient_clip_algorithm=algorithm)
+            if direct:  # the torch step between the bookkeeping Lightning's step does
+                optimizer._on_before_step()
+                optimizer.optimizer.step()
+                optimizer._on_after_step()  # counts the step (trainer.global_step)
+            else:
+                optimizer.step()
+            self._keep_old_entries()
+            # The epoch's batch-size-weighted mean, logged once in `on_train_epoch_end`: a
+            # `self.log` per step costs Lightning ~0.4 ms, a fifth of a small network's step.
+            size = part[0].shape[0]
+            block_sum += value * size
+            block_rows += size
+        if not block_rows:
             return None
-        # The epoch's batch-size-weighted mean, logged once in `on_train_epoch_end`: a
-        # `self.log` per step costs Lightning ~0.4 ms, a fifth of a small network's step.
-        size = batch[0].shape[0]
-        self._train_loss_sum = self._train_loss_sum + loss.detach().float() * size
-        self._train_loss_count += size
-        return loss
+        self._train_loss_sum += block_sum
+        self._train_loss_count += block_rows
+        return torch.tensor(block_sum / block_rows)
+
+    def _direct_steps(self, optimizer: Any) -> bool:
+        """May backward and the optimiser step skip Lightning's wrappers? Yes where those
+        would only call hooks nobody overrides: plain float32 precision on one device, and no
+        callback or module hook around backward or the optimiser step. Lightning's wrappers
+        cost ~0.3 ms a step, as much as a small network's step itself."""
+        trainer = self.trainer
+        if type(trainer.precision_plugin) is not Precision or not isinstance(
+            trainer.strategy, SingleDeviceStrategy
+        ):
+            return False
+        if not all(hasattr(optimizer, name) for name in _STEP_BOOKKEEPING):
+            return False
+        if any(getattr(type(self), hook) is not getattr(L.LightningModule, hook)
+               for hook in (*_STEP_HOOKS, "backward", "optimizer_step")):
+            return False
+        return all(getattr(type(callback), hook) is getattr(L.Callback, hook)
+                   for callback in trainer.callbacks for hook in _STEP_HOOKS)
 
     def on_train_epoch_start(self) -> None:
-        self._train_loss_sum = torch.zeros((), device=self.device)
+        self._train_loss_sum = 0.0
         self._train_loss_count = 0
         self._skipped_batches = 0
 
@@ -456,13 +517,34 @@ class NarxModule(L.LightningModule, NetworkModel):
         if self._train_loss_count:
             mean = self._train_loss_sum / self._train_loss_count
             self.log("train_loss", mean, on_step=False, on_epoch=True, prog_bar=True)
+        self._step_schedulers()
+
+    def _step_schedulers(self) -> None:
+        """Step the epoch-interval learning-rate schedulers (manual optimisation leaves that
+        to the module) where Lightning would: after the epoch's validation; a plateau
+        scheduler reads ``val_loss``."""
+        schedulers = self.lr_schedulers()
+        for scheduler in schedulers if isinstance(schedulers, list) else [schedulers]:
+            if scheduler is None:
+                continue
+            if isinstance(scheduler, torch.optim.lr_scheduler.ReduceLROnPlateau):
+                metric = self.trainer.callback_metrics.get("val_loss")
+                if metric is not None:
+                    scheduler.step(metric)
+            else:
+                scheduler.step()
 
     def validation_step(self, batch: Any, batch_idx: int) -> torch.Tensor:
-        loss = self._loss(batch)
-        self.log(
-            "val_loss", loss, on_step=False, on_epoch=True, prog_bar=True,
-            batch_size=batch[0].shape[0],
-        )
+        """The loss of a batch, or the rows-weighted mean loss of a block of batches (the
+        epoch's ``val_loss`` is the same weighted mean over every validation window)."""
+        total, rows = None, 0
+        for part in batches_of(batch):
+            size = part[0].shape[0]
+            weighted = self._loss(part) * size
+            total = weighted if total is None else total + weighted
+            rows += size
+        loss = total / rows
+        self.log("val_loss", loss, on_step=False, on_epoch=True, prog_bar=True, batch_size=rows)
         return loss
 
     #: in a whole refit after `warm_start_from`, the rate of the wholly new parameters (an
@@ -500,11 +582,19 @@ class NarxModule(L.LightningModule, NetworkModel):
             scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(
                 optimizer, factor=0.5, patience=5
             )
+            # manual optimisation: `_step_schedulers` steps it on val_loss (a "monitor" key
+            # would only earn Lightning's warning that it is ignored)
+            monitor = {"monitor": "val_loss"} if self.automatic_optimization else {}
             return {
                 "optimizer": optimizer,
-                "lr_scheduler": {"scheduler": scheduler, "monitor": "val_loss"},
+                "lr_scheduler": {"scheduler": scheduler, **monitor},
             }
         return optimizer
+
+
+def batches_of(batch: Any) -> list[Any]:
+    """The batches of a loader item: a batch ``(x, target)`` alone, or a block of them."""
+    return [batch] if isinstance(batch[0], torch.Tensor) else list(batch)
 
 
 def mlp(n_in: int, n_out: int, hidden: int, n_hidden_layers: int) -> nn.Sequential:

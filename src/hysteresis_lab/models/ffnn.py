@@ -8,7 +8,8 @@ import numpy as np
 
 from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.errors import ConfigError
-from hysteresis_lab.kernels.interface import FlatKernel, FreeRunKernel, dense_layers, run_dense
+from hysteresis_lab.kernels.ffnn import FFNNKernel
+from hysteresis_lab.kernels.interface import FreeRunKernel, dense_layers
 from hysteresis_lab.models.base import NarxModule, mlp
 
 
@@ -30,16 +31,6 @@ class FFNN(NarxModule):
         self.net = mlp(self.n_features, ny, neurons, num_layers - 1)
 
     def free_run_kernel(self, u_scaled: np.ndarray, window: WindowSpec) -> FreeRunKernel:
-        """NumPy free-run step: the first layer's input part is precomputed per chunk."""
-        layers = dense_layers(self.net)
-        w1, b1 = layers[0]
-        split = window.nb * self.nu
-        w1u, w1y = w1[:split], w1[split:]
-
-        def pre_u(xu: np.ndarray) -> np.ndarray:
-            return xu @ w1u + b1
-
-        def finish(pre: np.ndarray, xy: np.ndarray) -> np.ndarray:
-            return run_dense(pre + xy @ w1y, layers[1:])
-
-        return FlatKernel(u_scaled, window, pre_u, finish)
+        """Compiled free run (`hysteresis_lab.kernels.ffnn`), with the NumPy step of
+        `FlatKernel` (the first layer's input part precomputed per chunk) for restarts."""
+        return FFNNKernel(u_scaled, window, dense_layers(self.net))
