@@ -65,6 +65,7 @@ def run(cfg: DictConfig) -> dict:
         n_init=splits.n_init,
         n_steps=cfg.get("n_step"),
         device=device,
+        initial_state=str(cfg.evaluation.initial_state),
     )
     units = {"u": splits.test[0].u_units, "y": splits.test[0].y_units}
     document = metrics_document(
@@ -72,7 +73,8 @@ def run(cfg: DictConfig) -> dict:
         units,
         evaluation.metrics,
         train_seconds=0.0,
-        extra={"checkpoint": str(cfg.checkpoint), "data": splits.name},
+        extra={"checkpoint": str(cfg.checkpoint), "data": splits.name,
+               "initial_state": str(cfg.evaluation.initial_state)},
     )
     folder.write_metrics(document)
     if cfg.plots:

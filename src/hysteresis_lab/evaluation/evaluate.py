@@ -12,6 +12,7 @@ import numpy as np
 
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.windows import WindowSpec
+from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.evaluation.metrics import score
 from hysteresis_lab.evaluation.predict import check_n_step, free_run, n_step, one_step
 
@@ -24,6 +25,37 @@ class Evaluation:
 
     metrics: dict[str, dict[str, float]] = field(default_factory=dict)
     predictions: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+
+
+#: how a free run starts on each test recording (``evaluation.initial_state``): from rest as
+#: the model was trained, or with its output offset estimated from the recording's first
+#: ``n_init`` samples (a sensor zeroed elsewhere on another day; those samples are not scored)
+INITIAL_STATES = ("rest", "estimate")
+
+
+def check_initial_state(initial_state: str, n_init: int, window: WindowSpec) -> None:
+    """Raise `ConfigError` unless ``initial_state`` is one of `INITIAL_STATES` and, to
+    estimate, the recordings have initial samples to estimate from."""
+    if initial_state not in INITIAL_STATES:
+        raise ConfigError(
+            f"unknown evaluation.initial_state '{initial_state}'. Fix: "
+            f"evaluation.initial_state=one of {list(INITIAL_STATES)}."
+        )
+    if initial_state == "estimate" and scoring_start(window, n_init) <= window.first_target:
+        raise ConfigError(
+            f"evaluation.initial_state=estimate reads the first data.n_init samples of each "
+            f"test recording, and data.n_init={n_init} leaves none beyond the model's window "
+            f"({window.first_target} samples). Fix: e.g. data.n_init="
+            f"{window.first_target + 100}, or evaluation.initial_state=rest."
+        )
+
+
+def estimate_output_offset(
+    recording: Recording, prediction: np.ndarray, first: int, n_skip: int
+) -> np.ndarray:
+    """The output offset (ny,) that takes the free run ``prediction`` to the measured output
+    over samples ``first .. n_skip - 1`` (least squares: the mean difference)."""
+    return np.mean(recording.y[first:n_skip] - prediction[first:n_skip], axis=0)
 
 
 def scoring_start(window: WindowSpec, n_init: int = 0) -> int:
@@ -40,14 +72,18 @@ def evaluate_model(
     n_steps: int | None = None,
     device: str | None = None,
     progress: bool = False,
+    initial_state: str = "rest",
 ) -> Evaluation:
     """One-step-ahead prediction, free-run simulation and (optionally) n-step prediction.
 
     Scores start at `scoring_start` (the initial conditions every mode takes from the
     measurement are not scored). ``progress``: a progress bar over the modes (all
-    recordings run together in each).
+    recordings run together in each). ``initial_state``: ``"estimate"`` shifts each free run
+    by the output offset its recording's first ``n_init`` samples show
+    (`estimate_output_offset`); ``"rest"`` leaves it as simulated.
     """
     check_n_step(n_steps)  # before the other modes' work, not after it
+    check_initial_state(initial_state, n_init, window)
     runs: dict[str, Callable[[], list[np.ndarray]]] = {
         "one_step": lambda: one_step(model, recordings, window),
         "free_run": lambda: free_run(model, recordings, window, device=device),
@@ -56,6 +92,10 @@ def evaluate_model(
         runs[f"{int(n_steps)}_step"] = lambda: n_step(model, recordings, window, int(n_steps))
     modes = _run_modes(runs, len(recordings), progress)
     n_skip = scoring_start(window, n_init)
+    if initial_state == "estimate":
+        modes["free_run"] = [
+            preds + estimate_output_offset(rec, preds, window.first_target, n_skip)
+            for rec, preds in zip(recordings, modes["free_run"], strict=True)]
     result = Evaluation()
     for position, rec in enumerate(recordings):
         result.predictions[rec.name] = {mode: preds[position] for mode, preds in modes.items()}

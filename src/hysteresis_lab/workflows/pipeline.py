@@ -115,6 +115,7 @@ class RunSettings:
     min_refit_gain: float = 0.0
     reuse: bool = False
     resume: bool = True
+    initial_state: str = "rest"
 
 
 @dataclass(frozen=True)
@@ -156,6 +157,7 @@ def train_and_evaluate(
     min_refit_gain: float = 0.0,
     reuse: bool = False,
     resume: bool = True,
+    initial_state: str = "rest",
 ) -> RunResult:
     """Fit the model ``model_cfg`` (its config, or spec) on the data set ``data`` (loaded unless
     ``splits`` are given), score it on every test recording.
@@ -172,7 +174,7 @@ def train_and_evaluate(
         trainer,
         output_dir,
         RunSettings(seed, use_tensorboard, n_steps, plots, evaluate, refit, min_refit_gain, reuse,
-                    resume),
+                    resume, initial_state),
     )
     return run_model(config, splits=splits, callbacks=callbacks, warm_start=warm_start)
 
@@ -198,6 +200,7 @@ def train_from_config(
         n_steps=cfg.get("n_step"),
         plots=cfg["plots"],
         evaluate=cfg.get("evaluate", True),
+        initial_state=str((cfg.get("evaluation") or {}).get("initial_state", "rest")),
         callbacks=callbacks,
     )
 
@@ -390,7 +393,8 @@ def _reuse_finished_fit(config: RunConfig, key: str, data: DatasetSplits) -> Run
     record = fit_record.finished_fit(config.output_dir, key)
     if record is None:
         return None
-    return _reused_fit(record, data, config.output_dir, config.trainer, config.settings.n_steps)
+    return _reused_fit(record, data, config.output_dir, config.trainer, config.settings.n_steps,
+                       config.settings.initial_state)
 
 
 def _build(
@@ -466,6 +470,7 @@ def _score_and_report(
     evaluation = evaluate_model(
         trained.model, data.test, window, n_init=data.n_init, n_steps=settings.n_steps,
         device=evaluation_device(config.trainer), progress=shows_progress(config.trainer),
+        initial_state=settings.initial_state,
     )
     units = {"u": data.test[0].u_units, "y": data.test[0].y_units}
     rejected_refit = _keep_rejected_refit(config, data, trained, window, units)
@@ -474,7 +479,8 @@ def _score_and_report(
         units,
         evaluation.metrics,
         trained.train_seconds,
-        extra={"val_mse_scaled": trained.val_mse, "data": data.name, "model_path": str(model_path)},
+        extra={"val_mse_scaled": trained.val_mse, "data": data.name, "model_path": str(model_path),
+               "initial_state": settings.initial_state},
     )
     folder.write_metrics(document)
     if settings.plots:
@@ -516,7 +522,7 @@ def _keep_rejected_refit(
     with _weights(trained.model, trained.rejected_state) as rejected:
         rejected_refit = _score_rejected_refit(
             rejected, trained, data, window, config.trainer, config.settings.n_steps, units,
-            config.model_name,
+            config.model_name, config.settings.initial_state,
         )
         log.info("saved %s", save_model(rejected, folder.rejected_refit_stem))
     folder.write_rejected_refit_metrics(rejected_refit)
@@ -558,6 +564,7 @@ def _reused_fit(
     output_dir: Path,
     trainer: TrainerSettings,
     n_steps: int | None,
+    initial_state: str = "rest",
 ) -> RunResult | None:
     """The result of the finished fit ``record`` describes, its model loaded and scored again
     (the same weights give the same predictions; nothing is trained or rewritten); None when
@@ -576,6 +583,7 @@ def _reused_fit(
     evaluation = evaluate_model(
         model, data.test, window, n_init=data.n_init, n_steps=n_steps,
         device=evaluation_device(trainer), progress=shows_progress(trainer),
+        initial_state=initial_state,
     )
     folder = RunFolder(output_dir)
     document = folder.read_metrics()
@@ -633,6 +641,7 @@ def _score_rejected_refit(
     n_steps: int | None,
     units: dict[str, str],
     model_name: str,
+    initial_state: str = "rest",
 ) -> dict[str, Any]:
     """Test metrics of a refit that lost to its start on validation (``model``, holding the
     refit's weights), so that a report can show what it would have done."""
@@ -643,6 +652,7 @@ def _score_rejected_refit(
         n_init=data.n_init,
         n_steps=n_steps,
         device=evaluation_device(trainer),
+        initial_state=initial_state,
     )
     return metrics_document(
         model_name,
