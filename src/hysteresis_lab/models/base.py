@@ -450,7 +450,9 @@ class NarxModule(L.LightningModule, NetworkModel):
             if not math.isfinite(value):
                 # a diverging free run (or a bad step) must not update the weights: skip it
                 self._skipped_batches += 1
+                self._on_non_finite_loss(optimizer)
                 continue
+            self._on_finite_loss()
             optimizer.zero_grad()
             if direct:
                 loss.backward()
@@ -477,6 +479,14 @@ class NarxModule(L.LightningModule, NetworkModel):
         self._train_loss_sum += block_sum
         self._train_loss_count += block_rows
         return torch.tensor(block_sum / block_rows)
+
+    def _on_finite_loss(self) -> None:
+        """Called before the step on a batch whose loss is finite (subclasses remember the
+        weights that gave it)."""
+
+    def _on_non_finite_loss(self, optimizer: Any) -> None:
+        """Called on a batch whose loss is not finite, which is skipped (subclasses may take
+        the last step back)."""
 
     def _direct_steps(self, optimizer: Any) -> bool:
         """May backward and the optimiser step skip Lightning's wrappers? Yes where those

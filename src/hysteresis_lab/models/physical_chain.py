@@ -99,30 +99,23 @@ class PhysicalChainModule(NarxModule):
         return ["base"] * self.nu
 
     # ------------------------------------------------------------------ training
-    def training_step(self, batch: Any, batch_idx: int) -> torch.Tensor | None:
-        """`NarxModule.training_step`; a step after which the free run is no longer finite
-        (a feedback force pushed past the closed loop's stability, a pole past the unit
-        circle) is taken back and the learning rates halved (`_step_back`), at most
-        `MAX_STEP_BACKS` times per fit: Adam's first steps move every new parameter by the
-        rate whatever its gradient, and one such step can leave the stable region."""
-        loss = super().training_step(batch, batch_idx)
-        if loss is not None:
-            self._last_finite = {name: p.detach().clone() for name, p in self.named_parameters()}
-        elif self._last_finite is not None and self._step_backs < MAX_STEP_BACKS:
-            self._step_back()
-        return loss
+    def _on_finite_loss(self) -> None:
+        """Remember the weights whose free run was finite (`_on_non_finite_loss`)."""
+        self._last_finite = {name: p.detach().clone() for name, p in self.named_parameters()}
 
-    def _step_back(self) -> None:
-        """Put back the parameters of the last step whose free run was finite and halve
-        every learning rate."""
-        assert self._last_finite is not None
+    def _on_non_finite_loss(self, optimizer: Any) -> None:
+        """A step after which the free run is no longer finite (a feedback force pushed past
+        the closed loop's stability, a pole past the unit circle) is taken back and the
+        learning rates halved, at most `MAX_STEP_BACKS` times per fit: Adam's first steps
+        move every new parameter by the rate whatever its gradient, and one such step can
+        leave the stable region."""
+        if self._last_finite is None or self._step_backs >= MAX_STEP_BACKS:
+            return
         with torch.no_grad():
             for name, parameter in self.named_parameters():
                 parameter.copy_(self._last_finite[name])
-        optimizers = self.optimizers(use_pl_optimizer=False)
-        for optimizer in optimizers if isinstance(optimizers, list) else [optimizers]:
-            for group in optimizer.param_groups:
-                group["lr"] *= 0.5
+        for group in getattr(optimizer, "optimizer", optimizer).param_groups:
+            group["lr"] *= 0.5
         self._step_backs += 1
         log.warning("a training step left the stable region (non-finite free run): taken back, "
                     "learning rates halved (%d of at most %d)", self._step_backs,
