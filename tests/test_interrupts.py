@@ -232,7 +232,7 @@ def _stop_lines(output: str, name: str) -> list[str]:
 
 @pytest.mark.slow
 def test_sigterm_stops_training_with_143_and_the_rerun_resumes_it(csv_data, tmp_path):
-    args = [*data_overrides(*csv_data), "model=ffnn", "trainer.max_epochs=15", *QUIET,
+    args = [*data_overrides(*csv_data), "model=ffnn", "trainer.max_epochs=100", *QUIET,
             f"hydra.run.dir={tmp_path}"]
     proc = popen_app("train", *args)
     output = _signal_when(tmp_path / "checkpoints" / "last.ckpt", proc, signal.SIGTERM)
@@ -252,7 +252,7 @@ def test_sigterm_stops_training_with_143_and_the_rerun_resumes_it(csv_data, tmp_
 @pytest.mark.slow
 def test_ctrl_c_stops_the_loop_with_130_and_one_line(csv_data, tmp_path):
     args = [*data_overrides(*csv_data), "model=ffnn", "loop.max_rounds=1",
-            "trainer.max_epochs=15", *QUIET, f"hydra.run.dir={tmp_path}"]
+            "trainer.max_epochs=100", *QUIET, f"hydra.run.dir={tmp_path}"]
     proc = popen_app("loop", *args)
     output = _signal_when(tmp_path / "round_0" / "checkpoints" / "last.ckpt", proc,
                           signal.SIGINT)
