@@ -132,7 +132,7 @@ def test_sigkill_mid_trial_loses_no_completed_trial(tmp_path, csv_data):
     killed_during = next(t.number for t in trials if t.state == TrialState.RUNNING)
 
     resumed = run_app("train", *args)
-    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    assert resumed.returncode == 0, resumed.stdout[-3000:] + resumed.stderr[-3000:]
     study = load(results)
     by_number = {t.number: t for t in study.get_trials()}
     for number, (params, value) in kept.items():

@@ -10,8 +10,9 @@ lowest validation free-run loss goes on, and a refit that does not beat the mode
 from keeps that model (its block stays, at no effect). ``model.grow=false`` trains every
 declared block at once, from the start.
 
-Every stage but the last writes to ``<run>/grow/<k>_<label>/``; the last stage's model is
-the run's model, saved and scored in the run folder as any other.
+Every stage trains in ``<run>/grow/<k>_<label>/`` (a refit: one folder per learning rate);
+the last stage's chosen model is the run's model, saved and scored in the run folder as any
+other.
 """
 
 from __future__ import annotations

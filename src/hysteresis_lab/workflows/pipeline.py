@@ -201,6 +201,9 @@ def train_from_config(
         plots=cfg["plots"],
         evaluate=cfg.get("evaluate", True),
         initial_state=str((cfg.get("evaluation") or {}).get("initial_state", "rest")),
+        # a sweep's trial starts afresh: a resumed sweep hands its folder (runs/<job>) to
+        # another trial, whose interrupted predecessor it must not continue
+        resume=(cfg.get("sweep_trial") or {}).get("number") is None,
         callbacks=callbacks,
     )
 
