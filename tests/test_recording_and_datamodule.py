@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -120,3 +121,19 @@ def test_bad_datamodule_settings():
         WindowDataModule(splits, val_fraction=1.5)
     with pytest.raises(ConfigError, match="layout"):
         WindowDataModule(splits, layout="image")
+
+
+def test_recordings_without_validation_are_said_once_per_data_set(caplog):
+    from hysteresis_lab.data.segments import RecordingDataModule
+    from hysteresis_lab.sim.default_dataset import make_default_dataset
+
+    data = make_default_dataset(effects={"creep": {"enabled": False}}, n_train=3000,
+                                test_frequencies=(10.0,), max_test_samples=1000, val_samples=0)
+    assert not data.val
+    data = dataclasses.replace(data, name="told-once")  # not one an earlier test warned of
+    windows = WindowDataModule(data, scaling="paper")
+    with caplog.at_level("WARNING", logger="hysteresis_lab.data.segments"):
+        for _ in range(3):  # a grown model's stages, the selection loss: modules per fit
+            RecordingDataModule(windows).setup()
+    told = [r for r in caplog.records if "no validation recordings" in r.getMessage()]
+    assert len(told) == 1

@@ -21,6 +21,9 @@ from hysteresis_lab.errors import ConfigError
 
 log = logging.getLogger(__name__)
 
+#: the data sets already told that their training recordings also validate
+_TOLD_NO_VALIDATION: set[tuple[str, tuple[str, ...]]] = set()
+
 
 class SegmentDataModule(L.LightningDataModule):
     """Batches ``(u, y)`` of shape (B, first_target + steps, nu / ny), scaled.
@@ -131,7 +134,9 @@ class RecordingDataModule(L.LightningDataModule):
         if self._data:
             return
         splits = self.windows.splits
-        if not splits.val:
+        said = (splits.name, tuple(rec.name for rec in splits.train))
+        if not splits.val and said not in _TOLD_NO_VALIDATION:  # once per data set and process
+            _TOLD_NO_VALIDATION.add(said)
             log.warning(
                 "no validation recordings: model selection reads the free run of the training "
                 "recordings (give data.val, or for data=default data.splits.val_samples > 0)"
