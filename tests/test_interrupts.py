@@ -5,6 +5,7 @@ use by another process is refused."""
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -74,6 +75,18 @@ def test_a_rerun_resumes_an_interrupted_training_from_its_last_epoch(tmp_path):
     # one best checkpoint, and nothing left to resume
     assert len(_checkpoints(tmp_path)) == 1 and _checkpoints(tmp_path)[0].startswith("best-")
     assert not folder.fit_in_progress.exists()
+
+
+def test_a_best_checkpoint_the_resumed_state_did_not_know_is_not_left_beside_the_new(tmp_path):
+    """A stop can land after an epoch's best checkpoint and before its ``last.ckpt``: the
+    resumed fit's checkpoint state does not know that best, which must not stay."""
+    with pytest.raises(RunInterrupted):
+        _train(tmp_path, 5, [_StopAfter(3)])
+    (best,) = [name for name in _checkpoints(tmp_path) if name.startswith("best-")]
+    directory = tmp_path / RunFolder.CHECKPOINTS
+    shutil.copy(directory / best, directory / "best-epoch=002-val_loss=1.000e-09.ckpt")
+    _train(tmp_path, 5, [])
+    assert len(_checkpoints(tmp_path)) == 1
 
 
 def test_a_rerun_with_other_settings_is_refused_and_one_without_resume_starts_over(tmp_path):

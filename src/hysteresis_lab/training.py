@@ -477,9 +477,14 @@ def _validation_mse(
 def _restore_best(
     model: L.LightningModule, checkpoint: ModelCheckpoint
 ) -> tuple[Path | None, float]:
-    """Load the weights of the best checkpoint; its path and validation loss."""
+    """Load the weights of the best checkpoint; its path and validation loss. Other best
+    checkpoints beside it are deleted: a fit resumed from a ``last.ckpt`` written before the
+    interrupted fit's last best does not know that best, which would stay beside the new."""
     best = checkpoint.best_model_path
     if best:
+        for stale in Path(best).parent.glob("best-*.ckpt"):
+            if stale.name != Path(best).name:
+                stale.unlink()
         state = torch.load(best, map_location=model.device, weights_only=True)["state_dict"]
         model.load_state_dict(state)
     score = checkpoint.best_model_score
