@@ -254,26 +254,27 @@ def _train_and_score(
     """Build and fit the model (going on from an interrupted fit: ``resume``; a declared
     physical model grows from ``splits`` through its stages, `hysteresis_lab.workflows.grow`,
     each from the start), save it, then score it and write the run folder's documents
-    (`RunSettings.evaluate`)."""
+    (`RunSettings.evaluate`). A grown model does not resume: its stages train afresh."""
     settings = config.settings
-    datamodule, model = _build(config, data, context, config.model.effects, warm_start,
-                               baseline)
     logger = _tensorboard_logger(config)
     if warm_start is None and len(growth_stages(config.model)) > 1:
         trained = grow(config.model, config.output_dir,
                        _stage_trainer(config, splits, baseline, callbacks))
+        window = model_window(trained.model)
     else:
+        datamodule, model = _build(config, data, context, config.model.effects, warm_start,
+                                   baseline)
         trained = fit(
             model, datamodule, config.trainer, config.output_dir, logger=logger,
             callbacks=callbacks, keep_start_unless_beaten=warm_start is not None,
             min_gain=settings.min_refit_gain, resume=resume,
         )
+        window = datamodule.window
     model_path = save_model(trained.model, RunFolder(config.output_dir).model_stem)
     log.info("saved %s", model_path)
     if not settings.evaluate:
-        return _unscored_result(config, data, trained, datamodule.window)
-    return _score_and_report(config, data, trained, datamodule.window, model_path, logger,
-                             record_key)
+        return _unscored_result(config, data, trained, window)
+    return _score_and_report(config, data, trained, window, model_path, logger, record_key)
 
 
 def _stage_trainer(
