@@ -22,8 +22,8 @@ import argparse
 import logging
 from pathlib import Path
 
-from hysteresis_lab.analysis.loop_checks import ceiling
 from hysteresis_lab.errors import HysteresisLabError
+from hysteresis_lab.loop.checks import ceiling
 
 log = logging.getLogger("effect_ceiling")
 

@@ -31,9 +31,9 @@ from fsm_start import N_INIT, NL_LFR, score
 from hysteresis_lab import api
 from hysteresis_lab.data.benchmarks import FSM_AMPLITUDES, fsm_piezo_mirror
 from hysteresis_lab.data.splits import DatasetSplits
-from hysteresis_lab.effects.augment import for_model
 from hysteresis_lab.evaluation.predict import free_run
 from hysteresis_lab.evaluation.provenance import commit_stamp
+from hysteresis_lab.models.augment import for_model
 from hysteresis_lab.models.io import load_model
 
 REPO = Path(__file__).resolve().parents[1]

@@ -35,9 +35,9 @@ import yaml
 from hysteresis_lab.data.benchmarks import FSM_AMPLITUDES, fsm_piezo_mirror
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.splits import DatasetSplits
-from hysteresis_lab.effects.augment import for_model
 from hysteresis_lab.evaluation.predict import free_run
 from hysteresis_lab.evaluation.provenance import commit_stamp
+from hysteresis_lab.models.augment import for_model
 from hysteresis_lab.models.io import load_model, model_window
 from hysteresis_lab.run_folder import RunFolder
 

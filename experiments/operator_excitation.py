@@ -16,11 +16,11 @@ import logging
 
 from undeclared_effects import CASE_DATA, CASES, TEST_HOLD, TRAIN_SINES  # the script beside
 
-from hysteresis_lab.analysis.excitation import operator_excitation
 from hysteresis_lab.api import compose
 from hysteresis_lab.data.factory import build_splits
-from hysteresis_lab.effects.augment import feature_context
 from hysteresis_lab.effects.registry import available_effects, get_effect
+from hysteresis_lab.loop.diagnosis.excitation import operator_excitation
+from hysteresis_lab.models.augment import feature_context
 
 log = logging.getLogger("operator_excitation")
 

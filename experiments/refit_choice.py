@@ -20,8 +20,8 @@ import json
 import logging
 from pathlib import Path
 
-from hysteresis_lab.analysis.loop_checks import CHECK_FREQUENCIES, refit_choices
 from hysteresis_lab.errors import HysteresisLabError
+from hysteresis_lab.loop.checks import CHECK_FREQUENCIES, refit_choices
 
 log = logging.getLogger("refit_choice")
 

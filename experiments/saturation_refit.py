@@ -48,13 +48,6 @@ from lightning.pytorch.callbacks import Callback
 from omegaconf import OmegaConf
 from scipy import signal
 
-from hysteresis_lab.analysis.loop_checks import (
-    ceiling,
-    free_run_rmse,
-    round_model,
-    run_data_config,
-    run_fresh_loop,
-)
 from hysteresis_lab.blocks.sections import nyquist_share, slowest_rate, steiglitz_mcbride
 from hysteresis_lab.data.benchmarks import load_benchmark
 from hysteresis_lab.data.datamodules import WindowDataModule
@@ -62,6 +55,15 @@ from hysteresis_lab.data.factory import build_splits
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.evaluation.provenance import commit_stamp
+from hysteresis_lab.loop.checks import (
+    ceiling,
+    free_run_rmse,
+    round_model,
+    run_data_config,
+    run_fresh_loop,
+)
+from hysteresis_lab.loop.data import loop_data
+from hysteresis_lab.loop.driver import LoopSettings
 from hysteresis_lab.models.io import load_model
 from hysteresis_lab.sim import blocks
 from hysteresis_lab.sim.config import PositionerConfig
@@ -69,8 +71,6 @@ from hysteresis_lab.sim.default_dataset import make_default_dataset
 from hysteresis_lab.sim.positioner import Positioner
 from hysteresis_lab.trainer import TrainerSettings
 from hysteresis_lab.training import build_model
-from hysteresis_lab.workflows.loop import LoopSettings
-from hysteresis_lab.workflows.loop_data import loop_data
 from hysteresis_lab.workflows.pipeline import train_and_evaluate
 
 log = logging.getLogger("saturation_refit")

@@ -28,9 +28,9 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
-from hysteresis_lab.analysis.diagnosis import BlockCounts
-from hysteresis_lab.analysis.loop_checks import run_fresh_loop
 from hysteresis_lab.evaluation.provenance import commit_stamp
+from hysteresis_lab.loop.checks import run_fresh_loop
+from hysteresis_lab.loop.diagnosis.ranking import BlockCounts
 
 REPO = Path(__file__).resolve().parents[1]
 OUT = REPO / "docs" / "results" / "tanks_loop_holdout.md"

@@ -12,11 +12,11 @@ import pytest
 import hysteresis_lab as hl
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.spec import DataSpec
-from hysteresis_lab.effects.augment import for_model
 from hysteresis_lab.errors import ConfigError, DataError
+from hysteresis_lab.loop.driver import LoopSettings, run_loop
+from hysteresis_lab.models.augment import for_model
 from hysteresis_lab.models.baseline import Baseline
 from hysteresis_lab.models.io import load_model
-from hysteresis_lab.workflows.loop import LoopSettings, run_loop
 from hysteresis_lab.workflows.pipeline import (
     RunConfig,
     RunSettings,

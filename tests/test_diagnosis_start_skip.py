@@ -8,7 +8,8 @@ import logging
 import numpy as np
 from scipy import signal
 
-from hysteresis_lab.analysis.diagnosis import (
+from hysteresis_lab.data.recording import Recording
+from hysteresis_lab.loop.diagnosis.ranking import (
     MAX_SKIPPED_SHARE,
     _model_dynamics,
     _prepare,
@@ -16,8 +17,7 @@ from hysteresis_lab.analysis.diagnosis import (
     diagnose,
     evidence_lags,
 )
-from hysteresis_lab.data.recording import Recording
-from hysteresis_lab.effects.augment import feature_context
+from hysteresis_lab.models.augment import feature_context
 
 FS = 1000.0
 POLE = 0.99  # a slow model: its start transient settles over more than 1000 samples
@@ -37,7 +37,7 @@ def test_the_log_names_the_samples_left_out_of_each_recording(caplog):
     recordings = [c[0] for c in cases]
     settling = _settling(np.array([1.0, -POLE]))
     assert 1000 < settling < 20000 * MAX_SKIPPED_SHARE  # capped on one, not on the other
-    with caplog.at_level(logging.INFO, logger="hysteresis_lab.analysis.diagnosis"):
+    with caplog.at_level(logging.INFO, logger="hysteresis_lab.loop.diagnosis.ranking"):
         diagnose(recordings, [c[2][:, None] for c in cases], feature_context(recordings[1:]),
                  [], candidates=["drift"], lags=evidence_lags(4),
                  predictions=[c[1][:, None] for c in cases], through_dynamics=True)

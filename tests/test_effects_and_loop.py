@@ -11,17 +11,17 @@ import torch
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from helpers import data_overrides, run_app, small_dataset
-from hysteresis_lab.analysis.correlation import correlation_tests
-from hysteresis_lab.analysis.diagnosis import EffectScore, diagnose, evidence_lags
-from hysteresis_lab.analysis.report import diagnostics_figure, residual_analysis
 from hysteresis_lab.data.recording import Recording
-from hysteresis_lab.effects.augment import augment, feature_context
 from hysteresis_lab.effects.base import FeatureContext
 from hysteresis_lab.effects.operators import lowpass_bank, play_operators
 from hysteresis_lab.effects.registry import available_effects, get_effect
 from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.loop.diagnosis.correlation import correlation_tests
+from hysteresis_lab.loop.diagnosis.ranking import EffectScore, diagnose, evidence_lags
+from hysteresis_lab.loop.diagnosis.residuals import diagnostics_figure, residual_analysis
+from hysteresis_lab.loop.driver import LoopSettings, next_effect
+from hysteresis_lab.models.augment import augment, feature_context
 from hysteresis_lab.signals import sine
-from hysteresis_lab.workflows.loop import LoopSettings, next_effect
 from loop_notebook import check_loop_notebook
 
 FS = 2000.0
@@ -315,8 +315,8 @@ def test_model_with_effects_trains_saves_and_evaluates(model, tmp_path):
 
 
 def test_loop_gives_network_settings_only_to_networks():
+    from hysteresis_lab.loop.driver import _without_network_only_settings
     from hysteresis_lab.models.spec import ModelSpec
-    from hysteresis_lab.workflows.loop import _without_network_only_settings
 
     settings = {"objective": "simulation", "horizon": 200, "simulation_epochs": 5,
                 "effect_path": "linear", "refit_lr": 1e-4}

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hysteresis_lab.analysis.excitation import UNDER_EXCITED_RATIO, operator_excitation
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.effects.base import FeatureContext
+from hysteresis_lab.loop.diagnosis.excitation import UNDER_EXCITED_RATIO, operator_excitation
 from hysteresis_lab.signals import sine
 
 FS = 2000.0

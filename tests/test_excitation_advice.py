@@ -9,27 +9,27 @@ import numpy as np
 import pytest
 
 import hysteresis_lab as hl
-from hysteresis_lab.analysis.diagnosis import EffectScore
-from hysteresis_lab.analysis.excitation import (
+from hysteresis_lab.data.factory import build_splits
+from hysteresis_lab.data.recording import Recording
+from hysteresis_lab.data.spec import DataSpec
+from hysteresis_lab.data.splits import DatasetSplits
+from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.loop.advice import excitation_advice
+from hysteresis_lab.loop.data import loop_data
+from hysteresis_lab.loop.diagnosis.excitation import (
     UNDER_EXCITED_RATIO,
     between_frequencies,
     dominant_frequency,
     recommend_recordings,
 )
-from hysteresis_lab.data.factory import build_splits
-from hysteresis_lab.data.recording import Recording
-from hysteresis_lab.data.spec import DataSpec
-from hysteresis_lab.data.splits import DatasetSplits
-from hysteresis_lab.effects.augment import feature_context
-from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.loop.diagnosis.ranking import EffectScore
+from hysteresis_lab.loop.driver import LoopSettings, run_loop
+from hysteresis_lab.loop.report import loop_markdown
+from hysteresis_lab.models.augment import feature_context
 from hysteresis_lab.run_folder import LoopFolder
 from hysteresis_lab.signals import multisine, sine
 from hysteresis_lab.sim.default_dataset import make_default_dataset
 from hysteresis_lab.trainer import TrainerSettings
-from hysteresis_lab.workflows.loop import LoopSettings, run_loop
-from hysteresis_lab.workflows.loop_advice import excitation_advice
-from hysteresis_lab.workflows.loop_data import loop_data
-from hysteresis_lab.workflows.loop_report import loop_markdown
 from loop_notebook import check_loop_notebook
 
 #: the simulator with the amplifier's clipping the one effect beyond linear dynamics

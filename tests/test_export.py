@@ -114,8 +114,8 @@ def test_a_physical_chain_steps_in_onnx_as_it_simulates(case, tmp_path):
     file's initial state (zeros, or a learned shared initial state) over a recording, it
     reproduces the model's own free run."""
     optional_dependency("onnxruntime")
-    from hysteresis_lab.effects.augment import augment_splits, context_to_dict
     from hysteresis_lab.evaluation.predict import free_run
+    from hysteresis_lab.models.augment import augment_splits, context_to_dict
     from hysteresis_lab.models.export import export_onnx
 
     config, nu, ny = CHAIN_CASES[case]

@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from hysteresis_lab.data.datamodules import WindowDataModule
-from hysteresis_lab.effects.augment import augment_splits, context_to_dict
+from hysteresis_lab.models.augment import augment_splits, context_to_dict
 from hysteresis_lab.models.greybox import GreyBox
 from hysteresis_lab.models.linear import LinearModel
 from hysteresis_lab.models.spec import ModelSpec

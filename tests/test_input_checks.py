@@ -13,7 +13,7 @@ from hysteresis_lab.data.readers import write_csv
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.user_files import load_user_files
 from hysteresis_lab.data.windows import WindowSpec
-from hysteresis_lab.effects.augment import feature_context, warn_unshown
+from hysteresis_lab.models.augment import feature_context, warn_unshown
 from hysteresis_lab.workflows.pipeline import RunConfig, RunSettings, run_model
 from narx import CONFIGS, TRAINER
 

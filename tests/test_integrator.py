@@ -12,9 +12,9 @@ from hysteresis_lab.api import compose, train
 from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.splits import DatasetSplits
-from hysteresis_lab.effects.augment import augment_splits, context_to_dict, feature_context
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.evaluation.predict import free_run
+from hysteresis_lab.models.augment import augment_splits, context_to_dict, feature_context
 from hysteresis_lab.models.linear import LinearModel
 from hysteresis_lab.trainer import TrainerSettings
 from hysteresis_lab.training import build_model, fit

@@ -11,7 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hysteresis_lab.analysis.loop_checks import (
+from hysteresis_lab.data.factory import build_splits
+from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.evaluation.evaluate import scoring_start
+from hysteresis_lab.evaluation.predict import free_run
+from hysteresis_lab.evaluation.provenance import commit_stamp
+from hysteresis_lab.loop.checks import (
     ceiling,
     check_splits,
     refit_choices,
@@ -19,12 +24,7 @@ from hysteresis_lab.analysis.loop_checks import (
     run_data_config,
     run_fresh_loop,
 )
-from hysteresis_lab.data.factory import build_splits
-from hysteresis_lab.effects.augment import for_model
-from hysteresis_lab.errors import ConfigError
-from hysteresis_lab.evaluation.evaluate import scoring_start
-from hysteresis_lab.evaluation.predict import free_run
-from hysteresis_lab.evaluation.provenance import commit_stamp
+from hysteresis_lab.models.augment import for_model
 from hysteresis_lab.models.io import load_model
 from hysteresis_lab.sim.positioner import Positioner
 

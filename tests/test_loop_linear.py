@@ -11,23 +11,23 @@ import pytest
 from scipy import signal
 
 from helpers import data_overrides, run_app, small_dataset
-from hysteresis_lab.analysis.diagnosis import diagnose
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.data.splits import DatasetSplits
-from hysteresis_lab.effects.augment import feature_context
 from hysteresis_lab.errors import ConfigError, DataError, DivergedError
-from hysteresis_lab.signals import multisine
-from hysteresis_lab.sim.default_dataset import make_default_dataset
-from hysteresis_lab.trainer import TrainerSettings
-from hysteresis_lab.workflows.loop import (
+from hysteresis_lab.loop.data import loop_data
+from hysteresis_lab.loop.diagnosis.ranking import diagnose
+from hysteresis_lab.loop.driver import (
     HeldOut,
     LoopSettings,
     _diverges,
     _judge_held_out,
     run_loop,
 )
-from hysteresis_lab.workflows.loop_data import loop_data
+from hysteresis_lab.models.augment import feature_context
+from hysteresis_lab.signals import multisine
+from hysteresis_lab.sim.default_dataset import make_default_dataset
+from hysteresis_lab.trainer import TrainerSettings
 from hysteresis_lab.workflows.pipeline import RunResult
 
 FS = 100.0

@@ -11,18 +11,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hysteresis_lab.analysis.diagnosis import diagnose
-from hysteresis_lab.analysis.excitation import operator_excitation
-from hysteresis_lab.analysis.loop_figures import ResidualEvidence
-from hysteresis_lab.analysis.report import diagnostics_figure
 from hysteresis_lab.data.recording import Recording
-from hysteresis_lab.effects.augment import feature_context
 from hysteresis_lab.effects.operators import play_operators
 from hysteresis_lab.evaluation.plots import save_figure
 from hysteresis_lab.evaluation.report import write_json
+from hysteresis_lab.loop.diagnosis.excitation import operator_excitation
+from hysteresis_lab.loop.diagnosis.ranking import diagnose
+from hysteresis_lab.loop.diagnosis.residuals import diagnostics_figure
+from hysteresis_lab.loop.driver import HeldOut, LoopSettings, _decision, _LoopState
+from hysteresis_lab.loop.figures import ResidualEvidence
+from hysteresis_lab.loop.report import loop_markdown, write_round_figures
+from hysteresis_lab.models.augment import feature_context
 from hysteresis_lab.run_folder import LoopFolder
-from hysteresis_lab.workflows.loop import HeldOut, LoopSettings, _decision, _LoopState
-from hysteresis_lab.workflows.loop_report import loop_markdown, write_round_figures
 from hysteresis_lab.workflows.pipeline import RunResult
 from loop_notebook import check_loop_notebook, round_sections, subsection
 

@@ -17,11 +17,11 @@ import pytest
 
 from helpers import data_overrides, run_app, small_dataset
 from hysteresis_lab import plugins
-from hysteresis_lab.analysis.diagnosis import diagnose
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.effects.base import FeatureContext
 from hysteresis_lab.effects.registry import available_effects, get_effect
 from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.loop.diagnosis.ranking import diagnose
 from hysteresis_lab.models.registry import available_models, get_model_class
 from hysteresis_lab.signals import sine
 

@@ -8,11 +8,11 @@ import pytest
 import torch
 
 from hysteresis_lab.data.datamodules import WindowDataModule
-from hysteresis_lab.effects.augment import augment_splits, context_to_dict
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.evaluation.predict import free_run
+from hysteresis_lab.loop.driver import LoopSettings
+from hysteresis_lab.models.augment import augment_splits, context_to_dict
 from hysteresis_lab.training import build_model, fit
-from hysteresis_lab.workflows.loop import LoopSettings
 from narx import CONFIGS, TRAINER
 
 

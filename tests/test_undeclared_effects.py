@@ -12,7 +12,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hysteresis_lab.analysis.diagnosis import (
+from hysteresis_lab.data.recording import Recording
+from hysteresis_lab.data.spec import DataSpec
+from hysteresis_lab.loop.diagnosis.ranking import (
     MAX_SKIPPED_SHARE,
     _holds_input,
     _model_dynamics,
@@ -21,14 +23,12 @@ from hysteresis_lab.analysis.diagnosis import (
     diagnose,
     evidence_lags,
 )
-from hysteresis_lab.data.recording import Recording
-from hysteresis_lab.data.spec import DataSpec
-from hysteresis_lab.effects.augment import feature_context
+from hysteresis_lab.loop.driver import LoopSettings, run_loop
+from hysteresis_lab.models.augment import feature_context
 from hysteresis_lab.signals import multisine, sine
 from hysteresis_lab.sim.default_dataset import make_default_dataset
 from hysteresis_lab.sim.positioner import simulate_recording
 from hysteresis_lab.trainer import TrainerSettings
-from hysteresis_lab.workflows.loop import LoopSettings, run_loop
 
 FS = 2000.0
 #: the small positioner: modes inside the band 2 kHz can show

@@ -91,8 +91,8 @@ def simulate(model: Any, recordings: Sequence[Recording]) -> list[np.ndarray]:
     """Free-run simulation of a fitted model: each recording's output (samples x outputs,
     physical units) predicted from its input alone, the first window taken from the
     measurement as initial conditions."""
-    from hysteresis_lab.effects.augment import for_model
     from hysteresis_lab.evaluation.predict import free_run
+    from hysteresis_lab.models.augment import for_model
 
     return free_run(model, for_model(model, recordings), model.window)
 
@@ -101,7 +101,7 @@ def evaluate(model: Any, recordings: Sequence[Recording], n_init: int = 0) -> Ev
     """Score a fitted model on ``recordings`` in both modes, one-step and free run: RMSE, R²
     and NRMSE per recording (``.metrics[name]["rmse_free_run"]``) and the predictions behind
     them. ``n_init``: samples not scored at the start (the data set's ``n_init``)."""
-    from hysteresis_lab.effects.augment import for_model
     from hysteresis_lab.evaluation.evaluate import evaluate_model
+    from hysteresis_lab.models.augment import for_model
 
     return evaluate_model(model, for_model(model, recordings), model.window, n_init)

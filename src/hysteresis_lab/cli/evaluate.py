@@ -29,10 +29,10 @@ log = logging.getLogger(__name__)
 def run(cfg: DictConfig) -> dict:
     """Load the model, score it on the data config's test recordings, write metrics.json."""
     from hysteresis_lab.data.factory import build_splits
-    from hysteresis_lab.effects.augment import for_model
     from hysteresis_lab.evaluation.evaluate import evaluate_model
     from hysteresis_lab.evaluation.plots import loops_figure, residuals_figure, save_figure
     from hysteresis_lab.evaluation.report import metrics_document
+    from hysteresis_lab.models.augment import for_model
     from hysteresis_lab.models.io import load_model, model_window
     from hysteresis_lab.run_folder import RunFolder
 

@@ -29,8 +29,8 @@ def run(cfg: DictConfig) -> dict:
     from hysteresis_lab.data.factory import build_splits
     from hysteresis_lab.data.spec import DataSpec
     from hysteresis_lab.errors import ConfigError
+    from hysteresis_lab.loop.driver import LoopSettings, run_loop
     from hysteresis_lab.trainer import TrainerSettings
-    from hysteresis_lab.workflows.loop import LoopSettings, run_loop
 
     settings = OmegaConf.to_container(cfg.loop, resolve=True)
     unknown = set(settings) - set(LoopSettings.__dataclass_fields__)

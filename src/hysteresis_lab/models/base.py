@@ -39,10 +39,10 @@ from lightning.pytorch.strategies import SingleDeviceStrategy
 from torch import nn
 
 from hysteresis_lab.data.windows import Layout, WindowSpec, assemble
-from hysteresis_lab.effects.augment import context_from_dict
 from hysteresis_lab.effects.registry import get_effect
 from hysteresis_lab.errors import ConfigError, DivergedError
 from hysteresis_lab.kernels.interface import input_lags
+from hysteresis_lab.models.augment import context_from_dict
 from hysteresis_lab.models.interface import NetworkModel
 from hysteresis_lab.models.settings import (
     EffectSettings,

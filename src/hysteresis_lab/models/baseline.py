@@ -102,8 +102,8 @@ class Baseline:
 
     def channels_for(self, recordings: Sequence[Recording]) -> list[np.ndarray]:
         """The baseline's free run (T, ny) on each recording (its measured inputs only)."""
-        from hysteresis_lab.effects.augment import for_model
         from hysteresis_lab.evaluation.predict import free_run
+        from hysteresis_lab.models.augment import for_model
 
         if not recordings:
             return []

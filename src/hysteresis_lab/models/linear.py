@@ -75,8 +75,8 @@ from hysteresis_lab.blocks.sections import (
 from hysteresis_lab.blocks.step import StepState, frozen, tdf2_step
 from hysteresis_lab.blocks.storage import StorageCascade
 from hysteresis_lab.data.recording import Recording
-from hysteresis_lab.effects.augment import context_from_dict
 from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.models.augment import context_from_dict
 from hysteresis_lab.models.linear_blocks import (
     Backlash,
     DeadZone,

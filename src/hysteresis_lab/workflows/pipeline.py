@@ -30,13 +30,13 @@ from hysteresis_lab.data.factory import build_datamodule, build_splits
 from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.data.windows import WindowSpec
-from hysteresis_lab.effects.augment import augment_splits, context_to_dict, warn_unshown
 from hysteresis_lab.effects.registry import check_effects
 from hysteresis_lab.errors import ConfigError, DataError
 from hysteresis_lab.evaluation.evaluate import Evaluation, evaluate_model, scoring_start
 from hysteresis_lab.evaluation.plots import loops_figure, residuals_figure, save_figure
 from hysteresis_lab.evaluation.predict import check_n_step
 from hysteresis_lab.evaluation.report import metrics_document
+from hysteresis_lab.models.augment import augment_splits, context_to_dict, warn_unshown
 from hysteresis_lab.models.baseline import Baseline, baseline_of
 from hysteresis_lab.models.interface import SystemModel
 from hysteresis_lab.models.io import load_model, model_window, save_model

@@ -29,11 +29,11 @@ from omegaconf import OmegaConf
 from hysteresis_lab.data.factory import build_splits
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.splits import DatasetSplits
-from hysteresis_lab.effects.augment import for_model
 from hysteresis_lab.errors import ConfigError, DataError
 from hysteresis_lab.evaluation.evaluate import scoring_start
 from hysteresis_lab.evaluation.metrics import rmse
 from hysteresis_lab.evaluation.predict import free_run
+from hysteresis_lab.models.augment import for_model
 from hysteresis_lab.models.io import load_model
 from hysteresis_lab.run_folder import LoopFolder, RunFolder
 

@@ -29,14 +29,9 @@ import numpy as np
 
 from hysteresis_lab import fit_record
 from hysteresis_lab._console import SUMMARY
-from hysteresis_lab.analysis.diagnosis import TESTS, EffectScore, diagnose, evidence_lags
-from hysteresis_lab.analysis.excitation import operator_excitation
-from hysteresis_lab.analysis.loop_figures import ResidualEvidence
-from hysteresis_lab.analysis.report import diagnostics_figure, residual_analysis
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.data.splits import DatasetSplits
-from hysteresis_lab.effects.augment import feature_context, for_model
 from hysteresis_lab.effects.base import MODEL_OUTPUT_BLOCKS, FeatureContext
 from hysteresis_lab.effects.registry import get_effect
 from hysteresis_lab.errors import ConfigError, DivergedError, HysteresisLabError
@@ -44,21 +39,26 @@ from hysteresis_lab.evaluation.evaluate import scoring_start
 from hysteresis_lab.evaluation.plots import loops_figure, save_figure
 from hysteresis_lab.evaluation.predict import free_run
 from hysteresis_lab.evaluation.report import write_json
-from hysteresis_lab.models.base import NarxModule
-from hysteresis_lab.models.baseline import SETTING as BASELINE_SETTING
-from hysteresis_lab.models.spec import ModelSpec
-from hysteresis_lab.run_folder import LoopFolder, RunFolder
-from hysteresis_lab.trainer import TrainerSettings
-from hysteresis_lab.workflows.grow import REFIT_LR_FACTORS, refit_mode, refit_rates
-from hysteresis_lab.workflows.loop_advice import excitation_advice
-from hysteresis_lab.workflows.loop_data import LoopData, Stretch, loop_data
-from hysteresis_lab.workflows.loop_report import (
+from hysteresis_lab.loop.advice import excitation_advice
+from hysteresis_lab.loop.data import LoopData, Stretch, loop_data
+from hysteresis_lab.loop.diagnosis.excitation import operator_excitation
+from hysteresis_lab.loop.diagnosis.ranking import TESTS, EffectScore, diagnose, evidence_lags
+from hysteresis_lab.loop.diagnosis.residuals import diagnostics_figure, residual_analysis
+from hysteresis_lab.loop.figures import ResidualEvidence
+from hysteresis_lab.loop.report import (
     loop_markdown,
     result_line,
     round_line,
     start_label,
     write_round_figures,
 )
+from hysteresis_lab.models.augment import feature_context, for_model
+from hysteresis_lab.models.base import NarxModule
+from hysteresis_lab.models.baseline import SETTING as BASELINE_SETTING
+from hysteresis_lab.models.spec import ModelSpec
+from hysteresis_lab.run_folder import LoopFolder, RunFolder
+from hysteresis_lab.trainer import TrainerSettings
+from hysteresis_lab.workflows.grow import REFIT_LR_FACTORS, refit_mode, refit_rates
 from hysteresis_lab.workflows.pipeline import RunResult, evaluation_device, train_and_evaluate
 
 log = logging.getLogger(__name__)

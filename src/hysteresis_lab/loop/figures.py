@@ -16,10 +16,10 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
-from hysteresis_lab.analysis.diagnosis import effect_signals
-from hysteresis_lab.analysis.spectrum import binned, residual_spectrum
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.effects.base import FeatureContext
+from hysteresis_lab.loop.diagnosis.ranking import effect_signals
+from hysteresis_lab.loop.diagnosis.spectrum import binned, residual_spectrum
 
 #: at most this many points of a series are drawn (every n-th sample)
 MAX_POINTS = 2000

@@ -16,15 +16,15 @@ import time
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from hysteresis_lab.analysis.diagnosis import BlockCounts
-from hysteresis_lab.analysis.loop_figures import (
+from hysteresis_lab.effects.base import FeatureContext
+from hysteresis_lab.loop.diagnosis.ranking import BlockCounts
+from hysteresis_lab.loop.figures import (
     DPI,
     ResidualEvidence,
     effect_figure,
     residual_figure,
     scores_figure,
 )
-from hysteresis_lab.effects.base import FeatureContext
 from hysteresis_lab.run_folder import LoopFolder
 
 log = logging.getLogger(__name__)

@@ -7,9 +7,9 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
-from hysteresis_lab.analysis.correlation import correlation_tests
-from hysteresis_lab.analysis.spectrum import binned, residual_spectrum
 from hysteresis_lab.data.recording import Recording
+from hysteresis_lab.loop.diagnosis.correlation import correlation_tests
+from hysteresis_lab.loop.diagnosis.spectrum import binned, residual_spectrum
 
 MODES = ("one_step", "free_run")
 

@@ -20,20 +20,20 @@ from typing import Any
 
 import numpy as np
 
-from hysteresis_lab.analysis.diagnosis import EffectScore
-from hysteresis_lab.analysis.excitation import (
+from hysteresis_lab.data.recording import Recording
+from hysteresis_lab.data.spec import DataSpec
+from hysteresis_lab.effects.base import MODEL_OUTPUT_BLOCKS, FeatureContext
+from hysteresis_lab.effects.registry import get_effect
+from hysteresis_lab.loop.data import LoopData, Stretch
+from hysteresis_lab.loop.diagnosis.excitation import (
     UNDER_EXCITED_RATIO,
     RecordingAdvice,
     SineMaker,
     recommend_recordings,
     under_excited_ratio,
 )
-from hysteresis_lab.data.recording import Recording
-from hysteresis_lab.data.spec import DataSpec
-from hysteresis_lab.effects.base import MODEL_OUTPUT_BLOCKS, FeatureContext
-from hysteresis_lab.effects.registry import get_effect
+from hysteresis_lab.loop.diagnosis.ranking import EffectScore
 from hysteresis_lab.sim.default_dataset import sine_name, sine_signal
-from hysteresis_lab.workflows.loop_data import LoopData, Stretch
 
 log = logging.getLogger(__name__)
 

@@ -1,0 +1,1 @@
+"""The closed loop (``hysteresis-lab-loop``): fit -> residuals -> diagnose -> add -> refit."""
