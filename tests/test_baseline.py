@@ -15,8 +15,7 @@ from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.errors import ConfigError, DataError
 from hysteresis_lab.loop.driver import LoopSettings, run_loop
 from hysteresis_lab.models.augment import for_model
-from hysteresis_lab.models.baseline import Baseline
-from hysteresis_lab.models.io import load_model
+from hysteresis_lab.models.io import load_baseline, load_model
 from hysteresis_lab.workflows.pipeline import (
     RunConfig,
     RunSettings,
@@ -83,7 +82,7 @@ def test_wrong_uses_of_a_baseline_are_refused_with_a_fix(fitted, tmp_path):
                  splits, tmp_path / "loop", LoopSettings(max_rounds=0), use_tensorboard=False)
     two_inputs = Recording(u=np.zeros((100, 2)), y=np.zeros((100, 1)), fs=100.0, name="two")
     with pytest.raises(DataError, match="has 2 measured input.*reads 1"):
-        Baseline.load(root / "linear").channels_for([two_inputs])
+        load_baseline(root / "linear").channels_for([two_inputs])
 
 
 def test_declared_effects_and_a_baseline_each_get_their_own_channels(fitted, tmp_path):
@@ -110,8 +109,8 @@ def test_a_finished_fit_is_reused_only_with_the_same_baseline(fitted):
     splits, _, _, root = fitted
     config = RunConfig({**SUBNET, "baseline": str(root / "linear")}, DATA, TRAINER,
                        root / "unused", RunSettings(reuse=True))
-    baseline = Baseline.load(root / "linear")
+    baseline = load_baseline(root / "linear")
     refitted = dataclasses.replace(baseline, payload=baseline.payload + b"another fit")
     key = _fit_record_key(config, splits, None, baseline)
-    assert key == _fit_record_key(config, splits, None, Baseline.load(root / "linear"))
+    assert key == _fit_record_key(config, splits, None, load_baseline(root / "linear"))
     assert key != _fit_record_key(config, splits, None, refitted)

@@ -31,7 +31,7 @@ from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.data.segments import simulation_data
 from hysteresis_lab.errors import ConfigError, DivergedError
 from hysteresis_lab.interrupts import RunInterrupted, raise_if_stopped, signals_deferred
-from hysteresis_lab.models.baseline import SETTING as BASELINE_SETTING
+from hysteresis_lab.models.augment import SETTING as BASELINE_SETTING
 from hysteresis_lab.models.interface import SystemModel
 from hysteresis_lab.models.settings import Stage
 from hysteresis_lab.models.spec import ModelSpec

@@ -52,9 +52,9 @@ from hysteresis_lab.loop.report import (
     start_label,
     write_round_figures,
 )
+from hysteresis_lab.models.augment import SETTING as BASELINE_SETTING
 from hysteresis_lab.models.augment import feature_context, for_model
 from hysteresis_lab.models.base import NarxModule
-from hysteresis_lab.models.baseline import SETTING as BASELINE_SETTING
 from hysteresis_lab.models.spec import ModelSpec
 from hysteresis_lab.run_folder import LoopFolder, RunFolder
 from hysteresis_lab.trainer import TrainerSettings

@@ -1,21 +1,53 @@
-"""Give recordings the extra input channels of declared effects (computed from ``u`` alone)."""
+"""The extra input channels a model reads beside its measured inputs (data augmentation).
+
+Two kinds, appended in this order to the measured inputs ``u``:
+
+* the operators of the effects the model declares (``model.effects``), computed from ``u``
+  alone with settings fixed from the training recordings (`feature_context`, saved with the
+  model: `context_to_dict`);
+* the free run of a fitted baseline model (``model.baseline=<run folder or model file>``,
+  `Baseline`), one channel per output. A physical model that extrapolates (the grey-box's
+  Bouc–Wen cell, the linear model with its catalogue effects) then carries what the
+  identification data barely show, and the network learns what the physics lacks (the
+  physics-guided networks of Bolderman et al., IEEE TCST 2024, and the model augmentation of
+  Hoekstra et al., 2024). SUBNET's linear start then fits a linear model of the inputs and the
+  baseline's output: training begins near the baseline. The baseline's file travels inside
+  the network's saved model (`Baseline.to_checkpoint`), so a loaded model recomputes its
+  baseline channels on any recording without the original run folder.
+
+`for_model` gives recordings both kinds, as a loaded model reads them. Reading a baseline's
+model file is `hysteresis_lab.models.io`'s (`load_baseline`, `baseline_of`).
+"""
 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import logging
-from collections.abc import Sequence
+import tempfile
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.effects.base import FeatureContext
 from hysteresis_lab.effects.registry import get_effect
 from hysteresis_lab.errors import DataError
+from hysteresis_lab.models.interface import SystemModel
 
 log = logging.getLogger(__name__)
+
+#: the ``model`` config key naming the baseline
+SETTING = "baseline"
+#: prefix of the input channels the baseline adds
+CHANNEL_PREFIX = "baseline_"
+#: reads a model file (`hysteresis_lab.models.io.load_model`, which imports this module)
+ModelLoader = Callable[[Path], SystemModel]
 
 
 def feature_context(recordings: Sequence[Recording]) -> FeatureContext:
@@ -131,7 +163,7 @@ def augment_splits(
 
 def for_model(model: Any, recordings: Sequence[Recording]) -> list[Recording]:
     """Recordings with the extra input channels that a loaded ``model`` reads: its effects'
-    operators, then its baseline's free run (`hysteresis_lab.models.baseline`)."""
+    operators, then its baseline's free run (`Baseline`)."""
     effects = list(model.hparams.get("effects") or [])
     augmented = list(recordings)
     if effects:
@@ -141,3 +173,100 @@ def for_model(model: Any, recordings: Sequence[Recording]) -> list[Recording]:
     if baseline is not None:
         augmented = baseline.append_to(augmented, recordings)
     return augmented
+
+
+@dataclass
+class Baseline:
+    """A fitted model whose free run becomes extra input channels of another model.
+
+    ``payload``: the bytes of its model file (``suffix`` ``.ckpt`` or ``.skops``);
+    ``source``: where it was read from (for messages and reports).
+    """
+
+    model: SystemModel
+    payload: bytes
+    suffix: str
+    source: str
+
+    @classmethod
+    def read(cls, file: Path, load_model: ModelLoader) -> Baseline:
+        """The fitted model saved in ``file`` (read by ``load_model``) as a baseline."""
+        return cls(load_model(file), file.read_bytes(), file.suffix, str(file))
+
+    @classmethod
+    def from_checkpoint(cls, entry: Mapping[str, Any], load_model: ModelLoader) -> Baseline:
+        """The baseline stored by `to_checkpoint` inside another model's checkpoint (its model
+        file read by ``load_model``)."""
+        payload = entry["data"].numpy().tobytes()
+        suffix = str(entry["suffix"])
+        with tempfile.TemporaryDirectory() as folder:
+            file = Path(folder) / f"baseline{suffix}"
+            file.write_bytes(payload)
+            model = load_model(file)
+        return cls(model, payload, suffix, str(entry.get("source", "")))
+
+    def to_checkpoint(self) -> dict[str, Any]:
+        """Plain entries (loadable with ``weights_only=True``) that `from_checkpoint` reads."""
+        data = torch.frombuffer(bytearray(self.payload), dtype=torch.uint8).clone()
+        return {"data": data, "suffix": self.suffix, "source": self.source}
+
+    @property
+    def digest(self) -> str:
+        """SHA-256 of the baseline's file: a finished fit is reused only with the same one."""
+        return hashlib.sha256(self.payload).hexdigest()
+
+    @property
+    def n_inputs(self) -> int:
+        """The measured inputs the baseline reads."""
+        hparams = getattr(self.model, "hparams", {}) or {}
+        return int(hparams.get("n_base_inputs") or hparams.get("nu") or self.model.nu)
+
+    def channels_for(self, recordings: Sequence[Recording]) -> list[np.ndarray]:
+        """The baseline's free run (T, ny) on each recording (its measured inputs only)."""
+        from hysteresis_lab.evaluation.predict import free_run
+
+        if not recordings:
+            return []
+        for rec in recordings:
+            if rec.nu != self.n_inputs:
+                raise DataError(
+                    f"has {rec.nu} measured input(s); the baseline {self.source} reads "
+                    f"{self.n_inputs}.",
+                    source=f"recording '{rec.name}'",
+                    fix="use a baseline fitted on the same inputs as this data set",
+                )
+        runs = free_run(self.model, for_model(self.model, recordings), self.model.window)
+        for rec, y in zip(recordings, runs, strict=True):
+            if not np.all(np.isfinite(y)):
+                raise DataError(
+                    f"the baseline {self.source} diverges in free run on it.",
+                    source=f"recording '{rec.name}'",
+                    fix="refit the baseline (a stable model) or leave model.baseline unset",
+                )
+        return runs
+
+    def append_to(
+        self, recordings: Sequence[Recording], measured: Sequence[Recording]
+    ) -> list[Recording]:
+        """``recordings`` with the baseline's free run of each ``measured`` recording (the
+        same recordings before any other channel was added) as extra input channels."""
+        runs = self.channels_for(measured)
+        return [
+            dataclasses.replace(
+                rec, u=np.column_stack([rec.u, y]),
+                u_names=(*rec.u_names, *(f"{CHANNEL_PREFIX}{name}" for name in rec.y_names)),
+            )
+            for rec, y in zip(recordings, runs, strict=True)
+        ]
+
+    def append_to_splits(self, data: DatasetSplits, measured: DatasetSplits) -> DatasetSplits:
+        """Every recording of ``data`` with its baseline channels (see `append_to`)."""
+        log.info("baseline %s: its free run is an input of the model", self.source)
+        return dataclasses.replace(
+            data,
+            train=self.append_to(data.train, measured.train),
+            val=self.append_to(data.val, measured.val),
+            test=self.append_to(data.test, measured.test),
+            metadata={"n_base_inputs": measured.nu, **data.metadata, SETTING: self.source},
+        )
+

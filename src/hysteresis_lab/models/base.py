@@ -20,7 +20,7 @@ input; ``effect_path="linear"`` keeps them out of the network and adds a linear 
 lags to its output (``y = net(u, y lags) + W · effect lags``): physically the classical
 superposition (a Prandtl–Ishlinskii sum of play operators, a creep filter bank, mode filters),
 and a model that extrapolates linearly in the new operators instead of through ReLUs. A
-baseline's free run (``model.baseline``, `hysteresis_lab.models.baseline`) comes last,
+baseline's free run (``model.baseline``, `hysteresis_lab.models.augment`) comes last,
 ``baseline_channels`` channels, and always enters the network.
 """
 
@@ -216,7 +216,7 @@ class NarxModule(L.LightningModule, NetworkModel):
             route = "input" if effect.block == "input" else (
                 "linear" if effect_path == "linear" else "network")
             routes += [route] * effect.features(probe, ctx).shape[1]
-        routes += baseline  # a baseline's free run (`hysteresis_lab.models.baseline`): last
+        routes += baseline  # a baseline's free run (`hysteresis_lab.models.augment`): last
         if len(routes) != self.nu:
             raise ConfigError(
                 f"the effects {list(effects)} give {len(routes) - self.n_base_inputs} channels "

@@ -10,9 +10,13 @@ from typing import Any
 import torch
 
 from hysteresis_lab.data.windows import WindowSpec
-from hysteresis_lab.errors import DataError
+from hysteresis_lab.errors import ConfigError, DataError
+from hysteresis_lab.models.augment import SETTING as BASELINE_SETTING
+from hysteresis_lab.models.augment import Baseline
 from hysteresis_lab.models.interface import SystemModel
 from hysteresis_lab.models.registry import get_model_class
+from hysteresis_lab.models.spec import ModelSpec
+from hysteresis_lab.run_folder import RunFolder
 
 log = logging.getLogger(__name__)
 
@@ -110,9 +114,7 @@ def load_model(path: Path | str) -> SystemModel:
             fix="retrain the model",
         ) from None
     if "baseline" in checkpoint:
-        from hysteresis_lab.models.baseline import Baseline
-
-        model.baseline = Baseline.from_checkpoint(checkpoint["baseline"])
+        model.baseline = Baseline.from_checkpoint(checkpoint["baseline"], load_model)
     return model.eval()
 
 
@@ -153,3 +155,34 @@ def _load_skops(path: Path) -> Any:
 def model_window(model: SystemModel) -> WindowSpec:
     """The regressor lags a loaded model expects."""
     return model.window
+
+
+def load_baseline(path: str | Path) -> Baseline:
+    """The baseline saved at ``path``: a model file or a run folder holding one."""
+    path = Path(path).expanduser()
+    file = RunFolder(path).model_file() if path.is_dir() else path
+    if file is None or not file.is_file():
+        raise ConfigError(
+            f"model.baseline={str(path)!r}: no fitted model there. Fix: train the "
+            "baseline first (e.g. hysteresis-lab-train model=greybox) and pass its run "
+            "folder or its model.ckpt."
+        )
+    return Baseline.read(file, load_model)
+
+
+def baseline_of(spec: ModelSpec) -> Baseline | None:
+    """The baseline a ``model`` config names (None when it names none); refused for a model
+    that cannot take extra input channels (the physical models: they are the baselines)."""
+    path = spec.settings.get(BASELINE_SETTING)
+    if not path:
+        return None
+    from hysteresis_lab.models.physical_chain import PhysicalChainModule
+
+    if not spec.is_network or issubclass(spec.cls, PhysicalChainModule):
+        raise ConfigError(
+            f"model.baseline is for the networks (ffnn, lstm, cnn, subnet, plugins); "
+            f"{spec.cls.__name__} cannot take a baseline's output as an input. Fix: make "
+            "this model the baseline of a network instead (model=subnet model.baseline=<its "
+            "run folder>)."
+        )
+    return load_baseline(str(path))

@@ -36,10 +36,9 @@ from hysteresis_lab.evaluation.evaluate import Evaluation, evaluate_model, scori
 from hysteresis_lab.evaluation.plots import loops_figure, residuals_figure, save_figure
 from hysteresis_lab.evaluation.predict import check_n_step
 from hysteresis_lab.evaluation.report import metrics_document
-from hysteresis_lab.models.augment import augment_splits, context_to_dict, warn_unshown
-from hysteresis_lab.models.baseline import Baseline, baseline_of
+from hysteresis_lab.models.augment import Baseline, augment_splits, context_to_dict, warn_unshown
 from hysteresis_lab.models.interface import SystemModel
-from hysteresis_lab.models.io import load_model, model_window, save_model
+from hysteresis_lab.models.io import baseline_of, load_model, model_window, save_model
 from hysteresis_lab.models.spec import ModelSpec
 from hysteresis_lab.run_folder import RunFolder
 from hysteresis_lab.trainer import TrainerSettings
