@@ -20,8 +20,8 @@ import logging
 from pathlib import Path
 from typing import Any
 
+from hysteresis_lab.cli.loop import run_fresh_loop
 from hysteresis_lab.evaluation.provenance import commit_stamp
-from hysteresis_lab.loop.checks import run_fresh_loop
 from hysteresis_lab.run_folder import LoopFolder, RunFolder
 
 REPO = Path(__file__).resolve().parents[1]

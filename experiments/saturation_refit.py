@@ -49,6 +49,7 @@ from omegaconf import OmegaConf
 from scipy import signal
 
 from hysteresis_lab.blocks.sections import nyquist_share, slowest_rate, steiglitz_mcbride
+from hysteresis_lab.cli.loop import run_fresh_loop
 from hysteresis_lab.data.benchmarks import load_benchmark
 from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.data.factory import build_splits
@@ -60,7 +61,6 @@ from hysteresis_lab.loop.checks import (
     free_run_rmse,
     round_model,
     run_data_config,
-    run_fresh_loop,
 )
 from hysteresis_lab.loop.data import loop_data
 from hysteresis_lab.loop.driver import LoopSettings

@@ -28,8 +28,8 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
+from hysteresis_lab.cli.loop import run_fresh_loop
 from hysteresis_lab.evaluation.provenance import commit_stamp
-from hysteresis_lab.loop.checks import run_fresh_loop
 from hysteresis_lab.loop.diagnosis.ranking import BlockCounts
 
 REPO = Path(__file__).resolve().parents[1]

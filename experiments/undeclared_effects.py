@@ -45,9 +45,10 @@ import json
 import logging
 from pathlib import Path
 
+from hysteresis_lab.cli.loop import run_fresh_loop
 from hysteresis_lab.effects.registry import get_effect
 from hysteresis_lab.evaluation.provenance import commit_stamp
-from hysteresis_lab.loop.checks import ceiling, effect_share, run_fresh_loop
+from hysteresis_lab.loop.checks import ceiling, effect_share
 
 log = logging.getLogger("undeclared_effects")
 

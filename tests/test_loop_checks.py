@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hysteresis_lab.cli.loop import run_fresh_loop
 from hysteresis_lab.data.factory import build_splits
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.evaluation.evaluate import scoring_start
@@ -22,7 +23,6 @@ from hysteresis_lab.loop.checks import (
     refit_choices,
     round_model,
     run_data_config,
-    run_fresh_loop,
 )
 from hysteresis_lab.models.augment import for_model
 from hysteresis_lab.models.io import load_model

@@ -3,11 +3,11 @@
 - `ceiling`: how much of a round's free-run error is an undeclared simulator effect's own
   output (the most a refit that models the effect could take off);
 - `refit_choices`: whether held-out sines, like the tests but at other frequencies, would have
-  chosen each round's refit the way its validation data did;
-- `run_fresh_loop`: a loop run for such a study, in a fresh folder and timed.
+  chosen each round's refit the way its validation data did.
 
 Both read the run folder the loop wrote (``.hydra/config.yaml``, ``loop_report.json``,
-``round_<n>/``); the studies in ``experiments/`` print their results.
+``round_<n>/``; a study runs its loop with `hysteresis_lab.cli.loop.run_fresh_loop`); the
+studies in ``experiments/`` print their results. Nothing here runs a loop or a command.
 """
 
 from __future__ import annotations
@@ -15,11 +15,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
-import shutil
-import subprocess
-import sys
-import time
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -293,21 +288,4 @@ def refit_choices(run: Path, frequencies: list[float]) -> list[dict[str, Any]]:
     log.info("scored %d refit round(s) of %s on %d check sines", len(results), run,
              len(frequencies))
     return results
-
-
-def run_fresh_loop(overrides: Sequence[str], folder: Path) -> tuple[dict[str, Any], float]:
-    """Run ``hysteresis-lab-loop <overrides>`` into ``folder``, emptied first (the loop would
-    reuse the fits it finds there), with this interpreter; its report and wall time in s."""
-    folder = Path(folder).resolve()
-    if folder.exists():
-        shutil.rmtree(folder)
-    command = [sys.executable, "-m", "hysteresis_lab.cli.loop", *overrides,
-               f"hydra.run.dir={folder}"]
-    start = time.perf_counter()
-    proc = subprocess.run(command, capture_output=True, text=True)
-    seconds = time.perf_counter() - start
-    if proc.returncode != 0:
-        raise RuntimeError(
-            f"hysteresis-lab-loop {' '.join(overrides)} failed:\n{proc.stderr[-3000:]}")
-    return json.loads(LoopFolder(folder).report_json.read_text()), seconds
 
