@@ -3,7 +3,7 @@
     python experiments/operator_excitation.py            # the default data and every case
     python experiments/operator_excitation.py --effects hysteresis saturation
 
-The ratio the loop reports with each effect it adds (`hysteresis_lab.analysis.excitation`),
+The ratio the loop reports with each effect it adds (`hysteresis_lab.loop.diagnosis.excitation`),
 here for every catalogue effect on the packaged data: the default data (the study's multisine
 against its twelve sines) and the data of each undeclared-effect case of
 ``experiments/undeclared_effects.py``. Data only: nothing is trained; a few seconds.

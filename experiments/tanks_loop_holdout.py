@@ -118,7 +118,7 @@ def _page(rows: list[dict[str, Any]], jobs: int) -> str:
     lines += [
         "",
         "A held-out block is one vote of the diagnosis' significance test "
-        "(`hysteresis_lab.analysis.diagnosis.BlockCounts`); a silent block is one neither fit "
+        "(`hysteresis_lab.loop.diagnosis.ranking.BlockCounts`); a silent block is one neither fit "
         "predicts better than nothing. More held-out samples give more votes, and fewer "
         "samples to train on.",
         "",

@@ -22,7 +22,7 @@ Reported per case: the top significant effect of round 0 and its score; the shar
 round-0 diagnosis residual that the effect's own output explains (``effect_share``: where it
 is below ``loop.min_score`` the rule does not ask for the effect to be named); per test where
 the effect acts (its own output > 0.05 µm RMS) the free-run RMSE before and after the refit
-and the ceiling (``hysteresis_lab.analysis.loop_checks.ceiling``: the cut that taking the
+and the ceiling (``hysteresis_lab.loop.checks.ceiling``: the cut that taking the
 effect's own output off the round-0 error would give); and the verdict of the rule: named as
 the top significant effect (or its catalogue stand-in); the refit takes at least half the
 ceiling off where the effect acts; no other test more than 5 % worse; an input-independent

@@ -1,4 +1,4 @@
-"""Checks of a loop run against the simulator (hysteresis_lab.analysis.loop_checks, printed by
+"""Checks of a loop run against the simulator (hysteresis_lab.loop.checks, printed by
 experiments/refit_choice.py and experiments/effect_ceiling.py): the refits scored on sines
 between the test frequencies, and an effect's share of the free-run error."""
 

@@ -2,7 +2,7 @@
 
 Each round trains the model with the effects declared so far, scores it on the test
 recordings in both modes, analyses the free-run residuals and ranks the effects the model
-does not declare yet (`hysteresis_lab.analysis.diagnosis`). The top significant one is added
+does not declare yet (`hysteresis_lab.loop.diagnosis.ranking`). The top significant one is added
 and the next round refits, until nothing significant remains or ``max_rounds`` effects are
 added. A refit that does not beat the model it started from on validation is rejected: the
 effect is dropped, the last model stands and the next significant effect is tried (a model
@@ -99,10 +99,10 @@ class LoopSettings:
     #: there with the same settings, data and start is reused, not trained again
     resume: bool = True
     #: share at the end of every training recording held out to validate on and diagnose
-    #: from, when the data set has no validation recordings (`hysteresis_lab.workflows.loop_data`)
+    #: from, when the data set has no validation recordings (`hysteresis_lab.loop.data`)
     holdout: float = 0.25
     #: the diagnosis drops each residual's start transient and also reads the input-side
-    #: effects through the model's own dynamics (`hysteresis_lab.analysis.diagnosis`): a
+    #: effects through the model's own dynamics (`hysteresis_lab.loop.diagnosis.ranking`): a
     #: recording that starts with a jump from rest rings, and filters of the input started
     #: from rest fit that ring whatever its cause (off: an effect seen only in start
     #: transients, a mode far above the input's band, stays visible)
@@ -150,7 +150,7 @@ class LoopSettings:
 
 @dataclass
 class HeldOut:
-    """A round's model on the loop's held-out data (`hysteresis_lab.workflows.loop_data`)."""
+    """A round's model on the loop's held-out data (`hysteresis_lab.loop.data`)."""
 
     #: mean over the validation stretches (and outputs) of the free-run MSE over the
     #: variance of the measured output there: unit-free, each stretch weighing the same
@@ -656,7 +656,7 @@ def _diagnose_round(
     number: int,
 ) -> tuple[list[EffectScore], ResidualEvidence]:
     """Residual analysis (JSON, figure, TensorBoard) and the ranked diagnosis of a round, on
-    the diagnosis recordings (never the test recordings: `hysteresis_lab.workflows.loop_data`),
+    the diagnosis recordings (never the test recordings: `hysteresis_lab.loop.data`),
     and the free run they were read from (for the report's figures)."""
     n_skip = scoring_start(result.window, data.fit.n_init)
     recordings, residuals, shown, predictions, starts = [], [], [], {}, []

@@ -300,7 +300,7 @@ def _added_lines(report: Mapping[str, Any], number: int) -> list[str]:
 
 def _advice_lines(r: Mapping[str, Any]) -> list[str]:
     """Effects the round's data could not judge for lack of excitation, and the recordings
-    that would show them (`hysteresis_lab.workflows.loop_advice`)."""
+    that would show them (`hysteresis_lab.loop.advice`)."""
     lines = []
     for entry in r["under_excited"]:
         lines.append(f"- {entry['advice']}")
@@ -312,7 +312,7 @@ def _advice_lines(r: Mapping[str, Any]) -> list[str]:
 def _undecided_lines(report: Mapping[str, Any], r: Mapping[str, Any]) -> list[str]:
     """Where the loop stops with nothing added: the effects whose score reaches
     loop.min_score at a p above loop.alpha (and not judged for lack of excitation), with how
-    their held-out blocks voted (`hysteresis_lab.analysis.diagnosis.BlockCounts`)."""
+    their held-out blocks voted (`hysteresis_lab.loop.diagnosis.ranking.BlockCounts`)."""
     settings = report.get("settings") or {}
     if r.get("added") or r.get("rejected") or not settings:
         return []

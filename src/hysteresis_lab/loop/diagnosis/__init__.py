@@ -1,1 +1,6 @@
-"""Residual analysis and the diagnose -> augment -> refit loop."""
+"""The loop's residual analysis: which effect a model lacks, from arrays alone.
+
+`ranking` scores the candidate effects on the held-out residual; `residuals` (with
+`correlation` and `spectrum`) gives one model's residual tests and figures; `excitation`
+compares how hard recordings drive an effect's operators.
+"""
