@@ -1,4 +1,5 @@
-"""Save and load trained models safely: torch ``weights_only`` checkpoints and skops for the SVM."""
+"""Save and load trained models safely: torch ``weights_only`` checkpoints and skops for the SVM;
+a saved model read as the baseline of another (`load_baseline`, `baseline_of`)."""
 
 from __future__ import annotations
 
