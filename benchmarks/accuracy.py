@@ -76,8 +76,8 @@ RECOMMENDED: dict[str, dict[str, list[str]]] = {
                    "trainer.max_epochs=40"],
         # 28 poles (the published BLA's order) per output and input, a Bouc–Wen cell per input
         "linear": ["model.order=28", "model.effects=[hysteresis]", "trainer.max_epochs=18"],
-        # the grey-box's Bouc-Wen cells carry the amplitude dependence. 32 neurons: with 64 the
-        # 300 mV records fit (0.128 um) but unseen realisations do not follow; a held-out
+        # the grey-box's Bouc-Wen cells carry the amplitude dependence. 32 neurons: more fit
+        # the training realisations without carrying over to unseen ones, and a held-out
         # training realisation chooses 32 (docs/results/fsm_augmented.md, fsm_holdout.md)
         AUGMENTED: ["model=subnet", "model.baseline=<root>/greybox_fsm", "model.nx=28",
                     "model.neurons=32", "data.window.na=50", "data.window.nb=50",
@@ -86,8 +86,9 @@ RECOMMENDED: dict[str, dict[str, list[str]]] = {
         # 14 shared modes (the published BLA's 28 states), a Bouc–Wen cell per input
         "greybox": ["model.n_modes=14", "model.lr=5e-4", "model.recording_repeats=2",
                     "trainer.max_epochs=10"],
-        # the study's recurrent and convolutional networks need 6-11x the FFNN's 10 min here:
-        # each stage (one-step, then free-run) stops after 7 min, within the 15-min budget
+        # the study's recurrent and convolutional networks train far slower than the FFNN on
+        # these long records: each stage (one-step, then free-run) stops after 7 min, so a
+        # pair stays within a 15-min budget
         "lstm": [*NETWORK_DEFAULTS, "+trainer.max_time=00:00:07:00"],
         "cnn": [*NETWORK_DEFAULTS, "+trainer.max_time=00:00:07:00"],
     },
