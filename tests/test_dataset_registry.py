@@ -189,3 +189,21 @@ def test_a_broken_data_set_plugin_is_left_out_with_one_warning(broken, caplog):
     with pytest.raises(DataError, match=r"dataset 'wobble' cannot be used: plugin 'broken-data'"
                        r".*ImportError: broken on purpose\. Fix: "):
         load_benchmark("wobble")
+
+
+def test_an_entry_point_that_names_no_loader_is_left_out_and_named_when_asked(
+    tmp_path, monkeypatch, caplog
+):
+    root = tmp_path / "odd"
+    root.mkdir()
+    (root / "odd_data_plug.py").write_text("NOT_A_LOADER = 3\n")
+    install(root, "odd-data", {GROUP: {"odd": "odd_data_plug:NOT_A_LOADER"}})
+    monkeypatch.syspath_prepend(str(root))
+    monkeypatch.setattr(plugins, "_WARNED", set())
+    with caplog.at_level(logging.WARNING):
+        assert "odd" not in available_datasets() and "emps" in available_datasets()
+    warnings = [r.getMessage() for r in caplog.records if "odd-data" in r.getMessage()]
+    assert len(warnings) == 1 and "neither a Dataset nor a loader" in warnings[0]
+    with pytest.raises(DataError, match=r"dataset 'odd' cannot be used: plugin 'odd-data'.*"
+                       r"neither a Dataset nor a loader\. Fix: point the entry point"):
+        load_benchmark("odd")

@@ -81,12 +81,16 @@ def get_dataset(name: str) -> Dataset:
     """The data set registered as ``name``; a one-line error for an unknown or broken one."""
     registered = points(GROUP)
     if name not in registered:
-        raise DataError(
-            f"unknown dataset '{name}'; available: {available_datasets()}.",
-            source="data",
-            fix="name one of them (data.splits.name, or its data config such as data=fsm), "
-            f"or install a package that registers it under the '{GROUP}' entry-point group",
+        available = available_datasets()
+        fix = (
+            f"name one of them (data.splits.name, or its data config such as data=fsm), or "
+            f"install a package that registers it under the '{GROUP}' entry-point group"
+            if available
+            # not even the bundled ones: the installed metadata is older than this code
+            else "reinstall hysteresis_lab (pip install -e .), which registers the bundled ones"
         )
+        raise DataError(f"unknown dataset '{name}'; available: {available}.", source="data",
+                        fix=fix)
     point = registered[name]
     try:
         obj = point.load()
