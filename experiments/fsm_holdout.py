@@ -2,8 +2,8 @@
 
 The FSM's validation windows are drawn from the training realisations themselves, so they do
 not show how a model carries over to a realisation it has not seen, which is what the test
-records ask (at 300 mV a 64-neuron SUBNET fits its training records to 0.128 µm but scores
-0.174 µm on the tests; `docs/results/fsm_augmented.md`). Here realisation ``--holdout`` of
+records ask (a larger SUBNET can fit its training records better and score worse on the
+tests: `docs/results/fsm_augmented.md`). Here realisation ``--holdout`` of
 every amplitude is set aside: the grey-box baseline and each candidate SUBNET train on the
 other five, and the held-out realisation (both periods, free run from its first samples,
 scored after ``n_init``) chooses between the candidates. The official test scores of the same

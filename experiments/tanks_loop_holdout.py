@@ -1,4 +1,5 @@
-"""Why the cascaded tanks' loop stops at 0.45 V: the held-out share it reads and trains without.
+"""Why the cascaded tanks' loop stops short of its target: the held-out share it reads and
+trains without.
 
 The tanks have one identification record of 1024 samples. Without validation recordings the
 loop trains on the first ``1 - loop.holdout`` of it and both chooses the next effect

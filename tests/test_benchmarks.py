@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 
 from hysteresis_lab.data.benchmarks import available_benchmarks, load_benchmark
+from hysteresis_lab.data.registry import GROUP, available_datasets, get_dataset
 from hysteresis_lab.errors import DataError
+from hysteresis_lab.plugins import points
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -25,6 +27,12 @@ def shared_data() -> Path | None:
 
 SHARED = shared_data()
 BUNDLED = Path(str(resources.files("hysteresis_lab") / "datasets"))
+
+
+def bundled_datasets() -> list[str]:
+    """The registered data sets this package ships (a plugin's are left out)."""
+    return sorted(name for name, point in points(GROUP).items()
+                  if point.value.startswith("hysteresis_lab."))
 
 
 def test_fsm_piezo_mirror_official_split():
@@ -65,8 +73,9 @@ def test_bundled_files_stay_small():
     files = [p for p in BUNDLED.rglob("*") if p.is_file()]
     assert max(p.stat().st_size for p in files) < 8 * 2**20
     assert sum(p.stat().st_size for p in files) < 30 * 2**20
-    for name in ("fsm_piezo_mirror", "piezo_p885", "bouc_wen", "emps", "cascaded_tanks"):
-        assert (BUNDLED / name / "SOURCE.md").is_file()
+    # every bundled folder is a registered data set, and every one registered here has its files
+    folders = sorted(p.name for p in BUNDLED.iterdir() if (p / "SOURCE.md").is_file())
+    assert folders == bundled_datasets() and len(folders) >= 5
 
 
 @pytest.mark.skipif(SHARED is None, reason="no shared/data folder with the original files")
@@ -130,10 +139,20 @@ def test_cascaded_tanks():
     assert data.metadata["reference"]["grey-box with overflow"] == 0.18
 
 
+@pytest.mark.parametrize("name", bundled_datasets())
+def test_every_registered_data_set_loads_with_its_splits(name):
+    data = load_benchmark(name)
+    # the splits carry the name of the data config that selects them (data=fsm, ...)
+    assert data.name == get_dataset(name).config_name(name)
+    assert data.train and data.test and data.fs > 0
+    assert data.metadata["reference"] and data.metadata["reference_units"] == data.units["y"]
+    for rec in data.train + data.test:
+        assert rec.n_samples > data.n_init and np.isfinite(rec.u).all() and np.isfinite(rec.y).all()
+
+
 def test_every_loader_is_listed_and_unknown_names_fail(tmp_path):
-    assert available_benchmarks() == sorted(
-        ["fsm_piezo_mirror", "piezo_p885", "bouc_wen", "emps", "cascaded_tanks"]
-    )
+    assert available_benchmarks() == available_datasets()
+    assert set(bundled_datasets()) <= set(available_benchmarks())
     with pytest.raises(DataError, match="unknown dataset 'silverbox'.*bouc_wen") as info:
         load_benchmark("silverbox")
     assert "Fix:" in str(info.value)

@@ -1,7 +1,8 @@
 """Load plugin entry points so that a broken plugin disables only itself.
 
-Models, effects and config folders are entry points (groups ``hysteresis_lab.models``,
-``hysteresis_lab.effects``, ``hysteresis_lab.configs``). An entry point whose import raises is
+Models, effects, data sets and config folders are entry points (groups
+``hysteresis_lab.models``, ``hysteresis_lab.effects``, ``hysteresis_lab.datasets``,
+``hysteresis_lab.configs``). An entry point whose import raises is
 skipped by the code that only lists or scans them, with one warning per process naming its
 package and entry point; only a command that names it fails (with a clear error).
 """

@@ -32,8 +32,8 @@ from hysteresis_lab.errors import ConfigError
 log = logging.getLogger(__name__)
 
 #: training batches per Lightning step (`hysteresis_lab.data.blocks`): Lightning's fixed cost
-#: per step (~0.7 ms on a CPU) is paid once per this many optimiser steps (the study's epoch
-#: of 563 batches: 5 Lightning steps; 32 left FFNN 5 % over a bare PyTorch loop)
+#: per step, comparable to a small network's own step, is paid once per this many optimiser
+#: steps, so that it no longer shows beside a bare PyTorch loop (`benchmarks/overhead.py`)
 BATCHES_PER_STEP = 128
 
 

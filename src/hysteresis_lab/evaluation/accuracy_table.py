@@ -1,6 +1,7 @@
 """The accuracy table of ``docs/results/accuracy.md``: scoring a run's ``metrics.json`` the way
-each bundled benchmark scores, merging measured cells into ``accuracy.json`` and rendering the
-markdown page beside the published references (``benchmarks/accuracy.py`` trains the runs)."""
+each data set scores, merging measured cells into ``accuracy.json`` and rendering the markdown
+page beside the published references (``benchmarks/accuracy.py`` trains the runs). The data
+sets are the simulator and every registered one (`hysteresis_lab.data.registry`)."""
 
 from __future__ import annotations
 
@@ -11,43 +12,58 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
+from hysteresis_lab.data.registry import Dataset, load_dataset, registered_datasets
+
 MODELS = ("subnet", "augmented", "greybox", "linear", "ffnn", "lstm", "cnn", "svm")
 #: rows that are no registered model: the row's label -> what it is
 ROW_NOTES = {"augmented": "SUBNET augmenting the data set's physical model: its free run is an "
                           "extra input (`model.baseline=<that row's run folder>`)"}
-DATASETS = ("default", "fsm", "p885", "bouc_wen", "emps", "cascaded_tanks")
-#: data config name -> bundled loader name (`hysteresis_lab.data.benchmarks.load_benchmark`)
-LOADER = {"fsm": "fsm_piezo_mirror", "p885": "piezo_p885", "bouc_wen": "bouc_wen",
-          "emps": "emps", "cascaded_tanks": "cascaded_tanks"}
-TITLES = {
-    "default": "Simulated positioner (data=default), twelve ±100 V test sines (no published "
-               "reference)",
-    "fsm": "FSM piezo mirror (data=fsm), 3x3 MIMO, official test set",
-    "p885": "PI P-885 piezo stack (data=p885), last 30 % of the record",
-    "bouc_wen": "Bouc–Wen benchmark (data=bouc_wen), in mm (1e-5 m = 0.01 mm)",
-    "emps": "EMPS (data=emps), pulses test record",
-    "cascaded_tanks": "Cascaded tanks (data=cascaded_tanks)",
-}
+#: the simulated positioner (``data=default``): the table's first data set, no registered one
+SIMULATED = "default"
+SIMULATED_TITLE = ("Simulated positioner (data=default), twelve ±100 V test sines (no published "
+                   "reference)")
 #: a data set's references: ``{"reference", "units", "metric", "test"}`` (see `reference_info`)
 References = Callable[[str], Mapping[str, Any]]
 
 
-# ---------------------------------------------------------------------------- references
+# ---------------------------------------------------------------------------- data sets
+def registered() -> dict[str, tuple[str, Dataset]]:
+    """The registered data sets by their data config name: (registry name, `Dataset`)."""
+    return {dataset.config_name(name): (name, dataset)
+            for name, dataset in registered_datasets().items()}
+
+
+def table_datasets() -> list[str]:
+    """The table's data sets, as ``data=`` names: the simulator, then every registered one."""
+    return [SIMULATED, *registered()]
+
+
+def title(data: str) -> str:
+    """The heading of a data set's section."""
+    if data == SIMULATED:
+        return SIMULATED_TITLE
+    found = registered().get(data)
+    return found[1].heading(found[0]) if found else data
+
+
 @cache
 def reference_info(data: str) -> dict[str, Any]:
     """``{"reference": {name: value or {amplitude: value}}, "units", "metric", "test"}`` of a
-    bundled benchmark, read from its loader's metadata (empty for the simulator)."""
-    if data not in LOADER:
+    registered data set, read from its loader's metadata (empty for the simulator)."""
+    found = registered().get(data)
+    if found is None:
         return {"reference": {}, "units": None, "metric": None, "test": None}
-    from hysteresis_lab.data.benchmarks import load_benchmark
-
-    meta = load_benchmark(LOADER[data]).metadata
+    meta = load_dataset(found[0]).metadata
     return {"reference": meta.get("reference", {}), "units": meta.get("reference_units"),
             "metric": meta.get("reference_metric"), "test": meta.get("reference_test")}
 
 
+# ---------------------------------------------------------------------------- references
+
+
 def _reference_value(value: Any, label: str) -> float | None:
-    """A reference for one scored row: per-amplitude dicts (FSM) by the row's amplitude."""
+    """A reference for one scored row: a per-group dict (the FSM's per amplitude) by the first
+    word of the row's label."""
     if isinstance(value, Mapping):
         amp = label.split()[0]
         for key, v in value.items():
@@ -66,16 +82,18 @@ def scored_rows(data: str, metrics: Mapping[str, Any]) -> list[dict[str, Any]]:
     """The benchmark's scored rows ``{"test", "free_run", "one_step"}`` from a metrics.json,
     in its own units (metrics.json's units; the loaders already convert to the reference's)."""
     tests: Mapping[str, Mapping[str, float]] = metrics["tests"]
-    if data == "fsm":
+    found = registered().get(data)
+    groups = found[1].test_groups if found else {}
+    if groups:
         rows = []
-        for amp in (100, 200, 300):
-            picked = [m for name, m in tests.items() if name.startswith(f"{amp}mV_")]
+        for label, prefix in groups.items():
+            picked = [m for name, m in tests.items() if name.startswith(prefix)]
             if picked:
-                rows.append({"test": f"{amp} mV",
+                rows.append({"test": label,
                              "free_run": _mean([m["rmse_free_run"] for m in picked]),
                              "one_step": _mean([m["rmse_one_step"] for m in picked])})
         return rows
-    if data == "default":
+    if data == SIMULATED:
         worst = max(tests, key=lambda name: tests[name]["rmse_free_run"])
         return [
             {"test": f"mean of {len(tests)} sines",
@@ -154,7 +172,9 @@ def render_markdown(
         "",
     ]
     cells = results.get("cells", {})
-    for data in DATASETS:
+    shown = table_datasets()
+    stored = sorted({c["data"] for c in cells.values()} - set(shown))
+    for data in [*shown, *stored]:
         mine = [cells[k] for k in sorted(cells) if cells[k]["data"] == data]
         mine.sort(key=lambda c: MODELS.index(c["model"]) if c["model"] in MODELS else 99)
         if not mine:
@@ -162,7 +182,7 @@ def render_markdown(
         info = references(data)
         units = info["units"] or mine[0].get("units", "")
         names = list(info["reference"])
-        lines += [f"## {TITLES.get(data, data)}", ""]
+        lines += [f"## {title(data)}", ""]
         if info["metric"]:
             lines += [f"Reference metric: {info['metric']}.", ""]
         header = ["model", "test", f"free run [{units}]", f"one step [{units}]"]
