@@ -51,7 +51,7 @@ with a jump from rest has a start transient that can outweigh the rest of the re
 filters of the input started from rest (the resonance's) fit it whatever its cause. The cost:
 an effect that shows only in that start transient (a mode far above the band of a
 band-limited input) is no longer seen. Without ``predictions``, or where the fit is unstable,
-nothing changes. Measured in docs/loop_findings.md ("Diagnosis through the model's dynamics").
+nothing changes.
 
 Significance: a one-sided Wilcoxon signed-rank test that the held-out block gains are positive
 (spurious signals make held-out predictions worse, not better). A block that neither fit
