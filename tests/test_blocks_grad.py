@@ -18,10 +18,9 @@ from hysteresis_lab.blocks import (
     mode_coefficients,
     play,
 )
-from hysteresis_lab.blocks.bouc_wen import _BoucWenFunction
-from hysteresis_lab.effects.operators import play_operators
+from hysteresis_lab.physics.bouc_wen import BoucWenStates, bouc_wen_state
+from hysteresis_lab.physics.play import play_operators
 from hysteresis_lab.sim import blocks as sim_blocks
-from hysteresis_lab.sim.bouc_wen import bouc_wen_state
 from hysteresis_lab.sim.config import Mode
 
 
@@ -45,8 +44,8 @@ def test_bouc_wen_gradcheck_includes_zero_crossings() -> None:
     r1 = torch.tensor([1.4, 0.5], dtype=torch.float64, requires_grad=True)
     r2 = torch.tensor([2.6, 1.5], dtype=torch.float64, requires_grad=True)
     v.requires_grad_()
-    assert torch.autograd.gradcheck(_BoucWenFunction.apply, (v, v0, h0, a, r1, r2))
-    hs = _BoucWenFunction.apply(v, v0, h0, a, r1, r2).detach().numpy()
+    assert torch.autograd.gradcheck(BoucWenStates.apply, (v, v0, h0, a, r1, r2))
+    hs = BoucWenStates.apply(v, v0, h0, a, r1, r2).detach().numpy()
     signs = np.sign(hs[:, 1:, :]) * np.sign(hs[:, :-1, :])
     assert (signs < 0).sum() >= 2  # the crossing branch was exercised
 

@@ -17,9 +17,10 @@ from hysteresis_lab.analysis.report import diagnostics_figure, residual_analysis
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.effects.augment import augment, feature_context
 from hysteresis_lab.effects.base import FeatureContext
-from hysteresis_lab.effects.operators import lowpass_bank, play_operators
 from hysteresis_lab.effects.registry import available_effects, get_effect
 from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.physics.filters import lowpass_bank
+from hysteresis_lab.physics.play import play_operators
 from hysteresis_lab.signals import sine
 from hysteresis_lab.workflows.loop import LoopSettings, next_effect
 from loop_notebook import check_loop_notebook

@@ -17,9 +17,9 @@ from hysteresis_lab.analysis.loop_figures import ResidualEvidence
 from hysteresis_lab.analysis.report import diagnostics_figure
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.effects.augment import feature_context
-from hysteresis_lab.effects.operators import play_operators
 from hysteresis_lab.evaluation.plots import save_figure
 from hysteresis_lab.evaluation.report import write_json
+from hysteresis_lab.physics.play import play_operators
 from hysteresis_lab.run_folder import LoopFolder
 from hysteresis_lab.workflows.loop import HeldOut, LoopSettings, _decision, _LoopState
 from hysteresis_lab.workflows.loop_report import loop_markdown, write_round_figures

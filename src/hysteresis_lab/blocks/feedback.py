@@ -10,7 +10,7 @@ Model (per sample ``t``, one row)::
     phi(y) = sum_k w_k (relu(y - c_k) - relu(-c_k))         (piecewise linear, phi(0) = 0)
 
 as in the Bouc–Wen oscillator ``m y'' + c y' + k y + z(y) = u`` (``z`` a Bouc–Wen state driven
-by the displacement ``y``). The Bouc–Wen update is `hysteresis_lab.sim.bouc_wen.advance`
+by the displacement ``y``). The Bouc–Wen update is `hysteresis_lab.physics.bouc_wen.advance`
 (exact for an output moving linearly between samples), with ``a = alpha d``,
 ``r1 = beta - gamma``, ``r2 = beta + gamma`` as in `hysteresis_lab.blocks.BoucWen`. With a
 delayed numerator (``b_0 = 0``) the loop is causal at ``lag = 0``; otherwise the force of the
@@ -29,9 +29,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from hysteresis_lab.blocks._bw_kernels import _advance_grad
-from hysteresis_lab.blocks._util import from_numpy, to_numpy64
-from hysteresis_lab.sim.bouc_wen import advance
+from hysteresis_lab.physics.bouc_wen import advance, advance_grad
+from hysteresis_lab.physics.tensors import from_numpy, to_numpy64
 
 JIT = {"cache": True, "error_model": "numpy"}
 
@@ -127,7 +126,7 @@ def feedback_backward(
             s = 1.0 if step > 0.0 else -1.0
             for c in range(n_c):
                 h_prev = h[r, t - 1, c] if t > 0 else 0.0
-                _, dh, dx, da_, dr1, dr2 = _advance_grad(h_prev, abs(step), s, ba[c], r1[c],
+                _, dh, dx, da_, dr1, dr2 = advance_grad(h_prev, abs(step), s, ba[c], r1[c],
                                                          r2[c])
                 d_h[t, c] = dh
                 d_y[t, c] = s * dx

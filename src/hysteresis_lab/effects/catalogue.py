@@ -9,13 +9,9 @@ import numpy as np
 from scipy import signal
 
 from hysteresis_lab.effects.base import Effect, FeatureContext
-from hysteresis_lab.effects.operators import (
-    dead_zone,
-    lowpass_bank,
-    play_operators,
-    rate,
-    resonator_bank,
-)
+from hysteresis_lab.physics.filters import lowpass_bank, resonator_bank
+from hysteresis_lab.physics.play import play_operators
+from hysteresis_lab.physics.static import dead_zone, rate
 
 
 def _seconds(taus: np.ndarray) -> str:

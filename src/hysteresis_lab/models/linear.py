@@ -72,7 +72,7 @@ from hysteresis_lab.blocks.sections import (
     slowest_rate,
     steiglitz_mcbride,
 )
-from hysteresis_lab.blocks.step import StepState, frozen, tdf2_step
+from hysteresis_lab.blocks.step import StepState, frozen
 from hysteresis_lab.blocks.storage import StorageCascade
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.effects.augment import context_from_dict
@@ -88,6 +88,7 @@ from hysteresis_lab.models.linear_blocks import (
     knot_fractions,
 )
 from hysteresis_lab.models.physical_chain import PhysicalChainModule
+from hysteresis_lab.physics.filters import tdf2_step
 
 log = logging.getLogger(__name__)
 

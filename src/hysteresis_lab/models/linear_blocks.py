@@ -18,7 +18,9 @@ from torch import nn
 from hysteresis_lab.blocks import BoucWen, bouc_wen_scaled_params, play
 from hysteresis_lab.blocks.feedback import closed_loop
 from hysteresis_lab.blocks.sections import StableSections
-from hysteresis_lab.blocks.step import StepState, bouc_wen_advance, frozen, play_step
+from hysteresis_lab.blocks.step import StepState, frozen
+from hysteresis_lab.physics.bouc_wen import bouc_wen_advance
+from hysteresis_lab.physics.play import play_step
 
 
 class _Level(nn.Module):

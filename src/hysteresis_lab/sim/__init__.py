@@ -29,7 +29,7 @@ Sources and justification:
 * Bouc-Wen hysteresis for piezo actuators: Low & Guo 1995 (J. MEMS 4(4)); Goldfarb &
   Celanovic 1997 (J. Dyn. Sys. Meas. Control 119). Piezo stacks/benders show loops of
   10-15 % of the stroke at full amplitude; ~0.2 um/V gives ±20 um at ±100 V.
-  The per-sample update is exact for piecewise-linear input (`hysteresis_lab.sim.bouc_wen`).
+  The per-sample update is exact for piecewise-linear input (`hysteresis_lab.physics.bouc_wen`).
 * Creep as a logarithmic step response, ~1-2 % per decade of time: Jung & Gweon 2000
   (Rev. Sci. Instrum. 71); Croft, Shed & Devasia 2001 (J. Dyn. Sys. Meas. Control 123);
   PI piezo catalogue (~1 % per decade). Approximated by parallel first-order elements with

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy import signal
 
-from hysteresis_lab.effects.operators import play_operators
-from hysteresis_lab.sim.bouc_wen import bouc_wen_state
+from hysteresis_lab.physics.bouc_wen import bouc_wen_state
+from hysteresis_lab.physics.filters import first_order_lowpass
+from hysteresis_lab.physics.filters import mode_filter as physics_mode_filter
+from hysteresis_lab.physics.play import play_operators
+from hysteresis_lab.physics.static import dead_zone as physics_dead_zone
 from hysteresis_lab.sim.config import (
     Amplifier,
     Asymmetry,
@@ -23,12 +25,6 @@ from hysteresis_lab.sim.config import (
 )
 
 
-def first_order_lowpass(x: np.ndarray, fs: float, time_constant_s: float) -> np.ndarray:
-    """Unit-DC-gain first-order low-pass (step-invariant discretisation), starting at rest."""
-    pole = np.exp(-1.0 / (fs * time_constant_s))
-    return signal.lfilter([1.0 - pole], [1.0, -pole], x)
-
-
 def amplifier(v: np.ndarray, fs: float, cfg: Amplifier) -> np.ndarray:
     return first_order_lowpass(v, fs, 1.0 / (2.0 * np.pi * cfg.cutoff_hz))
 
@@ -39,7 +35,7 @@ def saturation(v: np.ndarray, cfg: Saturation) -> np.ndarray:
 
 def dead_zone(v: np.ndarray, cfg: DeadZone) -> np.ndarray:
     """``v`` with the band ``±width_v`` around zero removed."""
-    return np.sign(v) * np.maximum(np.abs(v) - cfg.width_v, 0.0)
+    return physics_dead_zone(v, cfg.width_v)
 
 
 def backlash(v: np.ndarray, cfg: Backlash) -> np.ndarray:
@@ -81,10 +77,7 @@ def creep(x: np.ndarray, fs: float, cfg: Creep) -> np.ndarray:
 
 def mode_filter(x: np.ndarray, fs: float, cfg: Mode) -> np.ndarray:
     """Second-order resonance ``wn^2 / (s^2 + 2 zeta wn s + wn^2)``; bilinear, prewarped at wn."""
-    wn = 2.0 * np.pi * cfg.frequency_hz
-    warped = 2.0 * fs * np.tan(wn / (2.0 * fs))
-    b, a = signal.bilinear([warped**2], [1.0, 2.0 * cfg.damping * warped, warped**2], fs)
-    return signal.lfilter(b, a, x)
+    return physics_mode_filter(x, fs, cfg.frequency_hz, cfg.damping)
 
 
 def drift(n: int, fs: float, cfg: Drift, rng: np.random.Generator) -> np.ndarray:
