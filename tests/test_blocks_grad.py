@@ -19,6 +19,7 @@ from hysteresis_lab.blocks import (
     play,
 )
 from hysteresis_lab.physics.bouc_wen import BoucWenStates, bouc_wen_state
+from hysteresis_lab.physics.filters import first_order_lowpass
 from hysteresis_lab.physics.play import play_operators
 from hysteresis_lab.sim import blocks as sim_blocks
 from hysteresis_lab.sim.config import Mode
@@ -136,8 +137,8 @@ def test_creep_and_delay() -> None:
     fs = 1000.0
     x = np.random.default_rng(8).normal(size=300)
     creep = CreepBank(fs, (0.01, 0.1), weights=0.05).double()
-    ref = x + 0.05 * (sim_blocks.first_order_lowpass(x, fs, 0.01)
-                      + sim_blocks.first_order_lowpass(x, fs, 0.1))
+    ref = x + 0.05 * (first_order_lowpass(x, fs, 0.01)
+                      + first_order_lowpass(x, fs, 0.1))
     np.testing.assert_allclose(creep(torch.tensor(x[None]))[0].detach().numpy(), ref,
                                atol=1e-12)
     assert CreepBank(fs).weights.detach().abs().sum() == 0.0  # initialised off

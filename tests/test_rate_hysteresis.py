@@ -9,7 +9,7 @@ import torch
 
 from hysteresis_lab.blocks import BoucWen
 from hysteresis_lab.blocks.step import StepState
-from hysteresis_lab.models.linear_blocks import HysteresisCell
+from hysteresis_lab.effects.hysteresis import HysteresisCell
 from hysteresis_lab.physics.bouc_wen import BoucWenStates, bouc_wen_state
 
 
@@ -137,5 +137,5 @@ def test_rate_alone_brings_the_cell_and_the_loop_refits_whole() -> None:
     assert float(cell.rate_gain.detach()) == 0.0 and float(cell.weight.detach()) == 0.0
     amplitude = model._input_amplitude(0)
     assert float(cell.rate_step) == pytest.approx(2 * np.pi * amplitude / 200)
-    assert model.state_hysteresis is None
+    assert model.effect_sites["force"] == []  # rate alone brings no restoring force
     assert _refit_mode("new_inputs", "rate", LinearModel) == "full"

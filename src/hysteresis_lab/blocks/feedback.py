@@ -22,6 +22,7 @@ previous sample is fed back (``lag = 1``). The forward pass and its adjoint are 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numba
@@ -29,6 +30,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from hysteresis_lab.blocks.step import StepState
 from hysteresis_lab.physics.bouc_wen import advance, advance_grad
 from hysteresis_lab.physics.tensors import from_numpy, to_numpy64
 
@@ -226,3 +228,45 @@ def closed_loop(
     if w is None or c is None:
         w = c = torch.zeros(0, dtype=torch.float64, device=x.device)
     return _FeedbackFunction.apply(x, b, a, wh, wy, ba, r1, r2, lag, w, c)
+
+
+# ------------------------------------------------------------------ one sample of the loop
+def loop_lag(dynamics: Any) -> int:
+    """0 when the dynamics delay their input (a closed loop is causal as it is), else 1."""
+    return 0 if int(dynamics.delay) > 0 else 1
+
+
+def no_feedback(y: torch.Tensor) -> torch.Tensor:
+    return torch.zeros_like(y)
+
+
+def loop_state_names(dynamics: Any) -> list[str]:
+    """A closed loop's step state: past dynamics' inputs ``e`` and outputs ``y``."""
+    b, a = dynamics.polynomials()
+    return [f"e{i}" for i in range(1, b.shape[0])] + [f"y{i}" for i in range(1, a.shape[0])]
+
+
+def loop_step(
+    b: torch.Tensor, a: torch.Tensor, lag: int, x: torch.Tensor, state: StepState,
+    force: Callable[[torch.Tensor, torch.Tensor | None], torch.Tensor],
+    n_hidden: int = 0,
+    advance: Callable[[torch.Tensor, torch.Tensor], torch.Tensor] | None = None,
+) -> torch.Tensor:
+    """One sample of the dynamics ``b, a`` in a closed loop, ``e = x - force(y_fed, h)``,
+    ``x`` (B,) -> ``y`` (B,); state: the past ``e`` and ``y`` (newest first), then
+    ``n_hidden`` states ``h`` of the force that ``advance(h, y - y_prev)`` moves on."""
+    past_e = state.take(b.shape[0] - 1)
+    past_y = state.take(a.shape[0] - 1)
+    h = state.take(n_hidden) if n_hidden else None
+    e = x - force(past_y[:, 0], h) if lag else torch.zeros_like(x)
+    y = b[0] * e + past_e @ b[1:] - past_y @ a[1:]
+    if advance is not None:
+        h = advance(h, y - past_y[:, 0])
+    if not lag:
+        e = x - force(y, h)
+    if b.shape[0] > 1:  # a numerator of one term (`StagePole`) keeps no past input
+        state.put(torch.cat([e[:, None], past_e[:, :-1]], dim=1))
+    state.put(torch.cat([y[:, None], past_y[:, :-1]], dim=1))
+    if h is not None:
+        state.put(h)
+    return y

@@ -20,7 +20,7 @@ constant input reaches) instead of at rest. `initial_state` is that state for th
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -29,6 +29,8 @@ from torch import nn
 
 from hysteresis_lab.blocks.step import StepState, frozen
 from hysteresis_lab.data.windows import WindowSpec
+from hysteresis_lab.effects.base import Effect, physical_order
+from hysteresis_lab.effects.registry import available_effects, get_effect
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.base import NarxModule
 
@@ -38,6 +40,19 @@ log = logging.getLogger(__name__)
 MAX_STEP_BACKS = 10
 #: the burn-in to the learned shared initial state (samples) when the data do not say
 BURN_IN_DEFAULT = 1000
+
+
+class FromEffects:
+    """A class attribute computed from the registered effects when it is read: the names of
+    those ``pick`` accepts, in physical order (`physical_order`), so that a plugin effect
+    with the face a model reads is carried like a built-in one."""
+
+    def __init__(self, pick: Callable[[Effect], bool]) -> None:
+        self.pick = pick
+
+    def __get__(self, obj: Any, owner: type | None = None) -> tuple[str, ...]:
+        effects = [get_effect(name) for name in available_effects()]
+        return tuple(e.name for e in physical_order(effects) if self.pick(e))
 
 
 class PhysicalChainModule(NarxModule):
