@@ -84,8 +84,8 @@ MAX_MIMO_MODES = 32
 #: (the least squares fit the modes to a loop the data may not have)
 MIMO_BOUC_WEN_ALPHA = 0.05
 #: a hysteresis cell grown on the fitted chain starts at this hysteretic share (Bouc–Wen
-#: ``alpha`` is log-parametrised: it cannot start at zero; Adam's steps on its logarithm bring
-#: it to an O(0.1) share in a few hundred steps)
+#: ``alpha`` is log-parametrised: it cannot start at zero; Adam's steps on its logarithm grow
+#: it by a factor per step, so it still reaches an O(0.1) share within a short refit)
 GROWN_CELL_SHARE = 1e-3
 #: the MIMO modes' frequencies learn at this share of ``model.lr`` (`configure_optimizers`)
 MODE_FREQUENCY_LR_FACTOR = 0.02

@@ -84,32 +84,25 @@ log = logging.getLogger(__name__)
 
 #: the Steiglitz–McBride fit replaces the ARX start only below this share of its free-run
 #: error variance on the training recordings: a gross gain says ARX misplaced poles; a
-#: modest one is what fitting the free run of these same recordings gives anyway (near the
-#: unit circle on the cascaded tanks, under half of ARX's error there, a worse start on
-#: the test)
+#: modest one is what fitting the free run of these same recordings gives anyway, and can
+#: place poles that suit the training recordings only
 OUTPUT_ERROR_REPLACES_AT = 0.01
 #: ... and only where its slowest mode is at least this share of the ARX fit's slowest
 #: (`slowest_rate`): slower dynamics are slow effects (creep, drift) read into the start,
-#: which the loop names itself (the creep block carries creep); from a start holding them the
-#: loop's creep refit did worse (simulator creep diagnosed on a 1 Hz sine: its 0.1 Hz test
-#: 0.121 instead of 0.053 um after the refit)
+#: which the loop names itself (the creep block carries creep); a start that already holds
+#: them leaves the creep refit less to fit and a worse place to fit it from
 SLOWEST_MODE_SHARE = 0.5
 #: ... or where the ARX start's gain at Nyquist exceeds this share of its static gain while
 #: the Steiglitz–McBride fit's does not: a sampled physical low-pass system has far less
 #: there; ARX's equation error, whitening the sensor noise above the input's band, puts poles
-#: near Nyquist that no training on that band moves (simulated positioner, 0-500 Hz
-#: multisine: order-6 ARX 1.02 um/V at 4.5 kHz and 7.96 at 9 kHz where it has 0.005 and
-#: 0.0001, 39x its static gain; an input clipped by the loop's saturation block rang in it:
-#: the refit left 1.00 um on the 100 Hz sine and 0.76-1.02 on 400-500 Hz, from the
-#: output-error start 0.08 and 0.32-0.41; experiments/saturation_refit.py) ...
+#: near Nyquist that no training on that band moves, and an input with sharp corners (one
+#: clipped by a saturation block) rings in them (experiments/saturation_refit.py) ...
 NYQUIST_GAIN_SHARE = 1.0
 #: ... where, too, the output-error fit simulates clearly better (below this share of the ARX
 #: start's error variance) and keeps ARX's slow dynamics (its slowest mode at least this share
 #: of ARX's): it is there to take out the poles near Nyquist, not to read another mode into
-#: the start (an 8000-sample dead-zone record: output-error fit 0.97 of ARX's error with a
-#: pole at the radius limit, the round-0 held-out loss 0.29 instead of 0.18 and the loop's
-#: dead-zone refit no longer cut it; the simulator's default data, hysteresis and creep on:
-#: 0.41 with its slowest mode at 0.68, a plain linear fit 6 % worse on the test sines)
+#: the start (a fit barely better than ARX's can park a pole at the radius limit, which the
+#: refits of the input blocks then cannot move)
 NYQUIST_CLEAR_SHARE = 0.9
 
 #: where the loop forces (hysteresis in the feedback, nonlinear_feedback) act: around the whole
@@ -535,8 +528,7 @@ class LinearModel(PhysicalChainModule):
         starts: on data that excite few frequencies (a single sine) a high-order ARX is not
         identified and its free run can be far off. With an integrator every order is fitted
         and the best in free run starts: the integral of an equation-error fit drifts with any
-        error in its static gain (EMPS: order 6 leaves 0.81 of the output's variance, order 1
-        0.008).
+        error in its static gain, and a high order has more ways to get it wrong.
 
         A Steiglitz–McBride fit of ``order`` (`steiglitz_mcbride`: ARX on data prefiltered
         by the last denominator, towards the output-error fit) starts instead where its free

@@ -63,8 +63,8 @@ class PhysicalChainModule(NarxModule):
     #: trains on whole recordings simulated from rest (`hysteresis_lab.data.segments`)
     whole_recordings = True
     #: an added block starts at no effect and must travel O(1) at about the rate per Adam
-    #: step while the fitted blocks only adjust: at one rate for all, a dead zone's weight
-    #: stopped at 0.56 of 1 and the dynamics bent to make up for it
+    #: step while the fitted blocks only adjust: at one rate for all, the new block stops
+    #: short and the fitted dynamics bend to make up for it
     new_block_lr_factor = 10.0
     predicts_from_outputs = False
 
