@@ -140,10 +140,6 @@ class LinearContext:
     settings: Mapping[str, Any]
     declared: Sequence[Effect] = field(default_factory=list)
 
-    def carries(self, kind: type) -> bool:
-        """Whether an effect of class ``kind`` is declared too."""
-        return any(isinstance(effect, kind) for effect in self.declared)
-
 
 @dataclass(frozen=True)
 class LinearBlock:
