@@ -18,10 +18,10 @@ from hysteresis_lab.blocks import (
     mode_coefficients,
     play,
 )
-from hysteresis_lab.blocks.bouc_wen import _BoucWenFunction
-from hysteresis_lab.effects.operators import play_operators
+from hysteresis_lab.physics.bouc_wen import BoucWenStates, bouc_wen_state
+from hysteresis_lab.physics.filters import first_order_lowpass
+from hysteresis_lab.physics.play import play_operators
 from hysteresis_lab.sim import blocks as sim_blocks
-from hysteresis_lab.sim.bouc_wen import bouc_wen_state
 from hysteresis_lab.sim.config import Mode
 
 
@@ -45,8 +45,8 @@ def test_bouc_wen_gradcheck_includes_zero_crossings() -> None:
     r1 = torch.tensor([1.4, 0.5], dtype=torch.float64, requires_grad=True)
     r2 = torch.tensor([2.6, 1.5], dtype=torch.float64, requires_grad=True)
     v.requires_grad_()
-    assert torch.autograd.gradcheck(_BoucWenFunction.apply, (v, v0, h0, a, r1, r2))
-    hs = _BoucWenFunction.apply(v, v0, h0, a, r1, r2).detach().numpy()
+    assert torch.autograd.gradcheck(BoucWenStates.apply, (v, v0, h0, a, r1, r2))
+    hs = BoucWenStates.apply(v, v0, h0, a, r1, r2).detach().numpy()
     signs = np.sign(hs[:, 1:, :]) * np.sign(hs[:, :-1, :])
     assert (signs < 0).sum() >= 2  # the crossing branch was exercised
 
@@ -137,8 +137,8 @@ def test_creep_and_delay() -> None:
     fs = 1000.0
     x = np.random.default_rng(8).normal(size=300)
     creep = CreepBank(fs, (0.01, 0.1), weights=0.05).double()
-    ref = x + 0.05 * (sim_blocks.first_order_lowpass(x, fs, 0.01)
-                      + sim_blocks.first_order_lowpass(x, fs, 0.1))
+    ref = x + 0.05 * (first_order_lowpass(x, fs, 0.01)
+                      + first_order_lowpass(x, fs, 0.1))
     np.testing.assert_allclose(creep(torch.tensor(x[None]))[0].detach().numpy(), ref,
                                atol=1e-12)
     assert CreepBank(fs).weights.detach().abs().sum() == 0.0  # initialised off

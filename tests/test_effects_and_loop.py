@@ -13,7 +13,6 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 from helpers import data_overrides, run_app, small_dataset
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.effects.base import FeatureContext
-from hysteresis_lab.effects.operators import lowpass_bank, play_operators
 from hysteresis_lab.effects.registry import available_effects, get_effect
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.loop.diagnosis.correlation import correlation_tests
@@ -21,6 +20,8 @@ from hysteresis_lab.loop.diagnosis.ranking import EffectScore, diagnose, evidenc
 from hysteresis_lab.loop.diagnosis.residuals import diagnostics_figure, residual_analysis
 from hysteresis_lab.loop.driver import LoopSettings, next_effect
 from hysteresis_lab.models.augment import augment, feature_context
+from hysteresis_lab.physics.filters import lowpass_bank
+from hysteresis_lab.physics.play import play_operators
 from hysteresis_lab.signals import sine
 from loop_notebook import check_loop_notebook
 

@@ -165,7 +165,7 @@ def test_its_simulation_step_reproduces_its_free_run(mimo_data, settings):
                         feature_context={})
     model.initialise_from_recordings(splits.train)
     with torch.no_grad():
-        if model.creeps is not None:  # creep at work (it starts at zero weight)
+        if hasattr(model, "creeps"):  # creep at work (it starts at zero weight)
             for creep in model.creeps:
                 creep.weights.fill_(0.05)
         rec = splits.test[0]

@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 
 from hysteresis_lab.data.recording import Recording
-from hysteresis_lab.effects.operators import play_operators
 from hysteresis_lab.evaluation.plots import save_figure
 from hysteresis_lab.evaluation.report import write_json
 from hysteresis_lab.loop.diagnosis.excitation import operator_excitation
@@ -22,6 +21,7 @@ from hysteresis_lab.loop.driver import HeldOut, LoopSettings, _decision, _LoopSt
 from hysteresis_lab.loop.figures import ResidualEvidence
 from hysteresis_lab.loop.report import loop_markdown, write_round_figures
 from hysteresis_lab.models.augment import feature_context
+from hysteresis_lab.physics.play import play_operators
 from hysteresis_lab.run_folder import LoopFolder
 from hysteresis_lab.workflows.pipeline import RunResult
 from loop_notebook import check_loop_notebook, round_sections, subsection

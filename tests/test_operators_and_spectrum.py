@@ -8,10 +8,11 @@ import pytest
 
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.effects.base import FeatureContext
-from hysteresis_lab.effects.operators import dead_zone, rate, resonator_bank
 from hysteresis_lab.effects.registry import get_effect
 from hysteresis_lab.loop.diagnosis.residuals import diagnostics_figure, residual_analysis
 from hysteresis_lab.loop.diagnosis.spectrum import residual_spectrum
+from hysteresis_lab.physics.filters import resonator_bank
+from hysteresis_lab.physics.static import dead_zone, rate
 
 FS = 2000.0
 CTX = FeatureContext(FS, np.array([100.0]), 10.0)

@@ -8,10 +8,9 @@ import pytest
 import torch
 
 from hysteresis_lab.blocks import BoucWen
-from hysteresis_lab.blocks.bouc_wen import _BoucWenFunction
 from hysteresis_lab.blocks.step import StepState
-from hysteresis_lab.models.linear_blocks import HysteresisCell
-from hysteresis_lab.sim.bouc_wen import bouc_wen_state
+from hysteresis_lab.effects.hysteresis import HysteresisCell
+from hysteresis_lab.physics.bouc_wen import BoucWenStates, bouc_wen_state
 
 
 def _walk(n: int, seed: int, batch: int = 2, step: float = 0.3) -> torch.Tensor:
@@ -37,10 +36,10 @@ def test_per_sample_alpha_gradcheck_includes_zero_crossings() -> None:
     r1 = torch.tensor([1.4, 0.5], dtype=torch.float64, requires_grad=True)
     r2 = torch.tensor([2.6, 1.5], dtype=torch.float64, requires_grad=True)
     m = torch.tensor(np.random.default_rng(2).uniform(0.5, 3.0, (2, 40)), requires_grad=True)
-    assert torch.autograd.gradcheck(_BoucWenFunction.apply, (v, v0, h0, a, r1, r2, m))
-    hs = _BoucWenFunction.apply(v, v0, h0, a, r1, r2, m).detach().numpy()
+    assert torch.autograd.gradcheck(BoucWenStates.apply, (v, v0, h0, a, r1, r2, m))
+    hs = BoucWenStates.apply(v, v0, h0, a, r1, r2, m).detach().numpy()
     assert (np.sign(hs[:, 1:]) * np.sign(hs[:, :-1]) < 0).sum() >= 2  # crossings exercised
-    plain = _BoucWenFunction.apply(v, v0, h0, a, r1, r2).detach().numpy()
+    plain = BoucWenStates.apply(v, v0, h0, a, r1, r2).detach().numpy()
     assert np.max(np.abs(hs - plain)) > 1e-3  # the factor acts
 
 
@@ -54,7 +53,7 @@ def test_rate_cell_gradcheck_through_the_rate() -> None:
 
 
 def test_per_sample_alpha_is_the_simulators_law() -> None:
-    """``alpha_factor`` runs the simulator's per-sample ``alpha`` (sim.bouc_wen)."""
+    """``alpha_factor`` runs the simulator's per-sample ``alpha`` (physics.bouc_wen)."""
     rng = np.random.default_rng(3)
     v = np.concatenate([[0.0], 60.0 * np.sin(np.linspace(0, 12, 399)) + rng.normal(0, 2, 399)])
     factor = 1.0 + 0.5 * np.abs(np.diff(v, prepend=v[0])) / 3.0
@@ -138,5 +137,5 @@ def test_rate_alone_brings_the_cell_and_the_loop_refits_whole() -> None:
     assert float(cell.rate_gain.detach()) == 0.0 and float(cell.weight.detach()) == 0.0
     amplitude = model._input_amplitude(0)
     assert float(cell.rate_step) == pytest.approx(2 * np.pi * amplitude / 200)
-    assert model.state_hysteresis is None
+    assert model.effect_sites["force"] == []  # rate alone brings no restoring force
     assert _refit_mode("new_inputs", "rate", LinearModel) == "full"

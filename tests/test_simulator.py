@@ -13,9 +13,9 @@ import hysteresis_lab as hl
 from hysteresis_lab.data.factory import build_splits
 from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.errors import ConfigError, DataError
+from hysteresis_lab.physics.bouc_wen import bouc_wen_state
 from hysteresis_lab.signals import multisine, sine
 from hysteresis_lab.sim import Positioner, PositionerConfig, simulate_recording
-from hysteresis_lab.sim.bouc_wen import bouc_wen_state
 from hysteresis_lab.sim.default_dataset import TEST_FREQUENCIES_HZ, make_default_dataset
 
 FS = 20_000.0

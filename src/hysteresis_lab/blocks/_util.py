@@ -1,4 +1,5 @@
-"""Small helpers shared by the blocks: raw-parameter inverses and tensor <-> float64 numpy."""
+"""Small helpers shared by the blocks: raw-parameter inverses, value broadcasting, and the
+physics floor's tensor <-> float64 NumPy conversions."""
 
 from __future__ import annotations
 
@@ -6,7 +7,10 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
-import torch
+
+from hysteresis_lab.physics.tensors import from_numpy, to_numpy64
+
+__all__ = ["as_float_array", "from_numpy", "inv_softplus", "logit", "to_numpy64"]
 
 
 def inv_softplus(y: float) -> float:
@@ -16,15 +20,6 @@ def inv_softplus(y: float) -> float:
 
 def logit(p: float) -> float:
     return math.log(p) - math.log1p(-p)
-
-
-def to_numpy64(x: torch.Tensor) -> np.ndarray:
-    """A C-contiguous float64 copy on the CPU (detached)."""
-    return np.ascontiguousarray(x.detach().to("cpu", torch.float64).numpy())
-
-
-def from_numpy(x: np.ndarray, like: torch.Tensor) -> torch.Tensor:
-    return torch.from_numpy(np.ascontiguousarray(x)).to(device=like.device, dtype=like.dtype)
 
 
 def as_float_array(values: float | np.ndarray | Sequence[float], n: int) -> np.ndarray:

@@ -4,11 +4,11 @@ Model::
 
     x = d v - sum_c h_c,   dh_c/dt = alpha_c d v' - beta_c |v'| h_c - gamma_c v' |h_c|
 
-updated per sample exactly as `hysteresis_lab.sim.bouc_wen` does (the input moves linearly
-between samples). The forward pass and its adjoint are numba kernels (float64) wrapped in a
-`torch.autograd.Function`; gradients are exact for the piecewise-smooth update (w.r.t. the
-input, the initial state and ``d, alpha, beta, gamma``; zero-length steps carry no input
-gradient).
+updated per sample exactly as the simulator does (`hysteresis_lab.physics.bouc_wen`: the input
+moves linearly between samples). The forward pass and its adjoint are the physics floor's
+numba kernels (float64) in a `torch.autograd.Function`; gradients are exact for the
+piecewise-smooth update (w.r.t. the input, the initial state and ``d, alpha, beta, gamma``;
+zero-length steps carry no input gradient).
 
 Scaling. With scaled signals ``v_s = v / U`` and ``x_s = x / Y`` (and ``h_s = h / Y``) the
 equations keep their form with::
@@ -30,9 +30,9 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from hysteresis_lab.blocks._bw_kernels import bw_backward, bw_states
-from hysteresis_lab.blocks._util import as_float_array, from_numpy, to_numpy64
-from hysteresis_lab.blocks.step import StepState, bouc_wen_advance, frozen
+from hysteresis_lab.blocks._util import as_float_array
+from hysteresis_lab.blocks.step import StepState, frozen
+from hysteresis_lab.physics.bouc_wen import BoucWenStates, bouc_wen_advance, bw_states
 
 GAMMA_RATIO_MAX = 0.999  # |gamma| < beta: both rates beta -/+ gamma stay positive
 
@@ -47,30 +47,6 @@ def bouc_wen_scaled_params(
         "beta": beta * u_scale,
         "gamma": gamma * u_scale,
     }
-
-
-class _BoucWenFunction(torch.autograd.Function):
-    """``h (B, T, C)`` from ``v (B, T), v0 (B,), h0 (B, C), a, r1, r2 (C,)`` and, optionally,
-    a per-sample factor ``m (B, T)`` of ``a`` (rate-dependent hysteresis)."""
-
-    @staticmethod
-    def forward(ctx: Any, v: Tensor, v0: Tensor, h0: Tensor, a: Tensor, r1: Tensor,
-                r2: Tensor, m: Tensor | None = None) -> Tensor:
-        arrays = [to_numpy64(t) for t in (v, v0, h0, a, r1, r2)]
-        factor = None if m is None else to_numpy64(m)
-        hs = bw_states(*arrays, factor)
-        ctx.arrays = arrays
-        ctx.factor = factor
-        ctx.has_factor = m is not None
-        ctx.hs = hs
-        return from_numpy(hs, v)
-
-    @staticmethod
-    def backward(ctx: Any, g: Tensor) -> tuple[Tensor | None, ...]:
-        v, v0, h0, a, r1, r2 = ctx.arrays
-        *grads, dm = bw_backward(v, v0, h0, ctx.hs, a, r1, r2, ctx.factor, to_numpy64(g))
-        return (*(from_numpy(gr, g) for gr in grads),
-                from_numpy(dm, g) if ctx.has_factor else None)
 
 
 def bouc_wen_free_run(
@@ -169,7 +145,7 @@ class BoucWen(nn.Module):
         d, beta, gamma = self.d, self.beta, self.gamma
         a = self.alpha * d
         factor = None if alpha_factor is None else alpha_factor.double().reshape(v64.shape)
-        hs = _BoucWenFunction.apply(v64, v0_, h0_, a.to(v.device), (beta - gamma).to(v.device),
+        hs = BoucWenStates.apply(v64, v0_, h0_, a.to(v.device), (beta - gamma).to(v.device),
                                     (beta + gamma).to(v.device), factor)
         x = d.to(v.device) * v64 - hs.sum(dim=2)
         h_last = hs[:, -1, :]

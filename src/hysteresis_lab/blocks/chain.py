@@ -18,9 +18,10 @@ import numba
 import numpy as np
 from torch import Tensor, nn
 
-from hysteresis_lab.blocks._bw_kernels import JIT, advance
 from hysteresis_lab.blocks.bouc_wen import BoucWen, bouc_wen_scaled_params
 from hysteresis_lab.blocks.linear import CreepBank, Delay, FirstOrderLag, SecondOrderMode
+from hysteresis_lab.physics.bouc_wen import JIT, advance
+from hysteresis_lab.physics.filters import mode_coefficients_np
 
 CHAIN_KEYS = ("amplifier", "delay", "bouc_wen", "creep", "mode")
 
@@ -76,13 +77,6 @@ def _chain_kernel(
     return out
 
 
-def _mode_coefficients_np(f: float, zeta: float, fs: float) -> tuple[np.ndarray, np.ndarray]:
-    c = 1.0 / math.tan(math.pi * f / fs)
-    a0 = c * c + 2.0 * zeta * c + 1.0
-    return (np.array([1.0, 2.0, 1.0]) / a0,
-            np.array([1.0, 2.0 * (1.0 - c * c) / a0, (c * c - 2.0 * zeta * c + 1.0) / a0]))
-
-
 def simulate_chain(u: np.ndarray, params: Mapping[str, Any]) -> np.ndarray:
     """Free run of the chain (B, T) for inputs ``u`` (B, T) (or (T,)), float64, at rest.
 
@@ -117,7 +111,7 @@ def simulate_chain(u: np.ndarray, params: Mapping[str, Any]) -> np.ndarray:
         p = params["mode"]
         freqs = np.atleast_1d(np.asarray(p["frequency_hz"], dtype=float))
         damp = np.atleast_1d(np.asarray(p["damping"], dtype=float))
-        coeffs = [_mode_coefficients_np(f, z, float(p["fs"])) for f, z in zip(freqs, damp,
+        coeffs = [mode_coefficients_np(f, z, float(p["fs"])) for f, z in zip(freqs, damp,
                                                                                strict=True)]
         mode_b = np.array([c[0] for c in coeffs])
         mode_a = np.array([c[1] for c in coeffs])

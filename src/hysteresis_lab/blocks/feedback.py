@@ -10,7 +10,7 @@ Model (per sample ``t``, one row)::
     phi(y) = sum_k w_k (relu(y - c_k) - relu(-c_k))         (piecewise linear, phi(0) = 0)
 
 as in the Bouc–Wen oscillator ``m y'' + c y' + k y + z(y) = u`` (``z`` a Bouc–Wen state driven
-by the displacement ``y``). The Bouc–Wen update is `hysteresis_lab.sim.bouc_wen.advance`
+by the displacement ``y``). The Bouc–Wen update is `hysteresis_lab.physics.bouc_wen.advance`
 (exact for an output moving linearly between samples), with ``a = alpha d``,
 ``r1 = beta - gamma``, ``r2 = beta + gamma`` as in `hysteresis_lab.blocks.BoucWen`. With a
 delayed numerator (``b_0 = 0``) the loop is causal at ``lag = 0``; otherwise the force of the
@@ -22,6 +22,7 @@ previous sample is fed back (``lag = 1``). The forward pass and its adjoint are 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numba
@@ -29,9 +30,9 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from hysteresis_lab.blocks._bw_kernels import _advance_grad
-from hysteresis_lab.blocks._util import from_numpy, to_numpy64
-from hysteresis_lab.sim.bouc_wen import advance
+from hysteresis_lab.blocks.step import StepState
+from hysteresis_lab.physics.bouc_wen import advance, advance_grad
+from hysteresis_lab.physics.tensors import from_numpy, to_numpy64
 
 JIT = {"cache": True, "error_model": "numpy"}
 
@@ -127,7 +128,7 @@ def feedback_backward(
             s = 1.0 if step > 0.0 else -1.0
             for c in range(n_c):
                 h_prev = h[r, t - 1, c] if t > 0 else 0.0
-                _, dh, dx, da_, dr1, dr2 = _advance_grad(h_prev, abs(step), s, ba[c], r1[c],
+                _, dh, dx, da_, dr1, dr2 = advance_grad(h_prev, abs(step), s, ba[c], r1[c],
                                                          r2[c])
                 d_h[t, c] = dh
                 d_y[t, c] = s * dx
@@ -227,3 +228,45 @@ def closed_loop(
     if w is None or c is None:
         w = c = torch.zeros(0, dtype=torch.float64, device=x.device)
     return _FeedbackFunction.apply(x, b, a, wh, wy, ba, r1, r2, lag, w, c)
+
+
+# ------------------------------------------------------------------ one sample of the loop
+def loop_lag(dynamics: Any) -> int:
+    """0 when the dynamics delay their input (a closed loop is causal as it is), else 1."""
+    return 0 if int(dynamics.delay) > 0 else 1
+
+
+def no_feedback(y: torch.Tensor) -> torch.Tensor:
+    return torch.zeros_like(y)
+
+
+def loop_state_names(dynamics: Any) -> list[str]:
+    """A closed loop's step state: past dynamics' inputs ``e`` and outputs ``y``."""
+    b, a = dynamics.polynomials()
+    return [f"e{i}" for i in range(1, b.shape[0])] + [f"y{i}" for i in range(1, a.shape[0])]
+
+
+def loop_step(
+    b: torch.Tensor, a: torch.Tensor, lag: int, x: torch.Tensor, state: StepState,
+    force: Callable[[torch.Tensor, torch.Tensor | None], torch.Tensor],
+    n_hidden: int = 0,
+    advance: Callable[[torch.Tensor, torch.Tensor], torch.Tensor] | None = None,
+) -> torch.Tensor:
+    """One sample of the dynamics ``b, a`` in a closed loop, ``e = x - force(y_fed, h)``,
+    ``x`` (B,) -> ``y`` (B,); state: the past ``e`` and ``y`` (newest first), then
+    ``n_hidden`` states ``h`` of the force that ``advance(h, y - y_prev)`` moves on."""
+    past_e = state.take(b.shape[0] - 1)
+    past_y = state.take(a.shape[0] - 1)
+    h = state.take(n_hidden) if n_hidden else None
+    e = x - force(past_y[:, 0], h) if lag else torch.zeros_like(x)
+    y = b[0] * e + past_e @ b[1:] - past_y @ a[1:]
+    if advance is not None:
+        h = advance(h, y - past_y[:, 0])
+    if not lag:
+        e = x - force(y, h)
+    if b.shape[0] > 1:  # a numerator of one term (`StagePole`) keeps no past input
+        state.put(torch.cat([e[:, None], past_e[:, :-1]], dim=1))
+    state.put(torch.cat([y[:, None], past_y[:, :-1]], dim=1))
+    if h is not None:
+        state.put(h)
+    return y

@@ -1,9 +1,6 @@
-"""Linear blocks: an IIR filter with exact gradients, the amplifier lag, creep, modes, delay.
+"""Linear blocks: the amplifier lag, creep, modes, delay, on the physics floor's IIR filter
+with exact gradients (`hysteresis_lab.physics.filters.iir_filter`).
 
-`iir_filter` runs ``scipy.signal.lfilter`` (float64, batched over rows, starting at rest) in
-a `torch.autograd.Function`. Its backward pass is the adjoint filter: with ``A y = B x``,
-``lam = A^{-T} g`` is the time-reversed all-pole filter of the time-reversed gradient, then
-``dL/dx = B^T lam``, ``dL/db_i = sum_k lam_k x_{k-i}`` and ``dL/da_j = -sum_k lam_k y_{k-j}``.
 Filter coefficients are computed from the raw parameters in float64 (a module converted to
 float32 keeps accurate poles), so every parametrisation below is stable for any raw value.
 """
@@ -16,69 +13,23 @@ from typing import Any
 
 import numpy as np
 import torch
-from scipy import signal
 from torch import Tensor, nn
 
-from hysteresis_lab.blocks._util import as_float_array, from_numpy, logit, to_numpy64
-from hysteresis_lab.blocks.step import StepState, delay_step, frozen, tdf2_step
+from hysteresis_lab.blocks._util import as_float_array, logit
+from hysteresis_lab.blocks.step import StepState, delay_step, frozen
+from hysteresis_lab.physics.filters import iir_filter, mode_coefficients, tdf2_step
+
+__all__ = ["CreepBank", "Delay", "FirstOrderLag", "SecondOrderMode", "iir_filter",
+           "mode_coefficients"]
 
 DAMPING_EPS = 1e-4
 DAMPING_MAX = 4.0  # heavily overdamped; far beyond it a pole reaches z = 1 in float64
 
 
-class _IIRFunction(torch.autograd.Function):
-    @staticmethod
-    def forward(ctx: Any, x: Tensor, b: Tensor, a: Tensor) -> Tensor:
-        x64, b64, a64 = to_numpy64(x), to_numpy64(b), to_numpy64(a)
-        y = signal.lfilter(b64, a64, x64, axis=-1)
-        ctx.arrays = (x64, y, b64, a64)
-        return from_numpy(y, x)
-
-    @staticmethod
-    def backward(ctx: Any, g: Tensor) -> tuple[Tensor | None, ...]:
-        x, y, b, a = ctx.arrays
-        g64 = to_numpy64(g)
-        lam = signal.lfilter([1.0], a, g64[..., ::-1], axis=-1)[..., ::-1]
-        n_t = x.shape[-1]
-        dx = db = da = None
-        if ctx.needs_input_grad[0]:
-            dx = from_numpy(signal.lfilter(b, [1.0], lam[..., ::-1], axis=-1)[..., ::-1], g)
-        if ctx.needs_input_grad[1]:
-            db_ = np.array([np.sum(lam[..., i:] * x[..., : n_t - i]) for i in range(len(b))])
-            db = from_numpy(db_, g)
-        if ctx.needs_input_grad[2]:
-            da_ = np.array([-np.sum(lam[..., j:] * y[..., : n_t - j]) for j in range(len(a))])
-            da = from_numpy(da_, g)
-        return dx, db, da
-
-
-def iir_filter(x: Tensor, b: Tensor, a: Tensor) -> Tensor:
-    """``lfilter(b, a, x)`` along the last axis of ``x`` (at rest), differentiable in all three.
-
-    Runs on the CPU in float64 and returns ``x``'s dtype and device.
-    """
-    return _IIRFunction.apply(x, b.to(x.device), a.to(x.device))
-
-
-def mode_coefficients(frequency_hz: Tensor, damping: Tensor, fs: float) -> tuple[Tensor, Tensor]:
-    """Bilinear (prewarped at the natural frequency) unit-DC-gain resonance ``(b, a)``.
-
-    Same filter as `hysteresis_lab.sim.blocks.mode_filter`: with ``c = 1 / tan(pi f / fs)``,
-    ``b = [1, 2, 1] / a0`` and ``a = [1, 2 (1 - c^2) / a0, (c^2 - 2 zeta c + 1) / a0]``,
-    ``a0 = c^2 + 2 zeta c + 1``.
-    """
-    c = 1.0 / torch.tan(math.pi * frequency_hz / fs)
-    a0 = c * c + 2.0 * damping * c + 1.0
-    one = torch.ones_like(a0)
-    b = torch.stack([one, 2.0 * one, one]) / a0
-    a = torch.stack([one, 2.0 * (1.0 - c * c) / a0, (c * c - 2.0 * damping * c + 1.0) / a0])
-    return b, a
-
-
 class FirstOrderLag(nn.Module):
     """Unit-DC-gain first-order low-pass (the amplifier), learnable cutoff.
 
-    Step-invariant discretisation as `hysteresis_lab.sim.blocks.first_order_lowpass`: pole
+    Step-invariant discretisation as `hysteresis_lab.physics.filters.first_order_lowpass`: pole
     ``exp(-2 pi f_c / fs)`` in (0, 1) for any ``f_c = min_cutoff_hz + exp(raw)``, hence always
     stable.
     """
@@ -120,7 +71,7 @@ class FirstOrderLag(nn.Module):
 class CreepBank(nn.Module):
     """Creep ``x + sum_i w_i lowpass_tau_i(x)``: fixed time constants, learnable weights.
 
-    As `hysteresis_lab.sim.blocks.creep` (there every weight is ``weight_per_decade``).
+    As the simulator's creep (there every weight is ``weight_per_decade``).
     """
 
     def __init__(

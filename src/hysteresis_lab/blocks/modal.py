@@ -24,8 +24,9 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from hysteresis_lab.blocks.linear import SecondOrderMode, iir_filter, mode_coefficients
+from hysteresis_lab.blocks.linear import SecondOrderMode
 from hysteresis_lab.blocks.step import StepState, frozen
+from hysteresis_lab.physics.filters import iir_filter, mode_coefficients
 
 
 class ModalDynamics(nn.Module):

@@ -1,75 +1,17 @@
-"""Prandtl–Ishlinskii hysteresis: learnable play operators, the effects' own recursion.
-
-The forward pass is `hysteresis_lab.effects.operators.play_recursion` (numba), which also
-records which branch each output followed; the backward pass uses it: ``dp_k/dv_k = 1`` and
-``dp_k/dr = -1 / +1`` where the output was pushed up (``v - r``) / down (``v + r``), and where
-it was held the gradient passes on to ``p_{k-1}``.
-"""
+"""Prandtl–Ishlinskii hysteresis: learnable play operators on the physics floor's play
+recursion (`hysteresis_lab.physics.play`, with its adjoint)."""
 
 from __future__ import annotations
 
 from typing import Any
 
-import numba
-import numpy as np
 import torch
 from torch import Tensor, nn
 from torch.nn import functional as F
 
-from hysteresis_lab.blocks._util import from_numpy, inv_softplus, to_numpy64
-from hysteresis_lab.blocks.step import StepState, frozen, play_step
-from hysteresis_lab.effects.operators import play_recursion
-
-
-@numba.njit(cache=True)
-def play_batch(v: np.ndarray, thresholds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Play outputs (B, T, m) of ``v`` (B, T), at rest, and the branches (int8)."""
-    n_b, n_t = v.shape
-    m = thresholds.shape[0]
-    out = np.empty((n_b, n_t, m))
-    branch = np.empty((n_b, n_t, m), dtype=np.int8)
-    for b in range(n_b):
-        play_recursion(v[b], thresholds, np.zeros(m), out[b], branch[b])
-    return out, branch
-
-
-@numba.njit(cache=True)
-def play_backward(branch: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """dL/dv (B, T) and dL/dr (m,) from dL/dp ``g`` (B, T, m) and the forward's branches."""
-    n_b, n_t, m = g.shape
-    dv = np.zeros((n_b, n_t))
-    dr = np.zeros(m)
-    for b in range(n_b):
-        for j in range(m):
-            carry = 0.0
-            for k in range(n_t - 1, -1, -1):
-                lam = g[b, k, j] + carry
-                br = branch[b, k, j]
-                if br == 0:
-                    carry = lam
-                else:
-                    dv[b, k] += lam
-                    dr[j] -= br * lam
-                    carry = 0.0
-    return dv, dr
-
-
-class _PlayFunction(torch.autograd.Function):
-    @staticmethod
-    def forward(ctx: Any, v: Tensor, thresholds: Tensor) -> Tensor:
-        out, branch = play_batch(to_numpy64(v), to_numpy64(thresholds))
-        ctx.branch = branch
-        return from_numpy(out, v)
-
-    @staticmethod
-    def backward(ctx: Any, g: Tensor) -> tuple[Tensor, Tensor]:
-        dv, dr = play_backward(ctx.branch, to_numpy64(g))
-        return from_numpy(dv, g), from_numpy(dr, g)
-
-
-def play(v: Tensor, thresholds: Tensor) -> Tensor:
-    """Play operators (B, T, m) of ``v`` (B, T) at rest, differentiable in both."""
-    return _PlayFunction.apply(v, thresholds.to(device=v.device, dtype=v.dtype))
+from hysteresis_lab.blocks._util import inv_softplus
+from hysteresis_lab.blocks.step import StepState, frozen
+from hysteresis_lab.physics.play import play, play_step
 
 
 class PlayOperators(nn.Module):

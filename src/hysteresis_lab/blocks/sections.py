@@ -19,8 +19,8 @@ import torch
 from scipy import signal
 from torch import Tensor, nn
 
-from hysteresis_lab.blocks.linear import iir_filter
-from hysteresis_lab.blocks.step import StepState, delay_step, frozen, tdf2_step
+from hysteresis_lab.blocks.step import StepState, delay_step, frozen
+from hysteresis_lab.physics.filters import iir_filter, tdf2_step
 
 MAX_RADIUS = 0.9999  # poles are kept at most this far out (float64 keeps them stable)
 

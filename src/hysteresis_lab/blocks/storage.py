@@ -24,9 +24,9 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from hysteresis_lab.blocks._util import from_numpy, to_numpy64
 from hysteresis_lab.blocks.sections import MAX_RADIUS, StableSections, held_poles, polymul
 from hysteresis_lab.blocks.step import StepState, frozen
+from hysteresis_lab.physics.tensors import from_numpy, to_numpy64
 
 log = logging.getLogger(__name__)
 

@@ -22,8 +22,10 @@ parameters and fits exactly as before MIMO.
   recursion, the default), ``prandtl_ishlinskii`` (play operators with learnable thresholds
   and non-negative weights, the recursion the effect catalogue's ``hysteresis`` uses) or
   ``none`` (a static gain);
-* creep when ``model.effects`` holds ``creep`` (a first-order filter bank, fixed time
-  constants, learnable weights), a second mode when it holds ``resonance``;
+* the declared effects' grey-box parts (`hysteresis_lab.effects.base.GreyBoxPart`): a block
+  per input after the gain (``creep``: a first-order filter bank, fixed time constants,
+  learnable weights), more modes (``resonance``: one), or the model's own cell
+  (``hysteresis``);
 * every linear block is stable for any parameter value (`hysteresis_lab.blocks`);
 * optionally (``model.residual_neurons > 0``, one input and output) a small ReLU network
   adds a static correction from the last ``nb`` inputs and the last ``na`` outputs of the
@@ -53,7 +55,6 @@ from torch import nn
 
 from hysteresis_lab.blocks import (
     BoucWen,
-    CreepBank,
     Delay,
     FirstOrderLag,
     PlayOperators,
@@ -67,24 +68,24 @@ from hysteresis_lab.blocks.estimate import estimate_modes
 from hysteresis_lab.blocks.modal import ModalDynamics
 from hysteresis_lab.blocks.step import StepState, frozen
 from hysteresis_lab.data.recording import Recording
+from hysteresis_lab.effects.base import Effect, GreyBoxPart, physical_order
+from hysteresis_lab.effects.registry import get_effect
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.base import NarxModule, mlp
-from hysteresis_lab.models.physical_chain import PhysicalChainModule
+from hysteresis_lab.models.physical_chain import FromEffects, PhysicalChainModule
 
 log = logging.getLogger(__name__)
 
 HYSTERESIS = ("bouc_wen", "prandtl_ishlinskii", "none")
-#: catalogue effects the grey-box carries as physical blocks
-BLOCK_EFFECTS = ("hysteresis", "creep", "resonance")
 #: most shared modes of the MIMO dynamics
 MAX_MIMO_MODES = 32
 #: the MIMO Bouc–Wen cells' starting hysteretic share (one axis: 0.2); with the residues
 #: solved by least squares a strong generic loop at the start costs more than it explains
-#: (FSM start, 14 modes: 0.39 / 0.31 / 0.37 um at 0.2, 0.37 / 0.27 / 0.34 um at 0.05)
+#: (the least squares fit the modes to a loop the data may not have)
 MIMO_BOUC_WEN_ALPHA = 0.05
 #: a hysteresis cell grown on the fitted chain starts at this hysteretic share (Bouc–Wen
-#: ``alpha`` is log-parametrised: it cannot start at zero; Adam's steps on its logarithm bring
-#: it to an O(0.1) share in a few hundred steps)
+#: ``alpha`` is log-parametrised: it cannot start at zero; Adam's steps on its logarithm grow
+#: it by a factor per step, so it still reaches an O(0.1) share within a short refit)
 GROWN_CELL_SHARE = 1e-3
 #: the MIMO modes' frequencies learn at this share of ``model.lr`` (`configure_optimizers`)
 MODE_FREQUENCY_LR_FACTOR = 0.02
@@ -102,18 +103,31 @@ def _hysteresis_cell(hysteresis: str, operators: int, alpha: float = 0.2) -> nn.
     return None
 
 
+def _part(effect: Effect) -> GreyBoxPart | None:
+    return effect.greybox_part()
+
+
+def _in_cell(effect: Effect) -> bool:
+    part = _part(effect)
+    return part is not None and part.in_cell
+
+
 class GreyBox(PhysicalChainModule):
     """Amplifier, delay, hysteresis, creep and modes in series (see the module docstring)."""
 
-    carried_effects = BLOCK_EFFECTS
+    #: the effects with a grey-box part (`Effect.greybox_part`), in physical order
+    carried_effects = FromEffects(lambda effect: _part(effect) is not None)
     #: the hysteresis cell sits ahead of the gain and the modes: they were fitted to the
     #: cell's absence, and the whole chain refits when it is grown
-    whole_refit_effects = ("hysteresis",)
+    whole_refit_effects = FromEffects(_in_cell)
+    #: the effects the model's own hysteresis cell carries
+    cell_effects = FromEffects(_in_cell)
 
     @classmethod
     def built_in_effects(cls, settings: Mapping[str, Any]) -> tuple[str, ...]:
-        """Its hysteresis cell holds ``hysteresis`` unless ``model.hysteresis=none``."""
-        return () if settings.get("hysteresis", "bouc_wen") == "none" else ("hysteresis",)
+        """Its hysteresis cell holds the effects it carries (`GreyBoxPart.in_cell`) unless
+        ``model.hysteresis=none``."""
+        return () if settings.get("hysteresis", "bouc_wen") == "none" else cls.cell_effects
 
     def __init__(
         self,
@@ -137,8 +151,9 @@ class GreyBox(PhysicalChainModule):
     ) -> None:
         super().__init__(nu=nu, ny=ny, objective=objective, lr=lr, **kwargs)
         fs = float((kwargs.get("trained_on") or {}).get("fs") or fs)  # the data's rate
-        effects = list(self.hparams.get("effects") or [])
-        unknown = [e for e in effects if e not in BLOCK_EFFECTS]
+        declared = physical_order([get_effect(e) for e in self.hparams.get("effects") or []])
+        unknown = [e.name for e in declared if _part(e) is None]
+        parts = [part for e in declared if (part := _part(e)) is not None]
         problems = []
         if hysteresis not in HYSTERESIS:
             problems.append(f"model.hysteresis='{hysteresis}' (one of {list(HYSTERESIS)})")
@@ -148,8 +163,8 @@ class GreyBox(PhysicalChainModule):
                             f"{self.n_base_inputs} inputs and {ny} outputs (the residual "
                             "network corrects one input and one output; 0 for MIMO data)")
         if unknown:
-            problems.append(f"effects {unknown} (its blocks: {list(BLOCK_EFFECTS)}; model=subnet "
-                            "or model=ffnn take any catalogue effect as an input)")
+            problems.append(f"effects {unknown} (its blocks: {list(self.carried_effects)}; "
+                            "model=subnet or model=ffnn take any catalogue effect as an input)")
         if objective != "simulation":
             problems.append(f"model.objective='{objective}' (it is fitted on the simulation "
                             "error only)")
@@ -172,10 +187,14 @@ class GreyBox(PhysicalChainModule):
             )
         # the blocks' 1 Hz floors scaled down for slow data (cascaded tanks: fs = 0.25 Hz)
         self.f_floor = min(1.0, 1e-3 * fs)
-        modes = n_modes + int("resonance" in effects)
+        modes = n_modes + sum(part.extra_modes for part in parts)
+        settings = {"creep_time_constants_s": creep_time_constants_s}
+        #: the effects' blocks after the gain: (label, attribute) of each
+        self.series_blocks: list[tuple[str, str]] = []
+        series = [part for part in parts if part.series is not None]
         if self.mimo:
             self._build_mimo(fs, hysteresis, modes, mode_hz, mode_damping, amplifier_hz, delay,
-                             creep_time_constants_s if "creep" in effects else None, operators)
+                             series, settings, operators)
             return
         nyquist = 0.5 * fs
         self.amplifier = FirstOrderLag(fs, amplifier_hz or 0.25 * fs,
@@ -183,7 +202,9 @@ class GreyBox(PhysicalChainModule):
         self.delay = Delay(delay)
         self.hysteresis = _hysteresis_cell(hysteresis, operators)
         self.gain = nn.Parameter(torch.ones((), dtype=torch.float64))  # after the hysteresis
-        self.creep = CreepBank(fs, creep_time_constants_s) if "creep" in effects else None
+        for part in series:
+            setattr(self, part.attribute, part.series(fs, settings))
+            self.series_blocks.append((part.attribute, part.attribute))
         self.mode = (
             SecondOrderMode(fs, mode_hz or 0.1 * nyquist, mode_damping or 0.05, n_modes=modes,
                             fmin=self.f_floor)
@@ -201,11 +222,11 @@ class GreyBox(PhysicalChainModule):
     def _build_mimo(
         self, fs: float, hysteresis: str, n_modes: int, mode_hz: float | None,
         mode_damping: float | None, amplifier_hz: float | None, delay: int,
-        creep_time_constants_s: Sequence[float] | None, operators: int,
+        series: Sequence[GreyBoxPart], settings: Mapping[str, Any], operators: int,
     ) -> None:
-        """Per input channel an amplifier lag, a delay, a hysteresis cell and (declared) creep;
-        then shared modes with a residue per output and input (`ModalDynamics`) and an
-        offset per output."""
+        """Per input channel an amplifier lag, a delay, a hysteresis cell and the declared
+        effects' blocks (creep); then shared modes with a residue per output and input
+        (`ModalDynamics`) and an offset per output."""
         n_in = self.n_base_inputs
         self.amplifiers = nn.ModuleList(
             FirstOrderLag(fs, amplifier_hz or 0.25 * fs, min_cutoff_hz=self.f_floor)
@@ -214,8 +235,10 @@ class GreyBox(PhysicalChainModule):
         cells = [_hysteresis_cell(hysteresis, operators, MIMO_BOUC_WEN_ALPHA)
                  for _ in range(n_in)]
         self.cells = None if hysteresis == "none" else nn.ModuleList(cells)
-        self.creeps = None if creep_time_constants_s is None else nn.ModuleList(
-            CreepBank(fs, creep_time_constants_s) for _ in range(n_in))
+        for part in series:
+            setattr(self, part.attribute_mimo, nn.ModuleList(
+                part.series(fs, settings) for _ in range(n_in)))
+            self.series_blocks.append((part.attribute, part.attribute_mimo))
         # the SISO convention for a given frequency (mode m at mode_hz * 3^m, clipped);
         # without one, placeholders until the data's modes are read (`initialise_from_data`)
         start = SecondOrderMode(fs, mode_hz or 0.1 * 0.5 * fs, mode_damping or 0.05,
@@ -241,8 +264,8 @@ class GreyBox(PhysicalChainModule):
         if self.cells is not None:
             x = self.cells[j](x)
             x = x[0] if isinstance(x, tuple) else x
-        if self.creeps is not None:
-            x = self.creeps[j](x)
+        for _, attribute in self.series_blocks:
+            x = getattr(self, attribute)[j](x)
         return x
 
     def _chain(self, v: torch.Tensor) -> torch.Tensor:
@@ -253,8 +276,8 @@ class GreyBox(PhysicalChainModule):
             x = self.hysteresis(x)
             x = x[0] if isinstance(x, tuple) else x
         x = self.gain * x
-        if self.creep is not None:
-            x = self.creep(x)
+        for _, attribute in self.series_blocks:
+            x = getattr(self, attribute)(x)
         if self.mode is not None:
             x = self.mode(x)
         if self.residual is not None:
@@ -279,11 +302,13 @@ class GreyBox(PhysicalChainModule):
                            (f"input{j}.delay", self.delays[j])]
                 if self.cells is not None:
                     blocks.append((f"input{j}.hysteresis", self.cells[j]))
-                if self.creeps is not None:
-                    blocks.append((f"input{j}.creep", self.creeps[j]))
+                blocks += [(f"input{j}.{label}", getattr(self, attribute)[j])
+                           for label, attribute in self.series_blocks]
             return [*blocks, ("dynamics", self.dynamics)]
         blocks = [("amplifier", self.amplifier), ("delay", self.delay),
-                  ("hysteresis", self.hysteresis), ("creep", self.creep), ("mode", self.mode)]
+                  ("hysteresis", self.hysteresis),
+                  *((label, getattr(self, attribute)) for label, attribute in self.series_blocks),
+                  ("mode", self.mode)]
         return [(name, block) for name, block in blocks if block is not None]
 
     def state_names(self) -> list[str]:
@@ -305,8 +330,8 @@ class GreyBox(PhysicalChainModule):
                 x = self.delays[j].step(self.amplifiers[j].step(v[:, j], state), state)
                 if self.cells is not None:
                     x = self.cells[j].step(x, state)
-                if self.creeps is not None:
-                    x = self.creeps[j].step(x, state)
+                for _, attribute in self.series_blocks:
+                    x = getattr(self, attribute)[j].step(x, state)
                 xs.append(x)
             return self.dynamics.step(torch.stack(xs, dim=-1), state)
         v_in = v[:, 0]
@@ -314,8 +339,8 @@ class GreyBox(PhysicalChainModule):
         if self.hysteresis is not None:
             x = self.hysteresis.step(x, state)
         x = frozen(self.gain)[0] * x
-        if self.creep is not None:
-            x = self.creep.step(x, state)
+        for _, attribute in self.series_blocks:
+            x = getattr(self, attribute).step(x, state)
         if self.mode is not None:
             x = self.mode.step(x, state)
         if self.residual is not None:
@@ -334,21 +359,23 @@ class GreyBox(PhysicalChainModule):
         """`PhysicalChainModule.growth_stages` with the hysteresis cell as the first effect
         grown: the chain without its cell (``hysteresis=none``) first, then the cell from
         (nearly) no hysteresis, then the declared effects."""
-        if settings.get("hysteresis", "bouc_wen") == "none":
+        cells = cls.built_in_effects(settings)
+        if not cells:
             return super().growth_stages(settings)
-        effects = [e for e in settings.get("effects") or [] if e != "hysteresis"]
+        effects = [e for e in settings.get("effects") or [] if e not in cells]
         stages = super().growth_stages({**settings, "effects": effects})
         linear = {**stages[0][1], "hysteresis": "none"}
-        cell = ("hysteresis", dict(stages[0][1]), "hysteresis")
+        cell = (cells[0], dict(stages[0][1]), cells[0])
         grown = [stages[0][:1] + (linear, None), cell, *stages[1:]]
         grown[-1] = (grown[-1][0], dict(settings), grown[-1][2])
         return grown
 
     def _start_new_parameter(self, name: str, value: torch.Tensor, previous: NarxModule) -> None:
-        """A new block starts where it changes nothing: creep weights 0, a new mode at
-        weight 0 (MIMO: residues 0) beside the fitted ones, a new hysteresis cell at (nearly)
-        no hysteresis (Bouc–Wen ``alpha`` `GROWN_CELL_SHARE`, play operators' weights that
-        share beside a unit linear weight)."""
+        """A new block starts where it changes nothing: an effect's block after the gain at
+        zero (creep weights 0), a new mode at weight 0 (MIMO: residues 0) beside the fitted
+        ones, a new hysteresis cell at (nearly) no hysteresis (Bouc–Wen ``alpha``
+        `GROWN_CELL_SHARE`, play operators' weights that share beside a unit linear
+        weight)."""
         cell = re.match(r"^(hysteresis|cells\.\d+)\.(raw_alpha|raw_w0|raw_weights)$", name)
         if cell is not None:
             self._start_new_cell_parameter(cell.group(2), value)
@@ -358,13 +385,16 @@ class GreyBox(PhysicalChainModule):
                 fitted = previous.get_parameter(name)
                 value.zero_()
                 value[..., : fitted.shape[-1]] = fitted
-            elif name.startswith("creeps."):
+            elif name.split(".")[0] in self._series_attributes():
                 value.zero_()
             return
         if name.startswith("mode.") and self.mode is not None and previous.mode:
             self._grow_mode(previous.mode)
-        elif name.startswith("creep."):
+        elif name.split(".")[0] in self._series_attributes():
             value.zero_()
+
+    def _series_attributes(self) -> set[str]:
+        return {attribute for _, attribute in self.series_blocks}
 
     @staticmethod
     def _start_new_cell_parameter(name: str, value: torch.Tensor) -> None:
@@ -535,7 +565,8 @@ class GreyBox(PhysicalChainModule):
         if self.mimo:
             return self._mimo_parameters()
         blocks = {"amplifier": self.amplifier, "hysteresis": self.hysteresis,
-                  "creep": self.creep, "mode": self.mode}
+                  **{label: getattr(self, attribute) for label, attribute in self.series_blocks},
+                  "mode": self.mode}
         out = {name: block.export() for name, block in blocks.items() if block is not None}
         out.update(gain=float(self.gain.detach()), offset=float(self.offset.detach()),
                    delay=self.delay.samples)
@@ -548,8 +579,8 @@ class GreyBox(PhysicalChainModule):
             blocks = {"amplifier": self.amplifiers[j].export()}
             if self.cells is not None:
                 blocks["hysteresis"] = self.cells[j].export()
-            if self.creeps is not None:
-                blocks["creep"] = self.creeps[j].export()
+            for label, attribute in self.series_blocks:
+                blocks[label] = getattr(self, attribute)[j].export()
             inputs.append(blocks)
         return {"inputs": inputs, "dynamics": self.dynamics.export(),
                 "offset": self.offset.detach().cpu().numpy().tolist(),

@@ -63,8 +63,6 @@ import numpy as np
 import torch
 from torch import nn
 
-from hysteresis_lab.blocks import CreepBank
-from hysteresis_lab.blocks.linear import iir_filter
 from hysteresis_lab.blocks.sections import (
     StableSections,
     arx_least_squares,
@@ -72,87 +70,71 @@ from hysteresis_lab.blocks.sections import (
     slowest_rate,
     steiglitz_mcbride,
 )
-from hysteresis_lab.blocks.step import StepState, frozen, tdf2_step
+from hysteresis_lab.blocks.step import StepState, frozen
 from hysteresis_lab.blocks.storage import StorageCascade
 from hysteresis_lab.data.recording import Recording
+from hysteresis_lab.effects.base import Effect, LinearBlock, LinearContext, physical_order
+from hysteresis_lab.effects.registry import get_effect
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.augment import context_from_dict
-from hysteresis_lab.models.linear_blocks import (
-    Backlash,
-    DeadZone,
-    HysteresisCell,
-    Overflow,
-    Saturation,
-    StateHysteresis,
-    StaticFeedback,
-    knot_fractions,
-)
-from hysteresis_lab.models.physical_chain import PhysicalChainModule
+from hysteresis_lab.models.physical_chain import FromEffects, PhysicalChainModule
+from hysteresis_lab.physics.filters import iir_filter, tdf2_step
 
 log = logging.getLogger(__name__)
 
 #: the Steiglitz–McBride fit replaces the ARX start only below this share of its free-run
 #: error variance on the training recordings: a gross gain says ARX misplaced poles; a
-#: modest one is what fitting the free run of these same recordings gives anyway (near the
-#: unit circle on the cascaded tanks, under half of ARX's error there, a worse start on
-#: the test)
+#: modest one is what fitting the free run of these same recordings gives anyway, and can
+#: place poles that suit the training recordings only
 OUTPUT_ERROR_REPLACES_AT = 0.01
 #: ... and only where its slowest mode is at least this share of the ARX fit's slowest
 #: (`slowest_rate`): slower dynamics are slow effects (creep, drift) read into the start,
-#: which the loop names itself (the creep block carries creep); from a start holding them the
-#: loop's creep refit did worse (simulator creep diagnosed on a 1 Hz sine: its 0.1 Hz test
-#: 0.121 instead of 0.053 um after the refit)
+#: which the loop names itself (the creep block carries creep); a start that already holds
+#: them leaves the creep refit less to fit and a worse place to fit it from
 SLOWEST_MODE_SHARE = 0.5
 #: ... or where the ARX start's gain at Nyquist exceeds this share of its static gain while
 #: the Steiglitz–McBride fit's does not: a sampled physical low-pass system has far less
 #: there; ARX's equation error, whitening the sensor noise above the input's band, puts poles
-#: near Nyquist that no training on that band moves (simulated positioner, 0-500 Hz
-#: multisine: order-6 ARX 1.02 um/V at 4.5 kHz and 7.96 at 9 kHz where it has 0.005 and
-#: 0.0001, 39x its static gain; an input clipped by the loop's saturation block rang in it:
-#: the refit left 1.00 um on the 100 Hz sine and 0.76-1.02 on 400-500 Hz, from the
-#: output-error start 0.08 and 0.32-0.41; experiments/saturation_refit.py) ...
+#: near Nyquist that no training on that band moves, and an input with sharp corners (one
+#: clipped by a saturation block) rings in them (experiments/saturation_refit.py) ...
 NYQUIST_GAIN_SHARE = 1.0
 #: ... where, too, the output-error fit simulates clearly better (below this share of the ARX
 #: start's error variance) and keeps ARX's slow dynamics (its slowest mode at least this share
 #: of ARX's): it is there to take out the poles near Nyquist, not to read another mode into
-#: the start (an 8000-sample dead-zone record: output-error fit 0.97 of ARX's error with a
-#: pole at the radius limit, the round-0 held-out loss 0.29 instead of 0.18 and the loop's
-#: dead-zone refit no longer cut it; the simulator's default data, hysteresis and creep on:
-#: 0.41 with its slowest mode at 0.68, a plain linear fit 6 % worse on the test sines)
+#: the start (a fit barely better than ARX's can park a pole at the radius limit, which the
+#: refits of the input blocks then cannot move)
 NYQUIST_CLEAR_SHARE = 0.9
 
 #: where the loop forces (hysteresis in the feedback, nonlinear_feedback) act: around the whole
-#: dynamics, or on the output stage's own level (`StorageCascade`)
+#: dynamics, or on the output stage's own level (`StorageCascade`). A refit that adds an effect
+#: whose law reads a storage's own level (`Effect.linear_tries_output_stage`: an outflow law, a
+#: rim) tries both; a Bouc–Wen restoring force acts on the whole oscillator, and on the output
+#: stage it would fit the validation data's error rather than a storage's
 FEEDBACK_PLACES = ("dynamics", "output_stage")
-#: effects whose refit in the loop tries both places (the held-out loss chooses): a storage's
-#: outflow law and its rim. Not hysteresis: a Bouc–Wen restoring force acts on the whole
-#: oscillator, and on the output stage it read the validation multisine's error, not a
-#: storage's (the simulator with an undeclared backlash: the hysteresis refit on the output
-#: stage beat round 0 on held-out data, 0.031 against 0.041, made the test sines worse,
-#: 1.85 -> 1.88 um, and the loop kept it instead of trying backlash, which cuts them)
-PLACED_EFFECTS = ("nonlinear_feedback", "overflow")
 
-#: catalogue effects the linear model carries as blocks, in physical order
-LINEAR_EFFECTS = ("saturation", "dead_zone", "backlash", "hysteresis", "rate", "creep",
-                  "resonance", "nonlinear_feedback", "overflow")
+#: where the declared effects' blocks sit (`LinearBlock.site`), in the order the model
+#: registers them: the order of the parameters of models saved before, which gradient
+#: clipping sums over
+SITES = ("series", "parallel", "output", "force", "law")
+#: sites with one block at most (the closed loop takes one force with states and one law)
+SINGLE_SITES = ("force", "law")
 
 
 def _pairs(n_out: int, n_in: int, make: Any) -> nn.ModuleList:
-    """``[output][input]`` blocks from ``make()``."""
-    return nn.ModuleList(nn.ModuleList(make() for _ in range(n_in)) for _ in range(n_out))
+    """``[output][input]`` blocks from ``make(output, input)``."""
+    return nn.ModuleList(nn.ModuleList(make(o, j) for j in range(n_in)) for o in range(n_out))
 
 
 class LinearModel(PhysicalChainModule):
     """Stable linear dynamics with the declared effects' blocks (see the module docstring)."""
 
-    carried_effects = LINEAR_EFFECTS
-    #: a dead zone takes a band off every input and a backlash its play off every reversal (a
-    #: linear fit meets the lost output with a lower gain and a lag, which a block-only refit
-    #: cannot give back); hysteresis closes a restoring force around the dynamics, a
-    #: nonlinear feedback a static law; a rate-dependent loop shares out the loop width the
-    #: cell's ``alpha`` was fitted to at the training input's rates (``alpha`` must fall as
-    #: the rate gain grows): the loop refits the whole model when it adds any of them
-    whole_refit_effects = ("dead_zone", "backlash", "hysteresis", "rate", "nonlinear_feedback")
+    #: the effects with a ``model=linear`` face (`Effect.linear_blocks`), in physical order
+    carried_effects = FromEffects(lambda effect: effect.linear_carried)
+    #: those whose block reshapes what the fitted blocks were fitted to (`Effect.
+    #: linear_whole_refit`: a dead zone, a backlash, a force in the loop): the loop refits the
+    #: whole model when it adds one
+    whole_refit_effects = FromEffects(
+        lambda effect: effect.linear_carried and effect.linear_whole_refit)
 
     def __init__(
         self,
@@ -174,11 +156,11 @@ class LinearModel(PhysicalChainModule):
         fs = float((kwargs.get("trained_on") or {}).get("fs") or fs)
         if integrator is None:  # as the data set says (EMPS: its position integrates)
             integrator = bool((kwargs.get("trained_on") or {}).get("output_integrates"))
-        effects = list(self.hparams.get("effects") or [])
+        declared = physical_order([get_effect(e) for e in self.hparams.get("effects") or []])
         problems = []
-        unknown = [e for e in effects if e not in LINEAR_EFFECTS]
+        unknown = [e.name for e in declared if not e.linear_carried]
         if unknown:
-            problems.append(f"effects {unknown} (its blocks: {list(LINEAR_EFFECTS)})")
+            problems.append(f"effects {unknown} (its blocks: {list(self.carried_effects)})")
         if not (isinstance(order, int) and order >= 1):
             problems.append(f"model.order={order!r} (poles, >= 1)")
         if not (isinstance(delay, int) and delay >= 0):
@@ -213,10 +195,6 @@ class LinearModel(PhysicalChainModule):
                 "settings (hysteresis_lab/conf/model/linear.yaml has the defaults)."
             )
         n_in = self.n_base_inputs
-        self.input_blocks = nn.ModuleList(
-            self._input_blocks(effects, self._input_amplitude(j)) for j in range(n_in))
-        self.creep = nn.ModuleList(CreepBank(fs, creep_time_constants_s) for _ in range(n_in)) \
-            if "creep" in effects else None
         extremes = [self._output_extremes(o) for o in range(ny)]
         #: the output is the running sum of the dynamics' output (a position from a force)
         self.integrator = integrator
@@ -226,19 +204,30 @@ class LinearModel(PhysicalChainModule):
         forced = ([(low / size, high / size) for (low, high), size
                    in zip(steps, self._step_sizes(steps), strict=True)]
                   if integrator else extremes)
+        context = LinearContext(
+            fs=fs, n_inputs=n_in, n_outputs=ny, input_amplitude=self._input_amplitude,
+            output_extremes=extremes, forced_extremes=forced, declared=declared,
+            settings={"creep_time_constants_s": creep_time_constants_s,
+                      "feedback_knots": feedback_knots, "order": order})
+        sites = self._sites(declared, context)
+        #: the containers of the effects' blocks per site (attribute names)
+        self.effect_sites: dict[str, list[str]] = {site: [] for site in SITES}
+        self.input_blocks = nn.ModuleList(
+            nn.ModuleDict((key, block.make(context, j)) for key, block in sites["inputs"])
+            for j in range(n_in))
+        self._add_blocks(sites, "series", lambda make: nn.ModuleList(
+            make(context, j) for j in range(n_in)))
         #: the loop forces act on the output stage's own level (`StorageCascade`)
         self.output_stage = feedback_on == "output_stage"
         if self.output_stage:
-            rim = "overflow" in effects
             self.dynamics = nn.ModuleList(
-                nn.ModuleList(StorageCascade(order, low + knot_fractions(2)[-1] * (high - low)
-                                             if rim else None) for _ in range(n_in))
+                nn.ModuleList(StorageCascade(order, self._storage_rim(declared, low, high))
+                              for _ in range(n_in))
                 for low, high in extremes)
         else:
-            self.dynamics = _pairs(ny, n_in, lambda: StableSections(order))
-        self.resonance: nn.ModuleList | None = None
-        if "resonance" in effects:
-            self.resonance = _pairs(ny, n_in, self._resonance_section)
+            self.dynamics = _pairs(ny, n_in, lambda o, j: StableSections(order))
+        self._add_blocks(sites, "parallel", lambda make: _pairs(
+            ny, n_in, lambda o, j: make(context, (o, j))))
         self.offset = nn.Parameter(torch.zeros(ny, dtype=torch.float64))
         #: with an integrator: a constant in the integrand (a force offset, a velocity bias),
         #: without which any bias in the fitted dynamics' output is a drift of the output
@@ -252,19 +241,67 @@ class LinearModel(PhysicalChainModule):
             #: recording, is a drift no learning rate survives)
             self.register_buffer("step_scale", torch.tensor(self._step_sizes(steps),
                                                             dtype=torch.float64))
-        self.overflow: nn.ModuleList | None = None
-        if "overflow" in effects:
-            self.overflow = nn.ModuleList(Overflow(low, high) for low, high in extremes)
-        self.state_hysteresis: nn.ModuleList | None = None
-        if "hysteresis" in effects:
-            self.state_hysteresis = nn.ModuleList(
-                nn.ModuleList(StateHysteresis(high - low) for _ in range(n_in))
-                for low, high in forced)
-        self.static_feedback: nn.ModuleList | None = None
-        if "nonlinear_feedback" in effects:
-            self.static_feedback = nn.ModuleList(
-                nn.ModuleList(StaticFeedback(low, high, feedback_knots) for _ in range(n_in))
-                for low, high in forced)
+        self._add_blocks(sites, "output", lambda make: nn.ModuleList(
+            make(context, o) for o in range(ny)))
+        for site in SINGLE_SITES:
+            self._add_blocks(sites, site, lambda make: _pairs(
+                ny, n_in, lambda o, j: make(context, (o, j))))
+
+    @staticmethod
+    def _sites(
+        declared: Sequence[Effect], context: LinearContext
+    ) -> dict[str, list[tuple[str, LinearBlock]]]:
+        """The declared effects' blocks (`Effect.linear_blocks`) by site, in physical order,
+        each with its key (``"inputs"``: the series blocks kept in ``input_blocks``; a key
+        named twice, such as the hysteresis cell of ``hysteresis`` and ``rate``, is one
+        block)."""
+        sites: dict[str, list[tuple[str, LinearBlock]]] = {"inputs": [], **{s: [] for s in SITES}}
+        for effect in declared:
+            for block in effect.linear_blocks(context):
+                if block.site not in SITES:
+                    raise ConfigError(
+                        f"effect '{effect.name}' puts a block at site '{block.site}', which "
+                        f"model=linear does not have. Fix: one of {list(SITES)} in its "
+                        "linear_blocks.")
+                site = "inputs" if block.site == "series" and block.attribute is None \
+                    else block.site
+                key = block.attribute or block.key or effect.name
+                if key not in {k for k, _ in sites[site]}:
+                    sites[site].append((key, block))
+        for site in SINGLE_SITES:
+            if len(sites[site]) > 1:
+                raise ConfigError(
+                    f"model=linear takes one block at site '{site}', the declared effects give "
+                    f"{[k for k, _ in sites[site]]}. Fix: declare one of them.")
+        return sites
+
+    def _add_blocks(
+        self, sites: dict[str, list[tuple[str, LinearBlock]]], site: str,
+        build: Any,
+    ) -> None:
+        """Register the blocks of ``site``, each container built by ``build(make)``."""
+        for attribute, block in sites[site]:
+            setattr(self, attribute, build(block.make))
+            self.effect_sites[site].append(attribute)
+
+    @staticmethod
+    def _storage_rim(declared: Sequence[Effect], low: float, high: float) -> float | None:
+        """The upstream storage's rim a declared effect puts there (`Effect.
+        linear_storage_rim`), for an output of range ``low``-``high``; None: none."""
+        for effect in declared:
+            rim = effect.linear_storage_rim(low, high)
+            if rim is not None:
+                return rim
+        return None
+
+    def _blocks(self, site: str) -> list[tuple[str, nn.ModuleList]]:
+        """The containers of ``site``'s blocks, with their attribute names."""
+        return [(name, getattr(self, name)) for name in self.effect_sites[site]]
+
+    def _loop_block(self, site: str, o: int, j: int) -> nn.Module | None:
+        """The force or the law (``site``) in the loop of pair ``(o, j)``; None: none."""
+        blocks = self._blocks(site)
+        return blocks[0][1][o][j] if blocks else None
 
     def _output_extremes(self, channel: int) -> tuple[float, float]:
         """An output's lowest and highest training value over its scale (the overflow
@@ -296,29 +333,6 @@ class LinearModel(PhysicalChainModule):
         offset, or nothing where they read an integrator's integrand."""
         return torch.zeros_like(offset) if self.integrator else offset
 
-    @staticmethod
-    def _input_blocks(effects: Sequence[str], amplitude: float) -> nn.ModuleDict:
-        """One input channel's blocks, in physical order (``rate``: the hysteresis cell
-        rate-dependent)."""
-        blocks = nn.ModuleDict()
-        rate_step = HysteresisCell.rate_step_for(amplitude) if "rate" in effects else None
-        for name, block in (("saturation", lambda: Saturation(0.9 * amplitude)),
-                            ("dead_zone", lambda: DeadZone(0.05 * amplitude)),
-                            ("backlash", lambda: Backlash(0.05 * amplitude)),
-                            ("hysteresis", lambda: HysteresisCell(rate_step))):
-            if name in effects or (name == "hysteresis" and rate_step is not None):
-                blocks[name] = block()
-        return blocks
-
-    @staticmethod
-    def _resonance_section() -> StableSections:
-        """A lightly damped pair at zero weight (numerator zero)."""
-        section = StableSections(2)
-        with torch.no_grad():
-            section.numerators.zero_()
-            section.raw_denominators[:, 1] = 2.0
-        return section
-
     def _input_amplitude(self, channel: int) -> float:
         """A measured input's amplitude over its scale (for the levels of input blocks)."""
         context = self.hparams.get("feature_context")
@@ -334,8 +348,8 @@ class LinearModel(PhysicalChainModule):
         x = v
         for block in self.input_blocks[j].values():
             x = block(x)
-        if self.creep is not None:
-            x = self.creep[j](x)
+        for _, blocks in self._blocks("series"):
+            x = blocks[j](x)
         return x
 
     def chain(self, v: torch.Tensor) -> torch.Tensor:
@@ -343,30 +357,30 @@ class LinearModel(PhysicalChainModule):
         outputs = []
         for o in range(self.ny):
             y = sum(self._dynamics_path(o, j, x) for j, x in enumerate(xs))
-            if self.resonance is not None:
-                y = y + sum(self.resonance[o][j](x) for j, x in enumerate(xs))
+            for _, blocks in self._blocks("parallel"):
+                y = y + sum(blocks[o][j](x) for j, x in enumerate(xs))
             if self.integrand_offset is not None:
                 y = torch.cumsum(y + self.integrand_offset[o], dim=-1) * self.step_scale[o]
-            if self.overflow is not None:  # on the output itself, offset included
-                y = self.overflow[o](y + self.offset[o]) - self.offset[o]
+            for _, blocks in self._blocks("output"):  # on the output itself, offset included
+                y = blocks[o](y + self.offset[o]) - self.offset[o]
             outputs.append(y)
         return torch.stack(outputs, dim=-1)
 
     def _dynamics_path(self, o: int, j: int, x: torch.Tensor) -> torch.Tensor:
         """The dynamics of pair ``(o, j)`` on ``x`` (B, T), in a closed loop with the
-        hysteretic force and/or the static feedback where declared (with
+        force and/or the law in their feedback where declared (with
         ``feedback_on=output_stage``: the loop around the output stage, fed by the upstream
         part and storage)."""
         dynamics = self.dynamics[o][j]
         if self.output_stage:
             x = dynamics.storage_output(x, self.offset[o])
             dynamics = dynamics.stage
-        static = None if self.static_feedback is None else self.static_feedback[o][j]
+        force, law = self._loop_block("force", o, j), self._loop_block("law", o, j)
         offset = self._forced_offset(self.offset[o])
-        if self.state_hysteresis is not None:
-            return self.state_hysteresis[o][j](dynamics, x, static, offset)
-        if static is not None:
-            return static(dynamics, x, offset)
+        if force is not None:
+            return force(dynamics, x, law, offset)
+        if law is not None:
+            return law(dynamics, x, offset)
         if self.output_stage:
             return iir_filter(x, *dynamics.polynomials())
         return dynamics(x)
@@ -379,11 +393,11 @@ class LinearModel(PhysicalChainModule):
             x = dynamics.storage_step(x, state, offset)
             dynamics = dynamics.stage
         offset = self._forced_offset(offset)
-        static = None if self.static_feedback is None else self.static_feedback[o][j]
-        if self.state_hysteresis is not None:
-            return self.state_hysteresis[o][j].step(dynamics, x, state, static, offset)
-        if static is not None:
-            return static.step(dynamics, x, state, offset)
+        force, law = self._loop_block("force", o, j), self._loop_block("law", o, j)
+        if force is not None:
+            return force.step(dynamics, x, state, law, offset)
+        if law is not None:
+            return law.step(dynamics, x, state, offset)
         if self.output_stage:
             return tdf2_step(*frozen(*dynamics.polynomials()), x, state)
         return dynamics.step(x, state)
@@ -395,33 +409,31 @@ class LinearModel(PhysicalChainModule):
         if self.output_stage:
             names = [f"dynamics{o}{j}.{part}" for part in dynamics.storage_state_names()]
             dynamics = dynamics.stage
-        if self.state_hysteresis is not None:
-            return names + [f"state_hysteresis{o}{j}.{part}"
-                            for part in self.state_hysteresis[o][j].state_names(dynamics)]
-        if self.static_feedback is not None:
-            return names + [f"static_feedback{o}{j}.{part}"
-                            for part in StaticFeedback.state_names(dynamics)]
+        for site in ("force", "law"):  # the loop's state is the force's where there is one
+            for name, blocks in self._blocks(site):
+                return names + [f"{name}{o}{j}.{part}"
+                                for part in blocks[o][j].state_names(dynamics)]
         if self.output_stage:
             return names + [f"dynamics{o}{j}.stage"]
         return [f"dynamics{o}{j}.{part}" for part in dynamics.state_names()]
 
     def state_names(self) -> list[str]:
         """Per input: its blocks' states (backlash: the play output; hysteresis: previous
-        input and Bouc–Wen state) and creep filters; then per output and input: the
-        dynamics' delay buffer and second-order section states, the resonance's, and with an
-        integrator its running sum."""
+        input and Bouc–Wen state) and series banks' (creep filters); then per output and
+        input: the dynamics' delay buffer and second-order section states (or the closed
+        loop's), the parallel blocks' (resonance), and with an integrator its running sum."""
         names = []
         for j, blocks in enumerate(self.input_blocks):
             for name, block in blocks.items():
                 names += [f"input{j}.{name}.{part}" for part in block.state_names()]
-            if self.creep is not None:
-                names += [f"input{j}.creep.{part}" for part in self.creep[j].state_names()]
+            for name, banks in self._blocks("series"):
+                names += [f"input{j}.{name}.{part}" for part in banks[j].state_names()]
         for o in range(self.ny):
             n_in = self.n_base_inputs
             names += [name for j in range(n_in) for name in self._dynamics_state_names(o, j)]
-            if self.resonance is not None:
-                names += [f"resonance{o}{j}.{part}" for j in range(n_in)
-                          for part in self.resonance[o][j].state_names()]
+            for name, blocks in self._blocks("parallel"):
+                names += [f"{name}{o}{j}.{part}" for j in range(n_in)
+                          for part in blocks[o][j].state_names()]
             if self.integrator:
                 names.append(f"integrator{o}")
         return names
@@ -432,21 +444,21 @@ class LinearModel(PhysicalChainModule):
             x = v[:, j]
             for block in blocks.values():
                 x = block.step(x, state)
-            if self.creep is not None:
-                x = self.creep[j].step(x, state)
+            for _, banks in self._blocks("series"):
+                x = banks[j].step(x, state)
             xs.append(x)
         outputs = []
         for o in range(self.ny):  # the blocks in the order of `state_names`
             y = sum(self._dynamics_step(o, j, x, state) for j, x in enumerate(xs))
-            if self.resonance is not None:
-                y = y + sum(self.resonance[o][j].step(x, state) for j, x in enumerate(xs))
+            for _, blocks in self._blocks("parallel"):
+                y = y + sum(blocks[o][j].step(x, state) for j, x in enumerate(xs))
             if self.integrand_offset is not None:
                 offset, scale = frozen(self.integrand_offset[o], self.step_scale[o])
                 y = state.take(1)[:, 0] + (y + offset) * scale
                 state.put(y[:, None])
-            if self.overflow is not None:
+            for _, blocks in self._blocks("output"):
                 offset = frozen(self.offset)[0][o]
-                y = self.overflow[o].step(y + offset, state) - offset
+                y = blocks[o].step(y + offset, state) - offset
             outputs.append(y)
         return torch.stack(outputs, dim=-1)
 
@@ -455,7 +467,8 @@ class LinearModel(PhysicalChainModule):
     def refit_variants(cls, model_cfg: dict[str, Any], previous: Any | None,
                        added: str | None) -> list[dict[str, Any]]:
         """The model settings a loop round fits (each a candidate; the held-out loss chooses):
-        a refit that adds a storage's law or its overflow (`PLACED_EFFECTS`) to a model whose
+        a refit that adds a storage's law or its overflow (`Effect.linear_tries_output_stage`)
+        to a model whose
         forces still act on the whole dynamics tries both places (`FEEDBACK_PLACES`), the
         physics deciding where a law sits: the tanks' outflow law reads the output stage's
         own level, a spring's force the whole oscillator's. Otherwise (and always with an
@@ -466,7 +479,8 @@ class LinearModel(PhysicalChainModule):
         order = model_cfg.get("order", 6)
         if model_cfg.get("integrator") or getattr(previous, "integrator", False):
             return [{"feedback_on": place}]  # the forces read the integrand: no output stage
-        if (added in PLACED_EFFECTS and place == "dynamics" and previous is not None
+        if (added is not None and get_effect(added).linear_tries_output_stage
+                and place == "dynamics" and previous is not None
                 and isinstance(order, int) and order >= 2):
             return [{"feedback_on": p} for p in FEEDBACK_PLACES]
         return [{"feedback_on": place}]
@@ -514,8 +528,7 @@ class LinearModel(PhysicalChainModule):
         starts: on data that excite few frequencies (a single sine) a high-order ARX is not
         identified and its free run can be far off. With an integrator every order is fitted
         and the best in free run starts: the integral of an equation-error fit drifts with any
-        error in its static gain (EMPS: order 6 leaves 0.81 of the output's variance, order 1
-        0.008).
+        error in its static gain, and a high order has more ways to get it wrong.
 
         A Steiglitz–McBride fit of ``order`` (`steiglitz_mcbride`: ARX on data prefiltered
         by the last denominator, towards the output-error fit) starts instead where its free
@@ -672,20 +685,10 @@ class LinearModel(PhysicalChainModule):
                                    for k, v in block.named_parameters()}
                             for name, block in blocks.items()} for blocks in self.input_blocks],
             }
-            if self.creep is not None:
-                out["creep"] = [block.export() for block in self.creep]
-            if self.resonance is not None:
-                out["resonance"] = [[block.export() for block in row] for row in self.resonance]
-            if self.state_hysteresis is not None:
-                out["state_hysteresis"] = [[block.export() for block in row]
-                                           for row in self.state_hysteresis]
-            if self.static_feedback is not None:
-                out["static_feedback"] = [[block.export() for block in row]
-                                          for row in self.static_feedback]
-            if self.overflow is not None:
-                out["overflow"] = [{k: v.detach().cpu().numpy().tolist()
-                                    for k, v in block.named_parameters()}
-                                   for block in self.overflow]
+            for site in SITES:  # every effect block by its container's name
+                for name, blocks in self._blocks(site):
+                    out[name] = [[b.export() for b in block] if isinstance(block, nn.ModuleList)
+                                 else block.export() for block in blocks]
         return out
 
 

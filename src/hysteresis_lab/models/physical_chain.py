@@ -20,7 +20,7 @@ constant input reaches) instead of at rest. `initial_state` is that state for th
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -29,6 +29,8 @@ from torch import nn
 
 from hysteresis_lab.blocks.step import StepState, frozen
 from hysteresis_lab.data.windows import WindowSpec
+from hysteresis_lab.effects.base import Effect, physical_order
+from hysteresis_lab.effects.registry import available_effects, get_effect
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.base import NarxModule
 
@@ -40,6 +42,19 @@ MAX_STEP_BACKS = 10
 BURN_IN_DEFAULT = 1000
 
 
+class FromEffects:
+    """A class attribute computed from the registered effects when it is read: the names of
+    those ``pick`` accepts, in physical order (`physical_order`), so that a plugin effect
+    with the face a model reads is carried like a built-in one."""
+
+    def __init__(self, pick: Callable[[Effect], bool]) -> None:
+        self.pick = pick
+
+    def __get__(self, obj: Any, owner: type | None = None) -> tuple[str, ...]:
+        effects = [get_effect(name) for name in available_effects()]
+        return tuple(e.name for e in physical_order(effects) if self.pick(e))
+
+
 class PhysicalChainModule(NarxModule):
     """Base of the models that simulate from rest through physical blocks (see above)."""
 
@@ -48,8 +63,8 @@ class PhysicalChainModule(NarxModule):
     #: trains on whole recordings simulated from rest (`hysteresis_lab.data.segments`)
     whole_recordings = True
     #: an added block starts at no effect and must travel O(1) at about the rate per Adam
-    #: step while the fitted blocks only adjust: at one rate for all, a dead zone's weight
-    #: stopped at 0.56 of 1 and the dynamics bent to make up for it
+    #: step while the fitted blocks only adjust: at one rate for all, the new block stops
+    #: short and the fitted dynamics bend to make up for it
     new_block_lr_factor = 10.0
     predicts_from_outputs = False
 

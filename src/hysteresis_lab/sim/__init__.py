@@ -1,6 +1,8 @@
 """The simulated piezoelectric cantilever positioner, the built-in default data source.
 
-Signal chain (each block switchable; parameters in `hysteresis_lab.sim.config` and
+Signal chain (each block switchable; the effects' blocks live with the effects,
+`hysteresis_lab.effects.<name>`, the plant-only ones in `hysteresis_lab.sim.blocks`; the
+positioner runs them in signal order; parameters in `hysteresis_lab.sim.config` and
 ``hysteresis_lab/conf/sim/positioner.yaml``; defaults in brackets, "off" = disabled by default)::
 
     u [V] -> amplifier        first-order low-pass [5 kHz]
@@ -19,17 +21,17 @@ Signal chain (each block switchable; parameters in `hysteresis_lab.sim.config` a
           -> noise            Gaussian sensor noise [0.01 um RMS]
           -> quantisation     sensor resolution [1 nm]  -> y [um]
 
-With the defaults, a ±100 V, 1 Hz sine gives 40.4 um peak-to-peak with a major loop 11.8 %
-of the stroke wide (12.7 % with creep), a 50 V step creeps by about 1.5 % of its size per
-decade of time (about 4 % from 0.1 s to 100 s), and the frequency response peaks at the
-900 Hz first mode.
+The defaults are chosen so that a ±100 V, 1 Hz sine gives about 40 um peak-to-peak with a
+major loop about 12 % of the stroke wide, a step creeps by about 1.5 % of its size per decade
+of time, and the frequency response peaks at the 900 Hz first mode (`tests/test_simulator.py`
+holds the simulator to these).
 
 Sources and justification:
 
 * Bouc-Wen hysteresis for piezo actuators: Low & Guo 1995 (J. MEMS 4(4)); Goldfarb &
   Celanovic 1997 (J. Dyn. Sys. Meas. Control 119). Piezo stacks/benders show loops of
   10-15 % of the stroke at full amplitude; ~0.2 um/V gives ±20 um at ±100 V.
-  The per-sample update is exact for piecewise-linear input (`hysteresis_lab.sim.bouc_wen`).
+  The per-sample update is exact for piecewise-linear input (`hysteresis_lab.physics.bouc_wen`).
 * Creep as a logarithmic step response, ~1-2 % per decade of time: Jung & Gweon 2000
   (Rev. Sci. Instrum. 71); Croft, Shed & Devasia 2001 (J. Dyn. Sys. Meas. Control 123);
   PI piezo catalogue (~1 % per decade). Approximated by parallel first-order elements with

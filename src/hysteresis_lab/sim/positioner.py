@@ -1,4 +1,5 @@
-"""The simulated positioner: the blocks of `hysteresis_lab.sim.blocks` chained in physical order."""
+"""The simulated positioner: its blocks (plant-only blocks and the effects' simulator faces,
+`hysteresis_lab.sim.config.PositionerConfig.chain`) run in signal order."""
 
 from __future__ import annotations
 
@@ -9,13 +10,11 @@ from typing import Any
 import numpy as np
 
 from hysteresis_lab.data.recording import Recording
+from hysteresis_lab.effects.base import PlantSignals
 from hysteresis_lab.errors import DataError
-from hysteresis_lab.sim import blocks
 from hysteresis_lab.sim.config import PositionerConfig
 
 log = logging.getLogger(__name__)
-
-NOMINAL_STROKE_UM = 40.0  # peak-to-peak at ±100 V, scales the asymmetry term
 
 
 class Positioner:
@@ -37,36 +36,13 @@ class Positioner:
             )
         c = self.config
         c.validate_rate(fs)
-        rng = np.random.default_rng(seed)
-        v = blocks.amplifier(u, fs, c.amplifier) if c.amplifier.enabled else u
-        if c.saturation.enabled:
-            v = blocks.saturation(v, c.saturation)
-        if c.dead_zone.enabled:
-            v = blocks.dead_zone(v, c.dead_zone)
-        if c.backlash.enabled:
-            v = blocks.backlash(v, c.backlash)
-        if c.input_delay.enabled:
-            v = blocks.delay(v, c.input_delay.samples)
-        if c.hysteresis.enabled:
-            x = blocks.hysteresis(v, fs, c.hysteresis, c.rate_dependence)
-        else:
-            x = c.hysteresis.d_um_per_v * v
-        if c.asymmetry.enabled:
-            x = blocks.asymmetry(x, v, c.asymmetry, NOMINAL_STROKE_UM)
-        if c.creep.enabled:
-            x = blocks.creep(x, fs, c.creep)
-        y = blocks.mode_filter(x, fs, c.mode1) if c.mode1.enabled else x
-        if c.mode2.enabled:
-            y = (1.0 - c.mode2.weight) * y + c.mode2.weight * blocks.mode_filter(x, fs, c.mode2)
-        if c.output_delay.enabled:
-            y = blocks.delay(y, c.output_delay.samples)
-        if c.drift.enabled:
-            y = y + blocks.drift(len(y), fs, c.drift, rng)
-        if c.noise.enabled:
-            y = y + blocks.noise(len(y), c.noise, rng)
-        if c.quantisation.enabled:
-            y = blocks.quantise(y, c.quantisation)
-        return y
+        plant = PlantSignals(fs=fs, rng=np.random.default_rng(seed), v=u)
+        for block, cfg in c.chain():  # the blocks in signal order (`PositionerConfig.chain`)
+            if cfg.enabled:
+                block.simulate(plant, cfg)
+            else:
+                block.simulate_disabled(plant, cfg)
+        return plant.y
 
 
 def simulate_recording(

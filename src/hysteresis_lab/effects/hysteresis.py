@@ -1,0 +1,253 @@
+"""Hysteresis: rate-independent memory of the drive (Bouc–Wen in the simulator, play
+operators as evidence).
+
+Faces: Prandtl–Ishlinskii play operators of the input as operators and evidence, and of the
+model's own output as state evidence; the simulator's Bouc–Wen element, which turns the drive
+into a displacement (``data.effects.hysteresis``); ``model=linear``'s Bouc–Wen cell on each
+input (`HysteresisCell`) and Bouc–Wen restoring force in the dynamics' feedback
+(`StateHysteresis`); the grey-box's own hysteresis cell carries it."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from hysteresis_lab.blocks import BoucWen, bouc_wen_scaled_params
+from hysteresis_lab.blocks.feedback import (
+    closed_loop,
+    loop_lag,
+    loop_state_names,
+    loop_step,
+    no_feedback,
+)
+from hysteresis_lab.blocks.sections import StableSections
+from hysteresis_lab.blocks.step import StepState, frozen
+from hysteresis_lab.effects._shared import per_input
+from hysteresis_lab.effects.base import (
+    Effect,
+    FeatureContext,
+    GreyBoxPart,
+    LinearBlock,
+    LinearContext,
+    PlantSignals,
+)
+from hysteresis_lab.physics.bouc_wen import bouc_wen_advance, bouc_wen_state
+from hysteresis_lab.physics.play import play_operators
+
+
+@dataclass
+class HysteresisConfig:
+    """Rate-independent Bouc–Wen hysteresis (Low & Guo 1995; Goldfarb & Celanovic 1997).
+
+    ``x = d v - h``, ``dh/dt = alpha d dv/dt - beta |dv/dt| h - gamma dv/dt |h|``; needs
+    ``beta > |gamma|``. Defaults: ±100 V → ±20 µm, major loop ≈ 11 % of the stroke.
+    """
+
+    enabled: bool = True
+    d_um_per_v: float = 0.23
+    alpha: float = 0.32
+    beta: float = 0.02
+    gamma: float = 0.006
+
+
+class HysteresisCell(nn.Module):
+    """``v - w h(v)``: the Bouc–Wen state ``h`` (`hysteresis_lab.blocks.BoucWen`) subtracted
+    with a weight from zero.
+
+    With ``rate_step`` (effect ``rate``) the hysteresis is rate-dependent: the step into each
+    sample runs with ``alpha * max(1 + k |dv| / rate_step, 0)`` (``dv`` the input step, the
+    simulator's ``alpha (1 + gain |dv/dt| / rate_ref)`` per sample), so loops widen with the
+    input's rate. ``k`` is learnable and starts at 0 (the plain cell); ``rate_step`` is fixed
+    from the training input's scale: the steepest step of a sine of the training input's
+    amplitude with 200 samples per period (at the simulator's 20 kHz and ±100 V: its
+    ``rate_ref``, 62,832 V/s, a 100 Hz sine)."""
+
+    def __init__(self, rate_step: float | None = None) -> None:
+        super().__init__()
+        self.bouc_wen = BoucWen(**bouc_wen_scaled_params(1.0, 0.32, 0.02, 0.006, 100.0, 100.0))
+        self.weight = nn.Parameter(torch.zeros((), dtype=torch.float64))
+        self.rate_gain: nn.Parameter | None = None
+        if rate_step is not None:
+            if not rate_step > 0:
+                raise ValueError(f"rate_step must be > 0 (got {rate_step})")
+            self.rate_gain = nn.Parameter(torch.zeros((), dtype=torch.float64))
+            self.register_buffer("rate_step", torch.tensor(float(rate_step), dtype=torch.float64))
+
+    @staticmethod
+    def rate_step_for(amplitude: float) -> float:
+        """``rate_step`` for an input of ``amplitude`` (scaled units): ``2 pi amplitude / 200``."""
+        return 2.0 * np.pi * amplitude / 200.0
+
+    @staticmethod
+    def _alpha_factor(dv: torch.Tensor, gain: torch.Tensor,
+                      rate_step: torch.Tensor) -> torch.Tensor:
+        """The factor of ``alpha`` for input steps ``dv`` (never below zero)."""
+        return torch.clamp(1.0 + gain * dv.abs() / rate_step, min=0.0)
+
+    def forward(self, v: torch.Tensor) -> torch.Tensor:
+        factor = None
+        if self.rate_gain is not None:
+            v64 = v.double()
+            dv = torch.diff(v64, dim=-1, prepend=torch.zeros_like(v64[..., :1]))
+            factor = self._alpha_factor(dv, self.rate_gain, self.rate_step)
+        x, _ = self.bouc_wen(v, alpha_factor=factor)
+        h = self.bouc_wen.d * v - x
+        return v - self.weight * h
+
+    def state_names(self) -> list[str]:
+        return self.bouc_wen.state_names()
+
+    def step(self, v: torch.Tensor, state: StepState) -> torch.Tensor:
+        """One sample (B,) -> (B,); state: the Bouc–Wen cell's."""
+        d, weight = frozen(self.bouc_wen.d, self.weight)
+        factor = None
+        if self.rate_gain is not None:
+            gain, rate_step = frozen(self.rate_gain, self.rate_step)
+
+            def factor(dv: torch.Tensor) -> torch.Tensor:
+                return self._alpha_factor(dv, gain, rate_step)
+
+        return v - weight * (d * v - self.bouc_wen.step(v, state, factor))
+
+
+class StateHysteresis(nn.Module):
+    """Hysteresis in the dynamics' feedback: a Bouc–Wen restoring force of the output fed
+    back into the dynamics' input, ``e = x - w (d y - h(y))``, ``y = dynamics(e)`` — the
+    Bouc–Wen oscillator ``m y'' + c y' + k y + z(y) = u`` — simulated as the closed loop
+    (`hysteresis_lab.blocks.feedback`). ``w`` starts at zero (the dynamics alone). The
+    force is the Bouc–Wen cell's output (`hysteresis_lab.blocks.BoucWen`): its states ``h``
+    start with the slope ``d`` of the spring ``d y``, so the force starts with none for small
+    motions (the fitted dynamics hold the linear stiffness) and grows as the states saturate,
+    over about ``width`` (the output over its scale)."""
+
+    n_channels = 2
+
+    def __init__(self, width: float) -> None:
+        super().__init__()
+        self.bouc_wen = BoucWen(d=1.0, alpha=1.0, beta=2.0 / max(width, 1e-6), gamma=0.0,
+                                n_channels=self.n_channels)
+        self.weight = nn.Parameter(torch.zeros((), dtype=torch.float64))
+
+    def _coefficients(self, dynamics: StableSections) -> tuple[torch.Tensor, ...]:
+        """``b, a`` of the dynamics (delay included) and the Bouc–Wen ``a, r1, r2``."""
+        b, a = dynamics.polynomials()
+        bw = self.bouc_wen
+        beta, gamma = bw.beta, bw.gamma
+        return b, a, bw.alpha * bw.d, beta - gamma, beta + gamma
+
+    def forward(self, dynamics: StableSections, x: torch.Tensor,
+                static: Any | None = None, offset: torch.Tensor | None = None,
+                ) -> torch.Tensor:
+        """The closed loop's output (B, T) for the dynamics' input ``x`` (B, T); ``static``:
+        a static feedback in the same loop (its knots set by the output ``offset``)."""
+        b, a, ba, r1, r2 = self._coefficients(dynamics)
+        w, knots = ((None, None) if static is None
+                    else (static.loop_weights(dynamics), static.knots(offset)))
+        return closed_loop(x.double(), b, a, -self.weight, self.weight * self.bouc_wen.d, ba, r1,
+                           r2, loop_lag(dynamics), w, knots)
+
+    def state_names(self, dynamics: StableSections) -> list[str]:
+        """The step's state: past dynamics' inputs ``e`` and outputs ``y``, Bouc–Wen ``h``."""
+        return loop_state_names(dynamics) + [f"h{c}" for c in range(self.n_channels)]
+
+    def step(self, dynamics: StableSections, x: torch.Tensor, state: StepState,
+             static: Any | None = None, offset: torch.Tensor | None = None,
+             ) -> torch.Tensor:
+        """One sample of `forward`: ``x`` (B,) -> ``y`` (B,); state: the past dynamics'
+        inputs and outputs (newest first) and the Bouc–Wen states."""
+        b, a, ba, r1, r2, weight, d = frozen(*self._coefficients(dynamics), self.weight,
+                                             self.bouc_wen.d)
+        phi = no_feedback if static is None else static.function(dynamics, offset)
+
+        def force(y: torch.Tensor, h: torch.Tensor) -> torch.Tensor:
+            return weight * (d * y - h.sum(dim=1)) + phi(y)
+
+        def advance(h: torch.Tensor, dy: torch.Tensor) -> torch.Tensor:
+            return bouc_wen_advance(h, dy[:, None], ba[None], r1[None], r2[None])
+
+        return loop_step(b, a, loop_lag(dynamics), x, state, force, self.n_channels, advance)
+
+    def export(self) -> dict[str, Any]:
+        """The weight and the Bouc–Wen parameters."""
+        return {"weight": float(self.weight.detach()), **{
+            k: np.asarray(v).tolist() for k, v in self.bouc_wen.export().items()}}
+
+
+def hysteresis_cell(ctx: LinearContext, j: int) -> HysteresisCell:
+    """Input ``j``'s hysteresis cell, rate-dependent where an effect declared with it makes
+    it so (`Effect.makes_cell_rate_dependent`)."""
+    rate = any(getattr(e, "makes_cell_rate_dependent", False) for e in ctx.declared)
+    amplitude = ctx.input_amplitude(j)
+    return HysteresisCell(HysteresisCell.rate_step_for(amplitude) if rate else None)
+
+
+class Hysteresis(Effect):
+    """Rate-independent hysteresis memory: Prandtl–Ishlinskii play operators (8 thresholds)
+    of the input, and of the model's own output as state evidence (in the dynamics'
+    feedback)."""
+
+    name = "hysteresis"
+    description = "hysteresis memory (Prandtl-Ishlinskii play operators)"
+    place = "input"
+    rank = 60
+    sim_config = HysteresisConfig
+    fractions = np.array([0.02, 0.05, 0.1, 0.2, 0.3, 0.45, 0.6, 0.8])
+    #: it closes a restoring force around the dynamics: the loop refits the whole model
+    linear_whole_refit = True
+
+    def features(self, u: np.ndarray, ctx: FeatureContext) -> np.ndarray:
+        return per_input(
+            u,
+            lambda x, i: play_operators(
+                np.ascontiguousarray(x), self.fractions * ctx.u_amplitude[i]
+            ),
+        )
+
+    def state_evidence(self, y_model: np.ndarray, span: tuple[float, float]) -> np.ndarray:
+        """Play operators of the model's output (thresholds 2-40 % of its span): hysteresis
+        in the feedback of the dynamics, such as a Bouc–Wen restoring force."""
+        width = max(span[1] - span[0], 1e-12)
+        y = np.ascontiguousarray(np.nan_to_num(np.asarray(y_model, dtype=float).reshape(-1)))
+        return play_operators(y, np.array([0.02, 0.05, 0.1, 0.2, 0.4]) * width)
+
+    def simulate(self, plant: PlantSignals, cfg: HysteresisConfig) -> None:
+        """Bouc–Wen displacement ``d v - h`` (µm); ``alpha`` per sample times the factor a
+        rate-dependence block left (`PlantSignals.alpha_factor`)."""
+        v = plant.v
+        alpha = np.full(len(v), cfg.alpha)
+        if plant.alpha_factor is not None:
+            alpha = alpha * plant.alpha_factor
+        h = bouc_wen_state(np.ascontiguousarray(v, dtype=float), cfg.d_um_per_v, alpha,
+                           cfg.beta, cfg.gamma)
+        plant.x = cfg.d_um_per_v * v - h
+
+    def simulate_disabled(self, plant: PlantSignals, cfg: HysteresisConfig) -> None:
+        """Without hysteresis the displacement is the drive times ``d``."""
+        plant.x = cfg.d_um_per_v * plant.v
+
+    def validate(self, cfg: HysteresisConfig, key: str) -> list[str]:
+        problems = []
+        if not cfg.beta > abs(cfg.gamma):
+            problems.append(f"{key} needs beta > |gamma| (got beta={cfg.beta}, "
+                            f"gamma={cfg.gamma}).")
+        if not cfg.d_um_per_v > 0:
+            problems.append(f"{key}.d_um_per_v={cfg.d_um_per_v!r} must be positive.")
+        return problems
+
+    def linear_blocks(self, ctx: LinearContext) -> list[LinearBlock]:
+        """A Bouc–Wen cell on each input and a Bouc–Wen restoring force in the dynamics'
+        feedback, both weighted from zero."""
+        return [
+            LinearBlock("series", hysteresis_cell, key="hysteresis"),
+            LinearBlock("force", lambda c, pair: StateHysteresis(
+                c.forced_extremes[pair[0]][1] - c.forced_extremes[pair[0]][0]),
+                attribute="state_hysteresis"),
+        ]
+
+    def greybox_part(self) -> GreyBoxPart:
+        """The grey-box's own hysteresis cell (``model.hysteresis``) carries it."""
+        return GreyBoxPart(in_cell=True)
