@@ -16,13 +16,13 @@ from hysteresis_lab.blocks import (
     FirstOrderLag,
     SecondOrderMode,
     bouc_wen_scaled_params,
-    chain_from_positioner,
     estimate_mode,
     estimate_static_gain,
     simulate_chain,
 )
 from hysteresis_lab.sim.default_dataset import make_default_dataset
 from hysteresis_lab.sim.positioner import Positioner
+from hysteresis_lab.sim.reference_chain import chain_from_positioner
 
 FS = 20_000.0
 U_SCALE, Y_SCALE = 100.0, 20.0

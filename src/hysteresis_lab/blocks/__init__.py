@@ -6,7 +6,7 @@ inference. See `hysteresis_lab.blocks.bouc_wen` for the scaling of the Bouc–We
 """
 
 from hysteresis_lab.blocks.bouc_wen import BoucWen, bouc_wen_free_run, bouc_wen_scaled_params
-from hysteresis_lab.blocks.chain import BlockChain, chain_from_positioner, simulate_chain
+from hysteresis_lab.blocks.chain import BlockChain, simulate_chain
 from hysteresis_lab.blocks.estimate import estimate_mode, estimate_static_gain
 from hysteresis_lab.blocks.linear import (
     CreepBank,
@@ -28,7 +28,6 @@ __all__ = [
     "SecondOrderMode",
     "bouc_wen_free_run",
     "bouc_wen_scaled_params",
-    "chain_from_positioner",
     "estimate_mode",
     "estimate_static_gain",
     "iir_filter",

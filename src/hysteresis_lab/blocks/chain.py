@@ -18,7 +18,7 @@ import numba
 import numpy as np
 from torch import Tensor, nn
 
-from hysteresis_lab.blocks.bouc_wen import BoucWen, bouc_wen_scaled_params
+from hysteresis_lab.blocks.bouc_wen import BoucWen
 from hysteresis_lab.blocks.linear import CreepBank, Delay, FirstOrderLag, SecondOrderMode
 from hysteresis_lab.physics.bouc_wen import JIT, advance
 from hysteresis_lab.physics.filters import mode_coefficients_np
@@ -155,34 +155,3 @@ class BlockChain(nn.Module):
         """The parameters `simulate_chain` takes."""
         return {key: getattr(self, key).export() for key in CHAIN_KEYS
                 if getattr(self, key) is not None}
-
-
-def chain_from_positioner(
-    config: Any, fs: float, u_scale: float = 100.0, y_scale: float = 20.0
-) -> BlockChain:
-    """The chain with a simulator `PositionerConfig`'s (or mapping's) parameters, in units of
-    ``u / u_scale`` and ``y / y_scale``: the blocks of its enabled amplifier, input delay,
-    hysteresis, creep and modes (other effects are not represented)."""
-    from hysteresis_lab.sim.config import PositionerConfig
-
-    if not isinstance(config, PositionerConfig):
-        config = PositionerConfig.from_dict(config)
-    c = config
-    amp = FirstOrderLag(fs, c.amplifier.cutoff_hz) if c.amplifier.enabled else None
-    delay = Delay(c.input_delay.samples) if c.input_delay.enabled else None
-    bw = None
-    if c.hysteresis.enabled:
-        h = c.hysteresis
-        bw = BoucWen(**bouc_wen_scaled_params(h.d_um_per_v, h.alpha, h.beta, h.gamma,
-                                              u_scale, y_scale))
-    creep = CreepBank(fs, c.creep.time_constants_s, c.creep.weight_per_decade) \
-        if c.creep.enabled else None
-    modes = [m for m in (c.mode1, c.mode2) if m.enabled]
-    mode = None
-    if len(modes) == 1:
-        mode = SecondOrderMode(fs, modes[0].frequency_hz, modes[0].damping)
-    elif len(modes) == 2:
-        w2 = c.mode2.weight
-        mode = SecondOrderMode(fs, [m.frequency_hz for m in modes], [m.damping for m in modes],
-                               n_modes=2, weights=[1.0 - w2, w2])
-    return BlockChain(amp, delay, bw, creep, mode)
