@@ -67,8 +67,8 @@ from hysteresis_lab.sim import blocks
 from hysteresis_lab.sim.config import PositionerConfig
 from hysteresis_lab.sim.default_dataset import make_default_dataset
 from hysteresis_lab.sim.positioner import Positioner
-from hysteresis_lab.trainer import TrainerSettings
-from hysteresis_lab.training import build_model
+from hysteresis_lab.lightning_trainer import TrainerSettings
+from hysteresis_lab.fitting import build_model
 from hysteresis_lab.workflows.loop import LoopSettings
 from hysteresis_lab.workflows.loop_data import loop_data
 from hysteresis_lab.workflows.pipeline import train_and_evaluate

@@ -13,7 +13,7 @@ from hysteresis_lab.data.segments import SegmentDataModule
 from hysteresis_lab.effects.augment import augment_splits, context_to_dict
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.evaluation.predict import free_run, one_step
-from hysteresis_lab.training import build_model, fit
+from hysteresis_lab.fitting import build_model, fit
 from narx import CONFIGS, TRAINER, datamodule_for
 
 

@@ -16,8 +16,8 @@ from hysteresis_lab.models.greybox import GreyBox
 from hysteresis_lab.models.linear import LinearModel
 from hysteresis_lab.models.spec import ModelSpec
 from hysteresis_lab.sim.default_dataset import make_default_dataset
-from hysteresis_lab.trainer import TrainerSettings
-from hysteresis_lab.training import build_model, fit
+from hysteresis_lab.lightning_trainer import TrainerSettings
+from hysteresis_lab.fitting import build_model, fit
 from hysteresis_lab.workflows.grow import growth_stages
 from hysteresis_lab.workflows.pipeline import train_and_evaluate
 

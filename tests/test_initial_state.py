@@ -14,8 +14,8 @@ from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.evaluation.evaluate import evaluate_model
 from hysteresis_lab.sim.default_dataset import make_default_dataset
-from hysteresis_lab.trainer import TrainerSettings
-from hysteresis_lab.training import build_model, fit
+from hysteresis_lab.lightning_trainer import TrainerSettings
+from hysteresis_lab.fitting import build_model, fit
 from hysteresis_lab.workflows.pipeline import train_and_evaluate
 
 TRAINER = TrainerSettings(max_epochs=3, accelerator="cpu", enable_progress_bar=False,

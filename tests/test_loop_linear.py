@@ -19,7 +19,7 @@ from hysteresis_lab.effects.augment import feature_context
 from hysteresis_lab.errors import ConfigError, DataError, DivergedError
 from hysteresis_lab.signals import multisine
 from hysteresis_lab.sim.default_dataset import make_default_dataset
-from hysteresis_lab.trainer import TrainerSettings
+from hysteresis_lab.lightning_trainer import TrainerSettings
 from hysteresis_lab.workflows.loop import (
     HeldOut,
     LoopSettings,

@@ -16,7 +16,7 @@ from hysteresis_lab.effects.augment import augment_splits, context_to_dict
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.linear import LinearModel
 from hysteresis_lab.models.linear_blocks import StaticFeedback
-from hysteresis_lab.training import build_model
+from hysteresis_lab.fitting import build_model
 from narx import datamodule_for, narx_data
 
 

@@ -10,7 +10,7 @@ import hysteresis_lab as hl
 from hysteresis_lab import fit_record
 from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.run_folder import RunFolder
-from hysteresis_lab.trainer import TrainerSettings
+from hysteresis_lab.lightning_trainer import TrainerSettings
 from hysteresis_lab.workflows.pipeline import (
     RunConfig,
     RunSettings,

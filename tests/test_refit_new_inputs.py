@@ -11,7 +11,7 @@ from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.effects.augment import augment_splits, context_to_dict
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.evaluation.predict import free_run
-from hysteresis_lab.training import build_model, fit
+from hysteresis_lab.fitting import build_model, fit
 from hysteresis_lab.workflows.loop import LoopSettings
 from narx import CONFIGS, TRAINER
 
@@ -103,7 +103,7 @@ def test_unknown_refit_is_a_config_error():
 def test_a_refit_fine_tunes_at_the_refit_learning_rate(refit_lr, expected, splits, trained):
     """A refit starts from a fitted network: Adam at the full training rate throws it off its
     minimum in the first steps, so it trains at ``refit_lr`` (default lr / 10)."""
-    from hysteresis_lab.training import stage_lr
+    from hysteresis_lab.fitting import stage_lr
 
     model, *_ = grown_model("ffnn", splits, trained, lr=1e-3, lr_schedule="none",
                             refit_lr=refit_lr)

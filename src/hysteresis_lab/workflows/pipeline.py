@@ -1,7 +1,8 @@
 """Train-and-evaluate runs of one model (the study's four: `hysteresis_lab.workflows.paper`).
 
-`train_and_evaluate` (or `run_model` with a `RunConfig`) prepares the data, reuses a finished
-fit or trains one, scores it and writes the run folder; each step is its own function below.
+`run_model` on a `RunConfig` (its configs made objects once, where the run starts) prepares
+the data, reuses a finished fit or trains one, scores it and writes the run folder; each step
+is its own function below.
 
 Everything a run produces lands in its output folder: checkpoints, ``metrics.json``,
 hysteresis-loop and residual figures, and TensorBoard event files (loss curves, figures,
@@ -37,18 +38,19 @@ from hysteresis_lab.evaluation.evaluate import Evaluation, evaluate_model, scori
 from hysteresis_lab.evaluation.plots import loops_figure, residuals_figure, save_figure
 from hysteresis_lab.evaluation.predict import check_n_step
 from hysteresis_lab.evaluation.report import metrics_document
-from hysteresis_lab.models.baseline import Baseline, baseline_of
-from hysteresis_lab.models.interface import SystemModel
-from hysteresis_lab.models.io import load_model, model_window, save_model
-from hysteresis_lab.models.spec import ModelSpec
-from hysteresis_lab.run_folder import RunFolder
-from hysteresis_lab.trainer import TrainerSettings
-from hysteresis_lab.training import (
+from hysteresis_lab.fitting import (
     TrainResult,
     build_model,
     check_trainer_settings,
     fit,
 )
+from hysteresis_lab.lightning_trainer import TrainerSettings
+from hysteresis_lab.models.baseline import Baseline, baseline_of
+from hysteresis_lab.models.interface import SystemModel
+from hysteresis_lab.models.io import load_model, model_window, save_model
+from hysteresis_lab.models.settings import TrainingSettings
+from hysteresis_lab.models.spec import ModelSpec
+from hysteresis_lab.run_folder import RunFolder
 from hysteresis_lab.workflows.grow import TrainStage, grow, growth_stages
 
 log = logging.getLogger(__name__)
@@ -120,63 +122,58 @@ class RunSettings:
 
 @dataclass(frozen=True)
 class RunConfig:
-    """One run: the ``model`` (a `ModelSpec`), ``data`` (a `DataSpec`) and ``trainer``
-    (`TrainerSettings`), where it writes, and its `RunSettings`. Config mappings given for
-    the first three are turned into those objects here, once."""
+    """One run, its configs as objects: the ``model`` (a `ModelSpec`), ``data`` (a
+    `DataSpec`), ``trainer`` (`TrainerSettings`) and ``training`` (`TrainingSettings`, how a
+    network trains), where it writes, and its `RunSettings`. Made once where a run starts
+    (`RunConfig.build` from config mappings, `RunConfig.from_config` from a composed
+    ``train`` config) and passed on as it is."""
 
     model: ModelSpec
     data: DataSpec
     trainer: TrainerSettings
     output_dir: Path
     settings: RunSettings = RunSettings()
+    training: TrainingSettings = TrainingSettings()
 
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "model", ModelSpec.from_config(self.model))
-        object.__setattr__(self, "data", DataSpec.from_config(self.data))
-        object.__setattr__(self, "trainer", TrainerSettings.from_config(self.trainer))
+    @classmethod
+    def build(
+        cls,
+        model: Mapping[str, Any] | ModelSpec,
+        data: Mapping[str, Any] | DataSpec,
+        trainer: Mapping[str, Any] | TrainerSettings,
+        output_dir: Path | str,
+        training: Mapping[str, Any] | TrainingSettings | None = None,
+        **settings: Any,
+    ) -> RunConfig:
+        """A run of ``model`` on ``data``: each config turned into its object here, once
+        (objects pass as they are); ``training``: the ``training`` config (its unset values:
+        the model's own defaults) or settings; ``settings``: `RunSettings` by name."""
+        spec = model if isinstance(model, ModelSpec) else ModelSpec.from_config(plain_dict(model))
+        if not isinstance(training, TrainingSettings):
+            training = spec.training_settings(plain_dict(training or {}))
+        return cls(spec, DataSpec.from_config(data), TrainerSettings.from_config(trainer),
+                   Path(output_dir), RunSettings(**settings), training)
+
+    @classmethod
+    def from_config(cls, cfg: Mapping[str, Any], output_dir: Path) -> RunConfig:
+        """The run of a composed ``train`` config (``model``, ``data``, ``trainer``,
+        ``training``, ``seed``, ``logger``, ``n_step``, ``plots``, ``evaluate``)."""
+        return cls.build(
+            cfg["model"], cfg["data"], cfg["trainer"], output_dir, cfg.get("training"),
+            seed=cfg["seed"],
+            use_tensorboard=bool(cfg["logger"].get("enabled", True)),
+            n_steps=cfg.get("n_step"),
+            plots=cfg["plots"],
+            evaluate=cfg.get("evaluate", True),
+            initial_state=str((cfg.get("evaluation") or {}).get("initial_state", "rest")),
+            # a sweep's trial starts afresh: a resumed sweep hands its folder (runs/<job>) to
+            # another trial, whose interrupted predecessor it must not continue
+            resume=(cfg.get("sweep_trial") or {}).get("number") is None,
+        )
 
     @property
     def model_name(self) -> str:
         return self.model.name
-
-
-def train_and_evaluate(
-    model_cfg: Mapping[str, Any] | ModelSpec,
-    data: DataSpec,
-    trainer: TrainerSettings,
-    output_dir: Path,
-    seed: int = 0,
-    splits: DatasetSplits | None = None,
-    use_tensorboard: bool = True,
-    n_steps: int | None = None,
-    plots: bool = True,
-    evaluate: bool = True,
-    callbacks: list[Any] | None = None,
-    warm_start: Any | None = None,
-    refit: str = "full",
-    min_refit_gain: float = 0.0,
-    reuse: bool = False,
-    resume: bool = True,
-    initial_state: str = "rest",
-) -> RunResult:
-    """Fit the model ``model_cfg`` (its config, or spec) on the data set ``data`` (loaded unless
-    ``splits`` are given), score it on every test recording.
-
-    ``warm_start``: a fitted network of the same architecture whose inputs are the first of
-    this model's (see `NarxModule.warm_start_from`); both training stages run from it, and
-    it is kept when they do not beat it on validation (by more than the share
-    ``min_refit_gain``). The other keywords are `RunSettings`; `run_model` takes them grouped.
-    """
-    model = model_cfg if isinstance(model_cfg, ModelSpec) else plain_dict(model_cfg)
-    config = RunConfig(
-        ModelSpec.from_config(model),
-        data,
-        trainer,
-        output_dir,
-        RunSettings(seed, use_tensorboard, n_steps, plots, evaluate, refit, min_refit_gain, reuse,
-                    resume, initial_state),
-    )
-    return run_model(config, splits=splits, callbacks=callbacks, warm_start=warm_start)
 
 
 def train_from_config(
@@ -185,27 +182,10 @@ def train_from_config(
     splits: DatasetSplits | None = None,
     callbacks: list[Any] | None = None,
 ) -> RunResult:
-    """`train_and_evaluate` with the settings of a composed ``train`` config (``model``,
-    ``data``, ``trainer``, ``seed``, ``logger``, ``n_step``, ``plots``, ``evaluate``): what
-    ``hysteresis-lab-train`` and `hysteresis_lab.api.train` run; the model, data and trainer
-    configs become their spec and settings objects here."""
-    return train_and_evaluate(
-        ModelSpec.from_config(plain_dict(cfg["model"])),
-        DataSpec.from_config(cfg["data"]),
-        TrainerSettings.from_config(cfg["trainer"]),
-        Path(output_dir),
-        seed=cfg["seed"],
-        splits=splits,
-        use_tensorboard=bool(cfg["logger"].get("enabled", True)),
-        n_steps=cfg.get("n_step"),
-        plots=cfg["plots"],
-        evaluate=cfg.get("evaluate", True),
-        initial_state=str((cfg.get("evaluation") or {}).get("initial_state", "rest")),
-        # a sweep's trial starts afresh: a resumed sweep hands its folder (runs/<job>) to
-        # another trial, whose interrupted predecessor it must not continue
-        resume=(cfg.get("sweep_trial") or {}).get("number") is None,
-        callbacks=callbacks,
-    )
+    """`run_model` on the run of a composed ``train`` config (`RunConfig.from_config`): what
+    ``hysteresis-lab-train`` and `hysteresis_lab.api.train` run."""
+    return run_model(RunConfig.from_config(cfg, Path(output_dir)), splits=splits,
+                     callbacks=callbacks)
 
 
 def run_model(
@@ -214,8 +194,13 @@ def run_model(
     callbacks: list[Any] | None = None,
     warm_start: Any | None = None,
 ) -> RunResult:
-    """`train_and_evaluate` on a `RunConfig`: prepare the data, reuse a finished fit or
-    train, then score and write the run folder."""
+    """Run ``config``: prepare the data (``splits``, else loaded from the data config),
+    reuse a finished fit or train, then score and write the run folder.
+
+    ``warm_start``: a fitted network of the same architecture whose inputs are the first of
+    this model's (see `NarxModule.warm_start_from`); both training stages run from it, and
+    it is kept when they do not beat it on validation (by more than the share
+    `RunSettings.min_refit_gain`)."""
     _prepare_run(config)
     effects = config.model.effects
     baseline = baseline_of(config.model)
@@ -258,7 +243,7 @@ def _train_and_score(
     settings = config.settings
     logger = _tensorboard_logger(config)
     if warm_start is None and len(growth_stages(config.model)) > 1:
-        trained = grow(config.model, config.output_dir,
+        trained = grow(config.model, config.training, config.output_dir,
                        _stage_trainer(config, splits, baseline, callbacks))
         window = model_window(trained.model)
     else:
@@ -285,10 +270,10 @@ def _stage_trainer(
     settings, in its folder, warm-started from the model it grows from (None: from the
     data), with that refit mode; the start is kept unless the refit beats it."""
 
-    def train_stage(settings: Mapping[str, Any], folder: Path, previous: Any | None,
-                    refit: str) -> TrainResult:
+    def train_stage(settings: Mapping[str, Any], training: TrainingSettings, folder: Path,
+                    previous: Any | None, refit: str) -> TrainResult:
         stage = dataclasses.replace(
-            config, model=dataclasses.replace(config.model, settings=dict(settings)),
+            config, model=config.model.with_settings(settings), training=training,
             output_dir=folder, settings=dataclasses.replace(config.settings, refit=refit))
         folder.mkdir(parents=True, exist_ok=True)
         data, context = augment_splits(splits, stage.model.effects)
@@ -386,6 +371,8 @@ def _fingerprint(
         "refit": settings.refit if warm_start is not None else None,
         "min_refit_gain": settings.min_refit_gain,
     }
+    if config.model.is_network:
+        fingerprinted["training"] = config.training.to_dict()
     if baseline is not None:  # only then: the records of runs without one stay valid
         fingerprinted["baseline"] = baseline.digest
     return fit_record.fingerprint(fingerprinted, splits, warm_start)
@@ -422,7 +409,8 @@ def _build(
     )
     if baseline is not None:  # its free run: the last channels, one per output
         extra.update(n_base_inputs=data.metadata["n_base_inputs"], baseline_channels=data.ny)
-    model = build_model(config.model, datamodule, trained_on=_trained_on(data), **extra)
+    model = build_model(config.model, datamodule, config.training,
+                        trained_on=_trained_on(data), **extra)
     if baseline is not None:
         model.baseline = baseline
     if warm_start is not None:
@@ -555,6 +543,9 @@ def _log_summary(
 ) -> None:
     """The run's settings and final scores as TensorBoard hparams."""
     hparams = {f"model/{k}": v for k, v in config.model.to_config().items() if _scalar(v)}
+    if config.model.is_network:
+        hparams.update({f"training/{k}": v for k, v in config.training.to_dict().items()
+                        if _scalar(v)})
     hparams.update({"data": data_name, "seed": config.settings.seed})
     final = {f"test_mean/{k}": v for k, v in document["mean"].items()}
     final["val_mse_scaled"] = val_mse

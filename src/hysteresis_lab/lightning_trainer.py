@@ -26,7 +26,7 @@ class TrainerSettings:
     Each field's default is Lightning's own, so a setting the config leaves out behaves as
     Lightning decides; ``extra`` carries any other ``Trainer`` argument a config adds
     (``+trainer.num_sanity_val_steps=0``), passed on unchecked (Lightning refuses unknown
-    ones, see `hysteresis_lab.training.check_trainer_settings`). ``configured``: the fields
+    ones, see `hysteresis_lab.fitting.check_trainer_settings`). ``configured``: the fields
     the config set (all of them for settings made in code), so that `to_config` gives back
     the config itself, which fit records fingerprint (`hysteresis_lab.fit_record`).
     """
