@@ -50,8 +50,8 @@ from omegaconf import OmegaConf
 from hysteresis_lab.data.datamodules import PaperDataModule
 from hysteresis_lab.data.segments import simulation_data
 from hysteresis_lab.evaluation.predict import free_run
-from hysteresis_lab.lightning_trainer import TrainerSettings
 from hysteresis_lab.fitting import build_model, fit
+from hysteresis_lab.lightning_trainer import TrainerSettings
 
 log = logging.getLogger("overhead")
 

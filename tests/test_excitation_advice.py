@@ -22,10 +22,10 @@ from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.effects.augment import feature_context
 from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.lightning_trainer import TrainerSettings
 from hysteresis_lab.run_folder import LoopFolder
 from hysteresis_lab.signals import multisine, sine
 from hysteresis_lab.sim.default_dataset import make_default_dataset
-from hysteresis_lab.lightning_trainer import TrainerSettings
 from hysteresis_lab.workflows.loop import LoopSettings, run_loop
 from hysteresis_lab.workflows.loop_advice import excitation_advice
 from hysteresis_lab.workflows.loop_data import loop_data

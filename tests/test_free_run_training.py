@@ -76,7 +76,7 @@ def test_bad_fine_tuning_settings_are_config_errors(splits):
     dm = datamodule_for("ffnn", splits)
     with pytest.raises(ConfigError, match=r"horizon=-1 \(a whole number >= 1\)"):
         build_model({**CONFIGS["ffnn"], "objective": "simulation", "horizon": -1}, dm)
-    with pytest.raises(ConfigError, match="unknown model.objective 'free'"):
+    with pytest.raises(ConfigError, match="unknown training.objective 'free'"):
         build_model({**CONFIGS["ffnn"], "objective": "free"}, dm)
     with pytest.raises(ConfigError, match="model.horizon="):
         SegmentDataModule(dm, steps=10_000).setup()

@@ -17,9 +17,9 @@ from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.effects.augment import feature_context
 from hysteresis_lab.errors import ConfigError, DataError, DivergedError
+from hysteresis_lab.lightning_trainer import TrainerSettings
 from hysteresis_lab.signals import multisine
 from hysteresis_lab.sim.default_dataset import make_default_dataset
-from hysteresis_lab.lightning_trainer import TrainerSettings
 from hysteresis_lab.workflows.loop import (
     HeldOut,
     LoopSettings,

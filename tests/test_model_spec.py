@@ -64,3 +64,12 @@ def test_the_old_model_lr_override_still_takes_effect_and_warns(caplog, tmp_path
 def test_a_bad_model_config_is_refused_where_the_spec_is_built(config, says):
     with pytest.raises(ConfigError, match=says):
         ModelSpec.from_config(config)
+
+
+def test_a_spec_travels_to_another_process_by_its_registered_name():
+    import pickle
+
+    spec = ModelSpec.from_config({"name": "lstm", "units": 8})
+    LSTMNet.registry_name = ""  # a fresh process: the class not yet named by the registry
+    again = pickle.loads(pickle.dumps(spec))
+    assert again == spec and again.cls.registry_name == "lstm"

@@ -123,9 +123,9 @@ def test_rate_alone_brings_the_cell_and_the_loop_refits_whole() -> None:
     shares the loop width with the gain)."""
     from hysteresis_lab.data.datamodules import WindowDataModule
     from hysteresis_lab.effects.augment import augment_splits, context_to_dict
+    from hysteresis_lab.fitting import build_model
     from hysteresis_lab.models.linear import LinearModel
     from hysteresis_lab.sim.default_dataset import make_default_dataset
-    from hysteresis_lab.fitting import build_model
     from hysteresis_lab.workflows.loop import _refit_mode
 
     data = make_default_dataset(effects={}, n_train=2000, test_frequencies=(10.0,),

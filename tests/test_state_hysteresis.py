@@ -16,10 +16,10 @@ from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.effects.augment import augment_splits, context_to_dict
 from hysteresis_lab.evaluation.predict import free_run
+from hysteresis_lab.fitting import build_model, fit
+from hysteresis_lab.lightning_trainer import TrainerSettings
 from hysteresis_lab.models.linear import LinearModel
 from hysteresis_lab.signals import multisine
-from hysteresis_lab.lightning_trainer import TrainerSettings
-from hysteresis_lab.fitting import build_model, fit
 from hysteresis_lab.workflows.loop import _refit_mode
 
 FS = 100.0

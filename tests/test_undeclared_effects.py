@@ -24,10 +24,10 @@ from hysteresis_lab.analysis.diagnosis import (
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.effects.augment import feature_context
+from hysteresis_lab.lightning_trainer import TrainerSettings
 from hysteresis_lab.signals import multisine, sine
 from hysteresis_lab.sim.default_dataset import make_default_dataset
 from hysteresis_lab.sim.positioner import simulate_recording
-from hysteresis_lab.lightning_trainer import TrainerSettings
 from hysteresis_lab.workflows.loop import LoopSettings, run_loop
 
 FS = 2000.0

@@ -488,7 +488,7 @@ def _fit_free_run(
 
     Runs ``epochs`` epochs from the current weights at ``model.stage_lr`` and keeps the
     checkpoint with the best validation free-run loss (model selection on the free run;
-    ``model.patience`` epochs without a better one stop it early). ``keep_start``: the
+    ``training.patience`` epochs without a better one stop it early). ``keep_start``: the
     starting weights are a candidate too (a fitted network, or a model started from the
     data): when no epoch beat them on that loss, they stay and ``starting_checkpoint`` and
     False are returned. ``finite_start``: an initial model whose free run is not finite is
@@ -529,7 +529,7 @@ def _fit_free_run(
         if not np.isfinite(starting_loss) and finite_start:
             raise DivergedError(
                 "the initial model's free run is not finite on the validation segments (an "
-                "unstable initial model). Fix: a shorter model.horizon, or check the data "
+                "unstable initial model). Fix: a shorter training.horizon, or check the data "
                 "scaling (data.scaling) and the model's initial settings."
             )
         try:

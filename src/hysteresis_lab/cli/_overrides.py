@@ -50,6 +50,12 @@ NULLABLE_NUMBERS = {
     "data.splits.train_sine_amplitude": NUMBER,
 }
 
+#: a value to show in the fix for a nullable key whose null means "the model's own"
+NULLABLE_EXAMPLES = {
+    "training.lr": "0.001", "training.weight_decay": "0.0", "training.horizon": "200",
+    "training.simulation_epochs": "5", "training.simulation_lr": "0.0001",
+    "training.patience": "10", "training.refit_lr": "0.0001",
+}
 #: keys whose packaged value is a number but which also take other types (Lightning's
 #: ``devices`` takes "auto" or a list of device indices)
 OPEN_KEYS = frozenset({"trainer.devices"})
@@ -99,7 +105,9 @@ def type_mismatches(cfg: DictConfig, reference: DictConfig, keys: list[str]) -> 
         if packaged is None and key in NULLABLE_NUMBERS:
             expected = NULLABLE_NUMBERS[key]
             if value is not None and not _keeps(expected, value):
-                problems.append(f"{key}={value!r} must be {expected} or null. Fix: e.g. {key}=null")
+                example = NULLABLE_EXAMPLES.get(key, "null")
+                problems.append(
+                    f"{key}={value!r} must be {expected} or null. Fix: e.g. {key}={example}")
             continue
         expected = _kind(packaged)
         if expected is None or value is None or _keeps(expected, value):

@@ -53,6 +53,11 @@ class ModelSpec:
                         "Fix: training.%s=%s", key, key, value)
         return cls(str(name), get_model_class(str(name)), settings, legacy)
 
+    def __reduce__(self) -> tuple[Any, tuple[Any, ...]]:
+        """Pickled by name (a paper worker's process): the class is looked up in that
+        process's registry again, which names it (``registry_name``) there too."""
+        return _registered, (self.name, dict(self.settings), dict(self.legacy_training))
+
     @property
     def layout(self) -> str:
         """The regressor layout the model reads ("flat" or "sequence")."""
@@ -90,3 +95,8 @@ class ModelSpec:
     def to_config(self) -> dict[str, Any]:
         """The model config (``{"name": ..., **settings}``), without training settings."""
         return {"name": self.name, **self.settings}
+
+
+def _registered(name: str, settings: dict[str, Any], legacy: dict[str, Any]) -> ModelSpec:
+    """A spec unpickled: its class from the registry (`ModelSpec.__reduce__`)."""
+    return ModelSpec(name, get_model_class(name), settings, legacy)
