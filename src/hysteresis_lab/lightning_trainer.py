@@ -78,6 +78,21 @@ class TrainerSettings:
         configured = frozenset(self.configured or ()) | frozenset(known)
         return dataclasses.replace(self, **known, extra=extra, configured=configured)
 
+    def evaluation_device(self) -> str:
+        """The device free-run simulation uses: the GPU when training may use one and it
+        exists."""
+        import torch
+
+        if str(self.accelerator) in {"auto", "gpu", "cuda"} and torch.cuda.is_available():
+            return "cuda"
+        return "cpu"
+
+    @property
+    def shows_progress(self) -> bool:
+        """Whether a run shows progress bars (training's and scoring's): unless these
+        settings turn Lightning's off."""
+        return self.enable_progress_bar is not False
+
     def trainer_arguments(self) -> dict[str, Any]:
         """The keyword arguments of ``lightning.Trainer``."""
         values = {name: getattr(self, name) for name in _field_names()}

@@ -63,7 +63,6 @@ from hysteresis_lab.workflows.pipeline import (
     RunConfig,
     RunResult,
     RunSettings,
-    evaluation_device,
     run_model,
 )
 
@@ -245,7 +244,7 @@ def run_loop(
         fit_model=functools.partial(
             fit_model, RunConfig(model, data_spec, trainer, output_dir, bookkeeping, training),
             data.fit),
-        judge=functools.partial(held_out, data=data, device=evaluation_device(trainer)),
+        judge=functools.partial(held_out, data=data, device=trainer.evaluation_device()),
         folder=LoopFolder(output_dir),
         use_tensorboard=use_tensorboard,
         data_spec=data_spec,

@@ -41,7 +41,7 @@ from hysteresis_lab.fitting import check_trainer_settings
 from hysteresis_lab.interrupts import RunInterrupted, stopping_on_signals
 from hysteresis_lab.lightning_trainer import TrainerSettings
 from hysteresis_lab.models.settings import TrainingSettings
-from hysteresis_lab.workflows.pipeline import RunConfig, evaluation_device, run_model
+from hysteresis_lab.workflows.pipeline import RunConfig, run_model
 
 log = logging.getLogger(__name__)
 
@@ -86,7 +86,7 @@ def plan_workers(
 ) -> tuple[int, int | None]:
     """``(processes, torch threads per process)``; threads None means torch's default."""
     if workers == "auto":
-        if evaluation_device(trainer) != "cpu":
+        if trainer.evaluation_device() != "cpu":
             return 1, None
         workers = min(n_models, available_cores())
     if not isinstance(workers, int) or isinstance(workers, bool) or workers < 1:

@@ -80,20 +80,6 @@ def plain_dict(cfg: Mapping[str, Any] | DictConfig) -> dict[str, Any]:
     return dict(cfg)
 
 
-def evaluation_device(trainer: TrainerSettings) -> str:
-    """The device free-run simulation uses: the GPU when training may use one and it exists."""
-    accelerator = str(trainer.accelerator)
-    if accelerator in {"auto", "gpu", "cuda"} and torch.cuda.is_available():
-        return "cuda"
-    return "cpu"
-
-
-def shows_progress(trainer: TrainerSettings) -> bool:
-    """Whether a run shows progress bars (training's and scoring's): unless the trainer
-    settings turn Lightning's off."""
-    return trainer.enable_progress_bar is not False
-
-
 @dataclass(frozen=True)
 class RunSettings:
     """How one run trains and what it writes, beyond the model, data and trainer configs.
@@ -201,18 +187,16 @@ def run_model(
     this model's (see `NarxModule.warm_start_from`); both training stages run from it, and
     it is kept when they do not beat it on validation (by more than the share
     `RunSettings.min_refit_gain`)."""
-    _prepare_run(config)
-    effects = config.model.effects
-    baseline = baseline_of(config.model)
-    splits, data, context = _run_data(config, effects, splits, baseline)
-    record_key = _fit_record_key(config, splits, warm_start, baseline)
-    if record_key is not None:
-        reused = _reuse_finished_fit(config, record_key, data)
-        if reused is not None:
-            return reused
-    resume = _resume_interrupted_fit(
-        config, _fingerprint(config, splits, warm_start, baseline, ignore=DISPLAY_SETTINGS)
-    )
+    if config.model.is_network:  # before any data or training work
+        check_trainer_settings(config.trainer)
+    config.output_dir.mkdir(parents=True, exist_ok=True)
+    L.seed_everything(config.settings.seed, workers=True, verbose=False)
+    splits, data, context, baseline = _run_data(config, splits)
+    record_key, fit_key = _fit_keys(config, splits, warm_start, baseline)
+    reused = _reuse_finished_fit(config, record_key, data)
+    if reused is not None:
+        return reused
+    resume = _resume_interrupted_fit(config, fit_key)
     # this fit overwrites the folder's files: an older record must not vouch for them
     fit_record.forget(config.output_dir)
     try:
@@ -313,21 +297,14 @@ def _resume_interrupted_fit(config: RunConfig, key: str) -> bool:
     return resume
 
 
-def _prepare_run(config: RunConfig) -> None:
-    """Check the trainer settings (networks), make the output folder, seed every generator."""
-    if config.model.is_network:
-        check_trainer_settings(config.trainer)
-    config.output_dir.mkdir(parents=True, exist_ok=True)
-    L.seed_everything(config.settings.seed, workers=True, verbose=False)
-
-
 def _run_data(
-    config: RunConfig, effects: list[str], splits: DatasetSplits | None,
-    baseline: Baseline | None = None,
-) -> tuple[DatasetSplits, DatasetSplits, Any]:
+    config: RunConfig, splits: DatasetSplits | None
+) -> tuple[DatasetSplits, DatasetSplits, Any, Baseline | None]:
     """The data set (``splits``, else built from the data config), the same with the effects'
-    operator channels (and the ``baseline``'s free run) added, and the effects' feature
-    context; checked for scoring when it will be."""
+    operator channels (and the free run of the model's ``baseline``, returned too) added,
+    and the effects' feature context; checked for scoring when it will be."""
+    effects = config.model.effects
+    baseline = baseline_of(config.model)
     check_effects(effects)
     splits = splits or build_splits(config.data)
     warn_weak_excitation(splits, config.data.window)
@@ -337,7 +314,7 @@ def _run_data(
         data = baseline.append_to_splits(data, splits)
     if config.settings.evaluate:
         _check_evaluation_settings(data, config.settings.n_steps, config.data.window)
-    return splits, data, context
+    return splits, data, context, baseline
 
 
 def _fit_record_key(
@@ -345,10 +322,20 @@ def _fit_record_key(
     baseline: Baseline | None = None,
 ) -> str | None:
     """The fingerprint a finished fit of this run records, when the run may reuse one."""
+    return _fit_keys(config, splits, warm_start, baseline)[0]
+
+
+def _fit_keys(
+    config: RunConfig, splits: DatasetSplits, warm_start: Any | None,
+    baseline: Baseline | None = None,
+) -> tuple[str | None, str]:
+    """The fingerprint a finished fit of this run records, when the run may reuse one
+    (else None), and the one an interrupted fit of it resumes under (display settings of
+    the trainer aside)."""
     settings = config.settings
-    if not (settings.reuse and settings.evaluate):
-        return None
-    return _fingerprint(config, splits, warm_start, baseline)
+    reusable = settings.reuse and settings.evaluate
+    record = _fingerprint(config, splits, warm_start, baseline) if reusable else None
+    return record, _fingerprint(config, splits, warm_start, baseline, ignore=DISPLAY_SETTINGS)
 
 
 #: trainer settings that change what a fit shows, not what it computes: an interrupted fit
@@ -378,14 +365,40 @@ def _fingerprint(
     return fit_record.fingerprint(fingerprinted, splits, warm_start)
 
 
-def _reuse_finished_fit(config: RunConfig, key: str, data: DatasetSplits) -> RunResult | None:
-    """The finished fit recorded under ``key`` in the run folder, scored again; None when
-    there is none (or it cannot be loaded)."""
-    record = fit_record.finished_fit(config.output_dir, key)
+def _reuse_finished_fit(
+    config: RunConfig, key: str | None, data: DatasetSplits
+) -> RunResult | None:
+    """The finished fit recorded under ``key`` in the run folder, its model loaded and scored
+    again (the same weights give the same predictions; nothing is trained or rewritten);
+    None when there is none, its model file cannot be loaded any more, or the run may not
+    reuse one (no ``key``)."""
+    output_dir, trainer = config.output_dir, config.trainer
+    record = None if key is None else fit_record.finished_fit(output_dir, key)
     if record is None:
         return None
-    return _reused_fit(record, data, config.output_dir, config.trainer, config.settings.n_steps,
-                       config.settings.initial_state)
+    try:
+        model = load_model(output_dir / record["model_file"])
+    except DataError as exc:
+        log.warning("the fit in %s cannot be reused (%s): it trains again", output_dir, exc)
+        return None
+    log.info(
+        "%s: reusing the finished fit there (same settings, data and start; %s). To train "
+        "it again, delete that file or run with loop.resume=false (paper.resume=false)",
+        output_dir, fit_record.FIT_RECORD,
+    )
+    folder = RunFolder(output_dir)
+    document = folder.read_metrics()
+    rejected_refit = folder.read_rejected_refit_metrics() if record["rejected"] else None
+    window = model_window(model)
+    evaluation = evaluate_model(
+        model, data.test, window, n_init=data.n_init, n_steps=config.settings.n_steps,
+        device=trainer.evaluation_device(), progress=trainer.shows_progress,
+        initial_state=config.settings.initial_state,
+    )
+    return RunResult(
+        document, record["val_mse"], evaluation, model, window, record["improved"],
+        record["refit_validation"], rejected_refit,
+    )
 
 
 def _build(
@@ -398,19 +411,16 @@ def _build(
 ) -> tuple[WindowDataModule, SystemModel]:
     """The DataModule and the untrained model (started from ``warm_start`` when given; with
     the ``baseline`` whose free run it reads, saved with it)."""
+    extra: dict[str, Any] = {"trained_on": _trained_on(data)}
+    if effects:
+        extra.update(feature_context=context_to_dict(context),
+                     n_base_inputs=data.metadata["n_base_inputs"])
+    if baseline is not None:  # its free run: the last channels, one per output
+        extra.update(n_base_inputs=data.metadata["n_base_inputs"], baseline_channels=data.ny)
     datamodule = build_datamodule(
         config.data, config.model.layout, seed=config.settings.seed, splits=data
     )
-    extra = (
-        {"feature_context": context_to_dict(context),
-         "n_base_inputs": data.metadata["n_base_inputs"]}
-        if effects
-        else {}
-    )
-    if baseline is not None:  # its free run: the last channels, one per output
-        extra.update(n_base_inputs=data.metadata["n_base_inputs"], baseline_channels=data.ny)
-    model = build_model(config.model, datamodule, config.training,
-                        trained_on=_trained_on(data), **extra)
+    model = build_model(config.model, datamodule, config.training, **extra)
     if baseline is not None:
         model.baseline = baseline
     if warm_start is not None:
@@ -461,7 +471,7 @@ def _score_and_report(
     folder = RunFolder(output_dir)
     evaluation = evaluate_model(
         trained.model, data.test, window, n_init=data.n_init, n_steps=settings.n_steps,
-        device=evaluation_device(config.trainer), progress=shows_progress(config.trainer),
+        device=config.trainer.evaluation_device(), progress=config.trainer.shows_progress,
         initial_state=settings.initial_state,
     )
     units = {"u": data.test[0].u_units, "y": data.test[0].y_units}
@@ -553,42 +563,6 @@ def _log_summary(
     logger.finalize("success")
 
 
-def _reused_fit(
-    record: Mapping[str, Any],
-    data: DatasetSplits,
-    output_dir: Path,
-    trainer: TrainerSettings,
-    n_steps: int | None,
-    initial_state: str = "rest",
-) -> RunResult | None:
-    """The result of the finished fit ``record`` describes, its model loaded and scored again
-    (the same weights give the same predictions; nothing is trained or rewritten); None when
-    its model file cannot be loaded any more."""
-    try:
-        model = load_model(output_dir / record["model_file"])
-    except DataError as exc:
-        log.warning("the fit in %s cannot be reused (%s): it trains again", output_dir, exc)
-        return None
-    log.info(
-        "%s: reusing the finished fit there (same settings, data and start; %s). To train "
-        "it again, delete that file or run with loop.resume=false (paper.resume=false)",
-        output_dir, fit_record.FIT_RECORD,
-    )
-    window = model_window(model)
-    evaluation = evaluate_model(
-        model, data.test, window, n_init=data.n_init, n_steps=n_steps,
-        device=evaluation_device(trainer), progress=shows_progress(trainer),
-        initial_state=initial_state,
-    )
-    folder = RunFolder(output_dir)
-    document = folder.read_metrics()
-    rejected_refit = folder.read_rejected_refit_metrics() if record["rejected"] else None
-    return RunResult(
-        document, record["val_mse"], evaluation, model, window, record["improved"],
-        record["refit_validation"], rejected_refit,
-    )
-
-
 def _trained_on(data: DatasetSplits) -> dict[str, Any]:
     """What a model keeps of its training data to refuse data it cannot score: the sampling
     rate (its lags span a fixed number of samples) and the physical units (its scaler works
@@ -646,7 +620,7 @@ def _score_rejected_refit(
         window,
         n_init=data.n_init,
         n_steps=n_steps,
-        device=evaluation_device(trainer),
+        device=trainer.evaluation_device(),
         initial_state=initial_state,
     )
     return metrics_document(
