@@ -117,9 +117,10 @@ def grow(spec: ModelSpec, training: TrainingSettings, output_dir: Path,
                      stage.label)
             previous = train_stage(stage.settings, training, folder, None, "full")
             continue
+        rates = refit_rates(training)
         mode = refit_mode(stage.added, spec.cls)
         candidates = []
-        for rate in refit_rates(training):
+        for rate in rates:
             log.info("growing %s: stage %d of %d, + %s (refit %s at learning rate %.3g)",
                      spec.name, number + 1, len(stages), stage.label, mode, rate)
             try:

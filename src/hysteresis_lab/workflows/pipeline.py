@@ -333,9 +333,11 @@ def _fit_keys(
     (else None), and the one an interrupted fit of it resumes under (display settings of
     the trainer aside)."""
     settings = config.settings
-    reusable = settings.reuse and settings.evaluate
-    record = _fingerprint(config, splits, warm_start, baseline) if reusable else None
-    return record, _fingerprint(config, splits, warm_start, baseline, ignore=DISPLAY_SETTINGS)
+    whole = _fingerprinted(config, warm_start, baseline)
+    resumed = _fingerprinted(config, warm_start, baseline, ignore=DISPLAY_SETTINGS)
+    record = (fit_record.fingerprint(whole, splits, warm_start)
+              if settings.reuse and settings.evaluate else None)
+    return record, fit_record.fingerprint(resumed, splits, warm_start)
 
 
 #: trainer settings that change what a fit shows, not what it computes: an interrupted fit
@@ -343,12 +345,12 @@ def _fit_keys(
 DISPLAY_SETTINGS = ("enable_progress_bar", "enable_model_summary", "log_every_n_steps")
 
 
-def _fingerprint(
-    config: RunConfig, splits: DatasetSplits, warm_start: Any | None,
-    baseline: Baseline | None = None, ignore: tuple[str, ...] = (),
-) -> str:
-    """A digest of everything the fit depends on (`fit_record.fingerprint`), but the
-    trainer settings ``ignore`` names."""
+def _fingerprinted(
+    config: RunConfig, warm_start: Any | None, baseline: Baseline | None = None,
+    ignore: tuple[str, ...] = (),
+) -> dict[str, Any]:
+    """Every setting the fit depends on, as `fit_record.fingerprint` digests them (with the
+    data and the start), but the trainer settings ``ignore`` names."""
     settings = config.settings
     trainer = {k: v for k, v in config.trainer.to_config().items() if k not in ignore}
     fingerprinted = {
@@ -362,7 +364,7 @@ def _fingerprint(
         fingerprinted["training"] = config.training.to_dict()
     if baseline is not None:  # only then: the records of runs without one stay valid
         fingerprinted["baseline"] = baseline.digest
-    return fit_record.fingerprint(fingerprinted, splits, warm_start)
+    return fingerprinted
 
 
 def _reuse_finished_fit(
