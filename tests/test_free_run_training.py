@@ -78,7 +78,7 @@ def test_bad_fine_tuning_settings_are_config_errors(splits):
         build_model({**CONFIGS["ffnn"], "objective": "simulation", "horizon": -1}, dm)
     with pytest.raises(ConfigError, match="unknown training.objective 'free'"):
         build_model({**CONFIGS["ffnn"], "objective": "free"}, dm)
-    with pytest.raises(ConfigError, match="model.horizon="):
+    with pytest.raises(ConfigError, match="training.horizon="):
         SegmentDataModule(dm, steps=10_000).setup()
 
 
