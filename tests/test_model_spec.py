@@ -30,6 +30,10 @@ def test_a_run_config_holds_a_spec_built_from_its_model_config(tmp_path):
     config = RunConfig.build({"name": "ffnn"}, {}, {}, tmp_path, {"lr": 3e-4})
     assert isinstance(config.model, ModelSpec) and config.model_name == "ffnn"
     assert config.training == TrainingSettings(lr=3e-4)
+    # made from objects, unset training settings are the model's own too
+    greybox = RunConfig(ModelSpec.from_config({"name": "greybox"}), config.data,
+                        config.trainer, tmp_path)
+    assert greybox.training.lr == 0.02 and greybox.training.objective == "simulation"
 
 
 def test_unset_training_settings_are_the_models_own():

@@ -119,7 +119,12 @@ class RunConfig:
     trainer: TrainerSettings
     output_dir: Path
     settings: RunSettings = RunSettings()
-    training: TrainingSettings = TrainingSettings()
+    #: None: the model's own (`ModelSpec.training_settings`)
+    training: TrainingSettings = None  # type: ignore[assignment]
+
+    def __post_init__(self) -> None:
+        if self.training is None:
+            object.__setattr__(self, "training", self.model.training_settings())
 
     @classmethod
     def build(
