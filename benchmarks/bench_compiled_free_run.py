@@ -22,7 +22,7 @@ from bench_models import CONFIGS
 
 from hysteresis_lab.data.datamodules import PaperDataModule
 from hysteresis_lab.evaluation.predict import free_run
-from hysteresis_lab.training import build_model
+from hysteresis_lab.fitting import build_model
 
 log = logging.getLogger("bench_compiled_free_run")
 

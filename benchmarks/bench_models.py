@@ -27,8 +27,8 @@ import torch
 
 from hysteresis_lab.data.datamodules import PaperDataModule
 from hysteresis_lab.evaluation.predict import free_run, one_step
-from hysteresis_lab.trainer import TrainerSettings, build_trainer
-from hysteresis_lab.training import build_model, fit
+from hysteresis_lab.fitting import build_model, fit
+from hysteresis_lab.lightning_trainer import TrainerSettings, build_trainer
 
 log = logging.getLogger("bench_models")
 

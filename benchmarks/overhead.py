@@ -7,7 +7,7 @@
 For each network (ffnn, lstm, cnn: the study's sizes; subnet: the defaults) on the default
 data set, alternately (the order swapped every round):
 
-* **project**: `hysteresis_lab.training.fit` with the ``trainer`` config of
+* **project**: `hysteresis_lab.fitting.fit` with the ``trainer`` config of
   ``conf/trainer/default.yaml`` (progress bar, model summary, best checkpoint, sanity check,
   learning-rate schedule), only ``max_epochs`` set;
 * **bare**: a plain PyTorch loop over the same network (a fresh copy with the same initial
@@ -50,8 +50,8 @@ from omegaconf import OmegaConf
 from hysteresis_lab.data.datamodules import PaperDataModule
 from hysteresis_lab.data.segments import simulation_data
 from hysteresis_lab.evaluation.predict import free_run
-from hysteresis_lab.trainer import TrainerSettings
-from hysteresis_lab.training import build_model, fit
+from hysteresis_lab.fitting import build_model, fit
+from hysteresis_lab.lightning_trainer import TrainerSettings
 
 log = logging.getLogger("overhead")
 
@@ -268,7 +268,7 @@ def write_page(rows: dict[str, dict[str, Any]], args: argparse.Namespace, load: 
         "",
         f"CPU seconds per epoch (see `CLOCK`), median over {args.rounds} interleaved rounds of "
         f"{args.epochs} epochs each. *project*: "
-        "`hysteresis_lab.training.fit` with the default `trainer` config (progress bar, model "
+        "`hysteresis_lab.fitting.fit` with the default `trainer` config (progress bar, model "
         "summary, best checkpoint); *bare*: a plain PyTorch loop over the same network, "
         "tensors, batch size (128), Adam, learning-rate schedule and validation pass. Goal: "
         f"ratio <= {LIMIT}.",

@@ -14,7 +14,7 @@ this measures, on the run's own data:
   dynamics unchanged) and the dynamics' gain beside the simulator's, in and beyond the
   multisine's 0-500 Hz band (a clipped sine's corners reach far beyond it);
 * refits from the round-0 model as the loop runs them (whole refit, ``model.refit_lr`` =
-  ``model.lr``), the block's weight and level free, fixed at the simulator's clip (weight 1,
+  ``training.lr``), the block's weight and level free, fixed at the simulator's clip (weight 1,
   level ``limit_v``), one of them fixed, and a block-only refit;
 * with ``--order3``: the loop again with ``model.order=3`` (the simulator's own order: the
   amplifier pole and the bending mode), nothing else changed;
@@ -56,6 +56,7 @@ from hysteresis_lab.data.factory import build_splits
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.evaluation.provenance import commit_stamp
+from hysteresis_lab.fitting import build_model
 from hysteresis_lab.loop.checks import (
     ceiling,
     free_run_rmse,
@@ -65,13 +66,12 @@ from hysteresis_lab.loop.checks import (
 from hysteresis_lab.loop.data import loop_data
 from hysteresis_lab.loop.driver import LoopSettings
 from hysteresis_lab.models.io import load_model
+from hysteresis_lab.models.spec import ModelSpec
 from hysteresis_lab.sim import blocks
 from hysteresis_lab.sim.config import PositionerConfig
 from hysteresis_lab.sim.default_dataset import make_default_dataset
 from hysteresis_lab.sim.positioner import Positioner
-from hysteresis_lab.trainer import TrainerSettings
-from hysteresis_lab.training import build_model
-from hysteresis_lab.workflows.pipeline import train_and_evaluate
+from hysteresis_lab.workflows.pipeline import RunConfig, run_model
 
 log = logging.getLogger("saturation_refit")
 
@@ -190,17 +190,18 @@ class FixBlock(Callback):
 
 def refit(study: Study, out: Path, weight: float | None, level_share: float | None,
           mode: str) -> tuple[Any, dict[str, float], float]:
-    """A refit from the round-0 model at ``model.lr``: the model, test RMSE, val loss."""
+    """A refit from the round-0 model at ``training.lr``: the model, test RMSE, val loss."""
     model_cfg = {**OmegaConf.to_container(study.cfg.model, resolve=True),
                  "effects": ["saturation"]}
-    model_cfg["refit_lr"] = float(model_cfg["lr"])
+    spec = ModelSpec.from_config(model_cfg)
+    training = spec.training_settings(OmegaConf.to_container(study.cfg.training, resolve=True))
     level = None if level_share is None else level_share * study.limit_v / float(
         study.start.u_scale[0])
-    result = train_and_evaluate(
-        model_cfg, data=DataSpec.from_config(study.cfg.data),
-        trainer=TrainerSettings.from_config(study.cfg.trainer), output_dir=out,
-        seed=int(study.cfg.seed), splits=study.fit_splits, use_tensorboard=False, plots=False,
-        warm_start=study.start, refit=mode, callbacks=[FixBlock(weight, level)])
+    config = RunConfig.build(
+        spec, study.cfg.data, study.cfg.trainer, out, training.with_changes(refit_lr=training.lr),
+        seed=int(study.cfg.seed), use_tensorboard=False, plots=False, refit=mode)
+    result = run_model(config, splits=study.fit_splits, warm_start=study.start,
+                       callbacks=[FixBlock(weight, level)])
     rmse = {k: v["rmse_free_run"] for k, v in result.document["tests"].items()}
     return result.model, rmse, float((result.refit_validation or {}).get("refit", np.nan))
 

@@ -11,7 +11,7 @@ import pytest
 
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.splits import DatasetSplits
-from hysteresis_lab.training import build_model, fit
+from hysteresis_lab.fitting import build_model, fit
 from narx import CONFIGS, TRAINER, datamodule_for, narx_data
 
 

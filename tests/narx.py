@@ -8,8 +8,8 @@ import numpy as np
 from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.splits import DatasetSplits
+from hysteresis_lab.lightning_trainer import TrainerSettings
 from hysteresis_lab.models.registry import get_model_class
-from hysteresis_lab.trainer import TrainerSettings
 
 
 def narx_data(n: int = 1500, nu: int = 1, ny: int = 1, seed: int = 0) -> DatasetSplits:

@@ -18,16 +18,16 @@ from hysteresis_lab.models.augment import for_model
 from hysteresis_lab.models.io import load_baseline, load_model
 from hysteresis_lab.workflows.pipeline import (
     RunConfig,
-    RunSettings,
     _fit_record_key,
-    train_and_evaluate,
+    run_model,
 )
 from narx import TRAINER, narx_data
 
 DATA = DataSpec.from_config({"window": {"na": 4, "nb": 4, "nk": 1},
                              "scaling": {"mode": "standard"}})
 SUBNET = {"name": "subnet", "nx": 4, "neurons": 16, "hidden_layers": 1, "encoder_neurons": 16,
-          "encoder_layers": 1, "horizon": 50, "lr": 1e-3}
+          "encoder_layers": 1}
+SUBNET_TRAINING = {"horizon": 50, "lr": 1e-3}
 
 
 @pytest.fixture(scope="module")
@@ -35,12 +35,14 @@ def fitted(tmp_path_factory):
     """The NARX data set, a linear baseline fitted on it, and SUBNET augmenting it."""
     root = tmp_path_factory.mktemp("baseline")
     splits = narx_data(800)
-    base = train_and_evaluate({"name": "linear", "effects": [], "lr": 0.02}, DATA,
-                              TRAINER.with_changes(max_epochs=2), root / "linear",
-                              splits=splits, use_tensorboard=False, plots=False)
-    augmented = train_and_evaluate({**SUBNET, "baseline": str(root / "linear")}, DATA,
-                                   TRAINER.with_changes(max_epochs=2), root / "augmented",
-                                   splits=splits, use_tensorboard=False, plots=False)
+    base = run_model(RunConfig.build({"name": "linear", "effects": []}, DATA,
+                                     TRAINER.with_changes(max_epochs=2), root / "linear",
+                                     {"lr": 0.02}, use_tensorboard=False, plots=False),
+                     splits=splits)
+    augmented = run_model(RunConfig.build({**SUBNET, "baseline": str(root / "linear")}, DATA,
+                                          TRAINER.with_changes(max_epochs=2),
+                                          root / "augmented", SUBNET_TRAINING,
+                                          use_tensorboard=False, plots=False), splits=splits)
     return splits, base, augmented, root
 
 
@@ -72,11 +74,13 @@ def test_the_network_reads_the_baseline_free_run_and_keeps_it_in_its_file(fitted
 def test_wrong_uses_of_a_baseline_are_refused_with_a_fix(fitted, tmp_path):
     splits, _, _, root = fitted
     with pytest.raises(ConfigError, match="no fitted model there.*Fix: train the baseline"):
-        train_and_evaluate({**SUBNET, "baseline": str(tmp_path / "nothing")}, DATA, TRAINER,
-                           tmp_path / "run", splits=splits, use_tensorboard=False)
+        run_model(RunConfig.build({**SUBNET, "baseline": str(tmp_path / "nothing")}, DATA,
+                                  TRAINER, tmp_path / "run", use_tensorboard=False),
+                  splits=splits)
     with pytest.raises(ConfigError, match="is for the networks.*Fix"):
-        train_and_evaluate({"name": "linear", "baseline": str(root / "linear")}, DATA,
-                           TRAINER, tmp_path / "run", splits=splits, use_tensorboard=False)
+        run_model(RunConfig.build({"name": "linear", "baseline": str(root / "linear")}, DATA,
+                                  TRAINER, tmp_path / "run", use_tensorboard=False),
+                  splits=splits)
     with pytest.raises(ConfigError, match="the loop grows a model.*Fix"):
         run_loop({**SUBNET, "effects": [], "baseline": str(root / "linear")}, DATA, TRAINER,
                  splits, tmp_path / "loop", LoopSettings(max_rounds=0), use_tensorboard=False)
@@ -92,9 +96,9 @@ def test_declared_effects_and_a_baseline_each_get_their_own_channels(fitted, tmp
     splits, _, _, root = fitted
     ffnn = {"name": "ffnn", "num_layers": 3, "neurons": 16, "effects": ["hysteresis"],
             "effect_path": "linear", "baseline": str(root / "linear")}
-    model = train_and_evaluate(ffnn, DATA, TRAINER.with_changes(max_epochs=1),
-                               tmp_path / "ffnn", splits=splits, use_tensorboard=False,
-                               plots=False).model
+    model = run_model(RunConfig.build(ffnn, DATA, TRAINER.with_changes(max_epochs=1),
+                                      tmp_path / "ffnn", use_tensorboard=False, plots=False),
+                      splits=splits).model
     operators = model.nu - 2
     assert operators == 8 and model.n_base_inputs == 1
     nb = DATA.window.nb
@@ -107,8 +111,8 @@ def test_declared_effects_and_a_baseline_each_get_their_own_channels(fitted, tmp
 
 def test_a_finished_fit_is_reused_only_with_the_same_baseline(fitted):
     splits, _, _, root = fitted
-    config = RunConfig({**SUBNET, "baseline": str(root / "linear")}, DATA, TRAINER,
-                       root / "unused", RunSettings(reuse=True))
+    config = RunConfig.build({**SUBNET, "baseline": str(root / "linear")}, DATA, TRAINER,
+                             root / "unused", SUBNET_TRAINING, reuse=True)
     baseline = load_baseline(root / "linear")
     refitted = dataclasses.replace(baseline, payload=baseline.payload + b"another fit")
     key = _fit_record_key(config, splits, None, baseline)

@@ -104,7 +104,8 @@ def test_evaluate_reproduces_the_training_metrics(trained_run, csv_data, tmp_pat
         (["+model.neuronz=5"], "has no parameter(s) ['neuronz']"),
         (["data.train=/nonexistent/file.csv"], "no such file"),
         (["data.window.na=-1"], "window na=-1 is invalid"),
-        (["model.lr=abc"], "model.lr='abc' must be a number. Fix: model.lr=0.001"),
+        (["model.lr=abc"], "training.lr='abc' must be a number or null. Fix: e.g. "
+         "training.lr=0.001"),
         (["seed=abc"], "seed='abc' must be a whole number"),
         (["model=lstm", "model.lstm_layers=1.5"],
          "model.lstm_layers=1.5 must be a whole number. Fix: model.lstm_layers=2"),
@@ -113,7 +114,7 @@ def test_evaluate_reproduces_the_training_metrics(trained_run, csv_data, tmp_pat
         (["model.effects=[creep,hysteresis,creep]"],
          "model.effects names ['creep'] more than once. Fix: name each effect once, "
          "model.effects=[creep,hysteresis]"),
-        (["model=lstm", "model.lr=x"], "model.lr='x' must be a number"),
+        (["model=lstm", "training.lr=x"], "training.lr='x' must be a number"),
     ],
 )
 def test_bad_input_gives_a_clear_error(csv_data, tmp_path, overrides, message):
@@ -240,14 +241,15 @@ def test_plugin_registers_an_architecture_and_its_config(csv_data, tmp_path):
          str(plugin)], capture_output=True, text=True, timeout=600)
     assert install.returncode == 0, install.stderr[-2000:]
     proc = run_app("train", *data_overrides(*csv_data), "model=gru", "model.units=16",
-                   "model.lr=0.005", "trainer.max_epochs=6", f"hydra.run.dir={tmp_path}", *QUIET)
+                   "training.lr=0.005", "trainer.max_epochs=6", f"hydra.run.dir={tmp_path}", *QUIET)
     assert proc.returncode == 0, proc.stderr[-3000:]
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert metrics["model"] == "gru" and metrics["mean"]["r2_one_step"] > 0.5
 
 
 @pytest.mark.parametrize(("model", "extra"), [
-    ("subnet", ["model.nx=4", "model.neurons=16", "model.encoder_neurons=16", "model.horizon=50"]),
+    ("subnet", ["model.nx=4", "model.neurons=16", "model.encoder_neurons=16",
+                "training.horizon=50"]),
     ("greybox", ["model.n_modes=1", "model.mode_hz=400"]),
     ("linear", ["model.order=4"]),
 ])

@@ -12,8 +12,8 @@ import torch
 from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.evaluation.predict import free_run, one_step
+from hysteresis_lab.fitting import build_model
 from hysteresis_lab.models.augment import augment_splits, context_to_dict
-from hysteresis_lab.training import build_model
 from narx import CONFIGS
 
 

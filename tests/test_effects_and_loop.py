@@ -315,18 +315,19 @@ def test_model_with_effects_trains_saves_and_evaluates(model, tmp_path):
     assert fresh == pytest.approx(saved, rel=1e-6)
 
 
-def test_loop_gives_network_settings_only_to_networks():
-    from hysteresis_lab.loop.driver import _without_network_only_settings
+def test_training_settings_are_no_model_settings_and_reach_only_networks():
     from hysteresis_lab.models.spec import ModelSpec
 
     settings = {"objective": "simulation", "horizon": 200, "simulation_epochs": 5,
-                "effect_path": "linear", "refit_lr": 1e-4}
-
-    def kept(config: dict) -> dict:
-        return _without_network_only_settings(ModelSpec.from_config(config)).to_config()
-
-    assert kept({"name": "svm", "C": 1.0, **settings}) == {"name": "svm", "C": 1.0}
-    assert kept({"name": "lstm", **settings}) == {"name": "lstm", **settings}
+                "refit_lr": 1e-4}
+    svm = ModelSpec.from_config({"name": "svm", "C": 1.0, **settings})
+    assert svm.to_config() == {"name": "svm", "C": 1.0}
+    assert not svm.is_network and svm.cls.training_defaults() == {}
+    lstm = ModelSpec.from_config({"name": "lstm", **settings})
+    assert lstm.to_config() == {"name": "lstm"}
+    trained = lstm.training_settings()
+    assert (trained.objective, trained.simulation_epochs, trained.refit_lr) == (
+        "simulation", 5, 1e-4)
 
 
 @pytest.mark.slow

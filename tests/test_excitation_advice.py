@@ -14,6 +14,7 @@ from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.lightning_trainer import TrainerSettings
 from hysteresis_lab.loop.advice import excitation_advice
 from hysteresis_lab.loop.data import loop_data
 from hysteresis_lab.loop.diagnosis.excitation import (
@@ -29,7 +30,6 @@ from hysteresis_lab.models.augment import feature_context
 from hysteresis_lab.run_folder import LoopFolder
 from hysteresis_lab.signals import multisine, sine
 from hysteresis_lab.sim.default_dataset import make_default_dataset
-from hysteresis_lab.trainer import TrainerSettings
 from loop_notebook import check_loop_notebook
 
 #: the simulator with the amplifier's clipping the one effect beyond linear dynamics

@@ -8,7 +8,7 @@ import torch
 
 from conftest import optional_dependency
 from hysteresis_lab.errors import ConfigError
-from hysteresis_lab.training import build_model
+from hysteresis_lab.fitting import build_model
 from narx import CONFIGS, datamodule_for, narx_data
 
 

@@ -13,7 +13,7 @@ from torch.utils.data import BatchSampler, DataLoader, RandomSampler, TensorData
 
 from hysteresis_lab.data.blocks import block_loader
 from hysteresis_lab.data.datamodules import WindowDataModule
-from hysteresis_lab.training import build_model, fit
+from hysteresis_lab.fitting import build_model, fit
 from narx import CONFIGS, TRAINER
 
 

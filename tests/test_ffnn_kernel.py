@@ -10,9 +10,9 @@ import torch
 
 from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.evaluation.predict import free_run
+from hysteresis_lab.fitting import build_model
 from hysteresis_lab.kernels.ffnn import FFNNKernel
 from hysteresis_lab.models.ffnn import FFNN
-from hysteresis_lab.training import build_model
 from kernel_checks import check_batch_independence, check_run_all, recordings
 from narx import datamodule_for
 

@@ -12,8 +12,8 @@ from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.data.segments import SegmentDataModule
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.evaluation.predict import free_run, one_step
+from hysteresis_lab.fitting import build_model, fit
 from hysteresis_lab.models.augment import augment_splits, context_to_dict
-from hysteresis_lab.training import build_model, fit
 from narx import CONFIGS, TRAINER, datamodule_for
 
 
@@ -76,9 +76,9 @@ def test_bad_fine_tuning_settings_are_config_errors(splits):
     dm = datamodule_for("ffnn", splits)
     with pytest.raises(ConfigError, match=r"horizon=-1 \(a whole number >= 1\)"):
         build_model({**CONFIGS["ffnn"], "objective": "simulation", "horizon": -1}, dm)
-    with pytest.raises(ConfigError, match="unknown model.objective 'free'"):
+    with pytest.raises(ConfigError, match="unknown training.objective 'free'"):
         build_model({**CONFIGS["ffnn"], "objective": "free"}, dm)
-    with pytest.raises(ConfigError, match="model.horizon="):
+    with pytest.raises(ConfigError, match="training.horizon="):
         SegmentDataModule(dm, steps=10_000).setup()
 
 

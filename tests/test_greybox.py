@@ -13,10 +13,10 @@ from conftest import optional_dependency
 from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.evaluation.predict import free_run, one_step
+from hysteresis_lab.fitting import build_model, fit
+from hysteresis_lab.lightning_trainer import TrainerSettings
 from hysteresis_lab.models.io import load_model, save_model
 from hysteresis_lab.sim.default_dataset import make_default_dataset
-from hysteresis_lab.trainer import TrainerSettings
-from hysteresis_lab.training import build_model, fit
 
 TRAINER = TrainerSettings(max_epochs=6, accelerator="cpu", enable_progress_bar=False,
                           enable_model_summary=False)

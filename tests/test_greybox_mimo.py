@@ -19,9 +19,9 @@ from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.errors import ConfigError, DataError
 from hysteresis_lab.evaluation.predict import free_run
+from hysteresis_lab.fitting import build_model, fit
+from hysteresis_lab.lightning_trainer import TrainerSettings
 from hysteresis_lab.models.io import load_model, save_model
-from hysteresis_lab.trainer import TrainerSettings
-from hysteresis_lab.training import build_model, fit
 
 TRAINER = TrainerSettings(max_epochs=4, accelerator="cpu", enable_progress_bar=False,
                           enable_model_summary=False)

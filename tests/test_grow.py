@@ -11,15 +11,15 @@ import pytest
 import torch
 
 from hysteresis_lab.data.datamodules import WindowDataModule
+from hysteresis_lab.fitting import build_model, fit
+from hysteresis_lab.lightning_trainer import TrainerSettings
 from hysteresis_lab.models.augment import augment_splits, context_to_dict
 from hysteresis_lab.models.greybox import GreyBox
 from hysteresis_lab.models.linear import LinearModel
 from hysteresis_lab.models.spec import ModelSpec
 from hysteresis_lab.sim.default_dataset import make_default_dataset
-from hysteresis_lab.trainer import TrainerSettings
-from hysteresis_lab.training import build_model, fit
 from hysteresis_lab.workflows.grow import growth_stages
-from hysteresis_lab.workflows.pipeline import train_and_evaluate
+from hysteresis_lab.workflows.pipeline import RunConfig, run_model
 
 TRAINER = TrainerSettings(max_epochs=3, accelerator="cpu", enable_progress_bar=False,
                           enable_model_summary=False)
@@ -71,9 +71,9 @@ def test_a_grown_grey_box_cell_starts_where_it_changes_nothing():
 
 def test_a_declared_model_is_grown_from_its_fitted_linear_start(tmp_path):
     data, _ = _positioner()
-    result = train_and_evaluate(
-        {"name": "linear", "effects": ["hysteresis"], "lr": 0.002}, {"name": "default"},
-        TRAINER, tmp_path, splits=data, use_tensorboard=False, plots=False)
+    result = run_model(RunConfig.build(
+        {"name": "linear", "effects": ["hysteresis"]}, {"name": "default"}, TRAINER, tmp_path,
+        {"lr": 0.002}, use_tensorboard=False, plots=False), splits=data)
     stages = sorted(p.name for p in (tmp_path / "grow").iterdir())
     assert stages == ["0_linear", "1_hysteresis"]
     rates = sorted(p.name for p in (tmp_path / "grow" / "1_hysteresis").iterdir())

@@ -13,10 +13,10 @@ import pytest
 from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.evaluation.evaluate import evaluate_model
+from hysteresis_lab.fitting import build_model, fit
+from hysteresis_lab.lightning_trainer import TrainerSettings
 from hysteresis_lab.sim.default_dataset import make_default_dataset
-from hysteresis_lab.trainer import TrainerSettings
-from hysteresis_lab.training import build_model, fit
-from hysteresis_lab.workflows.pipeline import train_and_evaluate
+from hysteresis_lab.workflows.pipeline import RunConfig, run_model
 
 TRAINER = TrainerSettings(max_epochs=3, accelerator="cpu", enable_progress_bar=False,
                           enable_model_summary=False)
@@ -75,8 +75,9 @@ def test_the_mode_is_named_in_metrics_json(tmp_path):
     data = make_default_dataset(effects={"creep": {"enabled": False}}, n_train=4000,
                                 test_frequencies=(10.0,), max_test_samples=2000, val_samples=2000)
     data = dataclasses.replace(data, n_init=N_INIT)
-    train_and_evaluate({"name": "linear"}, {"name": "default"}, TRAINER, tmp_path, splits=data,
-                       use_tensorboard=False, plots=False, initial_state="estimate")
+    run_model(RunConfig.build({"name": "linear"}, {"name": "default"}, TRAINER, tmp_path,
+                              use_tensorboard=False, plots=False, initial_state="estimate"),
+              splits=data)
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert metrics["initial_state"] == "estimate"
     assert np.isfinite(metrics["mean"]["rmse_free_run"])

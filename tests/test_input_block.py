@@ -13,8 +13,8 @@ import torch
 from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.effects.registry import get_effect
 from hysteresis_lab.evaluation.predict import free_run, one_step
+from hysteresis_lab.fitting import build_model, fit
 from hysteresis_lab.models.augment import augment_splits, context_to_dict
-from hysteresis_lab.training import build_model, fit
 from narx import CONFIGS, TRAINER
 
 
@@ -73,7 +73,7 @@ def test_input_block_trains_and_warm_starts_grow_it(splits, trained, tmp_path):
     grown, *_ = with_effects("ffnn", splits, trained, ["saturation", "creep"])
     grown.warm_start_from(refit)
     torch.testing.assert_close(grown.input_weight, refit.input_weight, rtol=0, atol=0)
-    assert "input_weight" not in grown._new_entries  # same shape: copied, not new
+    assert "input_weight" not in grown.new_entries  # same shape: copied, not new
 
 
 def test_refit_keeps_its_start_unless_it_beats_it(splits, trained, tmp_path):

@@ -14,7 +14,7 @@ from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.user_files import load_user_files
 from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.models.augment import feature_context, warn_unshown
-from hysteresis_lab.workflows.pipeline import RunConfig, RunSettings, run_model
+from hysteresis_lab.workflows.pipeline import RunConfig, run_model
 from narx import CONFIGS, TRAINER
 
 DATA = {"window": {"na": 2, "nb": 2, "nk": 1}, "scaling": {"mode": "standard"}}
@@ -38,8 +38,8 @@ def warnings_of(caplog) -> list[str]:
 def test_a_run_on_a_constant_input_warns_what_is_wrong_and_what_is_needed(tmp_path, caplog):
     train, test = csv_files(tmp_path, np.full(600, 5.0))
     splits = load_user_files(str(train), [str(test)])
-    config = RunConfig(dict(CONFIGS["svm"]), DATA, TRAINER, tmp_path / "run",
-                       RunSettings(use_tensorboard=False, evaluate=False))
+    config = RunConfig.build(dict(CONFIGS["svm"]), DATA, TRAINER, tmp_path / "run",
+                             use_tensorboard=False, evaluate=False)
     with caplog.at_level(logging.WARNING):
         run_model(config, splits=splits)
     constant = [w for w in warnings_of(caplog) if "is constant" in w]
@@ -76,8 +76,8 @@ def test_creep_on_a_record_much_shorter_than_its_filters_is_warned_about(tmp_pat
     rng = np.random.default_rng(1)
     train, test = csv_files(tmp_path, rng.uniform(-1, 1, 400))  # 0.2 s at 2 kHz
     splits = load_user_files(str(train), [str(test)])
-    config = RunConfig({**CONFIGS["svm"], "effects": ["creep"]}, DATA, TRAINER,
-                       tmp_path / "run", RunSettings(use_tensorboard=False, evaluate=False))
+    config = RunConfig.build({**CONFIGS["svm"], "effects": ["creep"]}, DATA, TRAINER,
+                             tmp_path / "run", use_tensorboard=False, evaluate=False)
     with caplog.at_level(logging.WARNING):
         run_model(config, splits=splits)
     creep = [w for w in warnings_of(caplog) if w.startswith("creep:")]

@@ -14,10 +14,10 @@ from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.evaluation.predict import free_run
+from hysteresis_lab.fitting import build_model, fit
+from hysteresis_lab.lightning_trainer import TrainerSettings
 from hysteresis_lab.models.augment import augment_splits, context_to_dict, feature_context
 from hysteresis_lab.models.linear import LinearModel
-from hysteresis_lab.trainer import TrainerSettings
-from hysteresis_lab.training import build_model, fit
 
 TRAINER = TrainerSettings(max_epochs=20, accelerator="cpu", enable_progress_bar=False,
                           enable_model_summary=False)

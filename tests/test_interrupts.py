@@ -21,7 +21,7 @@ from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.interrupts import RunInterrupted, signals_deferred, stopping_on_signals
 from hysteresis_lab.run_folder import RunFolder
 from hysteresis_lab.run_lock import hold_run_folder
-from hysteresis_lab.workflows.pipeline import train_and_evaluate
+from hysteresis_lab.workflows.pipeline import RunConfig, run_model
 from narx import TRAINER, narx_data
 
 DATA = DataSpec.from_config({"window": {"na": 4, "nb": 4, "nk": 1},
@@ -51,10 +51,9 @@ class _CountEpochs(L.Callback):
 
 
 def _train(folder: Path, epochs: int, callbacks: list, **settings):
-    return train_and_evaluate(
-        FFNN, DATA, TRAINER.with_changes(max_epochs=epochs), folder, splits=narx_data(600),
-        use_tensorboard=False, plots=False, callbacks=callbacks, **settings,
-    )
+    config = RunConfig.build(FFNN, DATA, TRAINER.with_changes(max_epochs=epochs), folder,
+                             use_tensorboard=False, plots=False, **settings)
+    return run_model(config, splits=narx_data(600), callbacks=callbacks)
 
 
 def _checkpoints(folder: Path) -> list[str]:
@@ -118,13 +117,12 @@ class _StopAtTheEnd(L.Callback):
 
 
 def test_a_stage_that_early_stopping_ended_trains_no_further_epoch_when_resumed(tmp_path):
-    free_run = {**FFNN, "objective": "simulation", "horizon": 20, "patience": 1}
+    free_run = {"objective": "simulation", "horizon": 20, "patience": 1}
 
     def train(callbacks):
-        return train_and_evaluate(
-            free_run, DATA, TRAINER.with_changes(max_epochs=10), tmp_path,
-            splits=narx_data(600), use_tensorboard=False, plots=False, callbacks=callbacks,
-        )
+        config = RunConfig.build(FFNN, DATA, TRAINER.with_changes(max_epochs=10), tmp_path,
+                                 free_run, use_tensorboard=False, plots=False)
+        return run_model(config, splits=narx_data(600), callbacks=callbacks)
 
     first = _CountEpochs()
     with pytest.raises(RunInterrupted):

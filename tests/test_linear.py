@@ -13,10 +13,10 @@ from hysteresis_lab.blocks.sections import StableSections, arx_least_squares
 from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.evaluation.predict import free_run
+from hysteresis_lab.fitting import build_model, fit
+from hysteresis_lab.lightning_trainer import TrainerSettings
 from hysteresis_lab.models.augment import augment_splits, context_to_dict
 from hysteresis_lab.sim.default_dataset import make_default_dataset
-from hysteresis_lab.trainer import TrainerSettings
-from hysteresis_lab.training import build_model, fit
 
 TRAINER = TrainerSettings(max_epochs=5, accelerator="cpu", enable_progress_bar=False,
                           enable_model_summary=False)

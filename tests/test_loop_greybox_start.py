@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 from hysteresis_lab.data.spec import DataSpec
+from hysteresis_lab.lightning_trainer import TrainerSettings
 from hysteresis_lab.loop.driver import LoopSettings, held_effects, run_loop
 from hysteresis_lab.models.spec import ModelSpec
 from hysteresis_lab.sim.default_dataset import make_default_dataset
-from hysteresis_lab.trainer import TrainerSettings
 
 TRAINER = TrainerSettings(max_epochs=2, accelerator="cpu", devices=1, enable_progress_bar=False,
                           enable_model_summary=False)

@@ -15,6 +15,7 @@ from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.errors import ConfigError, DataError, DivergedError
+from hysteresis_lab.lightning_trainer import TrainerSettings
 from hysteresis_lab.loop.data import loop_data
 from hysteresis_lab.loop.diagnosis.ranking import diagnose
 from hysteresis_lab.loop.driver import (
@@ -27,7 +28,6 @@ from hysteresis_lab.loop.driver import (
 from hysteresis_lab.models.augment import feature_context
 from hysteresis_lab.signals import multisine
 from hysteresis_lab.sim.default_dataset import make_default_dataset
-from hysteresis_lab.trainer import TrainerSettings
 from hysteresis_lab.workflows.pipeline import RunResult
 
 FS = 100.0

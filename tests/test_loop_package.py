@@ -18,9 +18,9 @@ PROCESS_MODULES = ("subprocess", "multiprocessing", "pty")
 #: ``os`` functions that start or replace processes (by prefix)
 PROCESS_CALLS = ("system", "popen", "exec", "spawn", "fork", "posix_spawn")
 #: what the loop's pure analysis may not import: the layers that run fits and commands
-ABOVE_DIAGNOSIS = ("hysteresis_lab.cli", "hysteresis_lab.workflows", "hysteresis_lab.training",
-                   "hysteresis_lab.trainer", "hysteresis_lab.api", "hysteresis_lab.loop.driver",
-                   "hysteresis_lab.loop.checks")
+ABOVE_DIAGNOSIS = ("hysteresis_lab.cli", "hysteresis_lab.workflows", "hysteresis_lab.fitting",
+                   "hysteresis_lab.lightning_trainer", "hysteresis_lab.api",
+                   "hysteresis_lab.loop.driver", "hysteresis_lab.loop.checks")
 
 
 def modules(src: Path, package: str) -> dict[str, Path]:

@@ -21,7 +21,7 @@ def composed_model(model: str, *overrides: str) -> dict:
 
 
 @pytest.mark.parametrize(("model", "own"), [
-    ("ffnn", {}), ("lstm", {}), ("cnn", {}), ("subnet", {"objective": "simulation"}),
+    ("ffnn", {}), ("lstm", {}), ("cnn", {}), ("subnet", {}),
 ])
 def test_every_network_gets_the_shared_settings_and_keeps_its_own(model, own):
     cfg = composed_model(model)
@@ -39,3 +39,11 @@ def test_a_network_config_sets_no_shared_setting_itself_unless_it_differs():
     for model in ("ffnn", "lstm", "cnn"):
         own = OmegaConf.load(CONF / "model" / f"{model}.yaml")
         assert not set(own) & set(SHARED), model
+
+
+def test_training_settings_are_their_own_group_not_the_models():
+    with initialize_config_dir(config_dir=str(CONF), version_base=None):
+        cfg = compose("train", ["model=greybox"])
+    assert "lr" not in cfg.model and "objective" not in cfg.model
+    # unset: each model's own defaults (its class states them)
+    assert set(OmegaConf.to_container(cfg.training).values()) == {None}

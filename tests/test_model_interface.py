@@ -6,6 +6,7 @@ import textwrap
 from importlib.metadata import entry_points
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from hysteresis_lab.errors import ConfigError
@@ -17,6 +18,7 @@ from hysteresis_lab.models.interface import (
     missing_members,
 )
 from hysteresis_lab.models.registry import available_models, get_model_class
+from hysteresis_lab.models.settings import TrainingSettings
 from hysteresis_lab.models.svm import SVMModel
 
 
@@ -87,3 +89,61 @@ def test_a_plugin_network_built_on_narx_module_passes(tmp_path, monkeypatch):
     """, {"wide": "Wide"})
     cls = get_model_class("wide")
     assert cls.__name__ == "Wide" and cls.registry_name == "wide"
+
+
+GRU_SRC = Path(__file__).resolve().parents[1] / "plugins" / "hysteresis_lab_gru" / "src"
+
+
+def test_a_plain_third_party_network_gets_every_capability_of_the_contract_by_default(
+    monkeypatch,
+):
+    monkeypatch.syspath_prepend(str(GRU_SRC))
+    from hysteresis_lab_gru.model import GRUNet
+
+    # what the loop, growing and training read off the class
+    assert GRUNet.is_network and GRUNet.warm_starts and not GRUNet.simulation_trained
+    assert GRUNet.carried_effects is None and GRUNet.whole_refit_effects == ()
+    assert GRUNet.predicts_from_outputs and not GRUNet.whole_recordings
+    assert GRUNet.built_in_effects({"effects": ["creep"]}) == ()
+    assert GRUNet.refit_variants({"name": "gru"}, None, "creep") == [{}]
+    assert GRUNet.growth_stages({"effects": ["creep"]}) == [
+        ("declared", {"effects": ["creep"]}, None)]
+    assert GRUNet.training_defaults() == TrainingSettings().to_dict()
+    assert {"units", "gru_layers", "lr", "effects", "na"} <= GRUNet.settings_keys()
+    # what the evaluation and the warm start read off a model
+    model = GRUNet(nu=1, ny=1, na=2, nb=2, units=4)
+    u = np.zeros((1, 12, 1))
+    assert model.free_run_kernel(u, model.window) is None and not model.simulates_recordings
+    assert model.free_run_split(u)[1] is None and model.baseline is None
+    assert model.new_entries is None and not model.warm_started
+    assert model.hparams["lr"] == 1e-3 and model.hparams["units"] == 4
+    grown = GRUNet(nu=1, ny=1, na=2, nb=2, units=4)
+    grown.warm_start_from(model)
+    assert grown.new_entries == {} and grown.warm_started
+
+
+def test_an_estimator_refuses_what_it_cannot_do_with_the_fix():
+    svm = SVMModel(nu=1, ny=1)
+    assert not svm.is_network and not svm.warm_starts and svm.new_entries is None
+    with pytest.raises(ConfigError, match="loop.warm_start=false"):
+        svm.warm_start_from(svm)
+    with pytest.raises(ConfigError, match="cannot be exported"):
+        svm.export_onnx("unused.onnx")
+
+
+def test_a_complete_class_outside_the_contract_is_refused(tmp_path, monkeypatch):
+    install_plugin(tmp_path, monkeypatch, "bare_models", """
+        class BareEstimator:
+            layout = "flat"
+
+            def fit(self, x, target):
+                return self
+
+            def predict_scaled(self, x):
+                return x[:, :1]
+
+            def predict_physical(self, u_past, y_past):
+                return y_past[:, -1]
+    """, {"bare": "BareEstimator"})
+    with pytest.raises(ConfigError, match=r"does not subclass .*ModelContract.*Fix: subclass"):
+        get_model_class("bare")

@@ -30,12 +30,12 @@ def test_a_model_keeps_the_settings_its_hparams_save():
 @pytest.mark.parametrize(
     ("settings", "names"),
     [
-        ({"lr": 0.0}, "model.lr"),
+        ({"lr": 0.0}, "training.lr"),
         ({"lr_schedule": "linear"}, "lr_schedule"),
-        ({"objective": "free_run"}, "model.objective"),
+        ({"objective": "free_run"}, "training.objective"),
         ({"objective": "simulation", "horizon": 0}, "horizon=0"),
-        ({"patience": 0}, "model.patience"),
-        ({"refit_lr": -1.0}, "model.refit_lr"),
+        ({"patience": 0}, "training.patience"),
+        ({"refit_lr": -1.0}, "training.refit_lr"),
     ],
 )
 def test_bad_training_settings_are_refused_naming_the_setting(settings, names):

@@ -12,9 +12,9 @@ import torch
 
 from hysteresis_lab.errors import ConfigError, DataError
 from hysteresis_lab.evaluation.predict import free_run, one_step
+from hysteresis_lab.fitting import build_model, check_trainer_settings, fit
 from hysteresis_lab.models.io import load_model, save_model
 from hysteresis_lab.models.registry import available_models, get_model_class
-from hysteresis_lab.training import build_model, check_trainer_settings, fit
 from narx import CONFIGS, TRAINER, datamodule_for, narx_data
 
 

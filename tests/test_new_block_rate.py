@@ -6,10 +6,10 @@ from __future__ import annotations
 import pytest
 
 from hysteresis_lab.data.datamodules import WindowDataModule
+from hysteresis_lab.fitting import build_model
 from hysteresis_lab.models.augment import augment_splits, context_to_dict
 from hysteresis_lab.models.linear import LinearModel
 from hysteresis_lab.sim.default_dataset import make_default_dataset
-from hysteresis_lab.training import build_model
 
 
 def _grown(effect: str) -> LinearModel:

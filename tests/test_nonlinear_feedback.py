@@ -14,9 +14,9 @@ from hysteresis_lab.blocks.feedback import closed_loop
 from hysteresis_lab.blocks.sections import arx_least_squares
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.fitting import build_model
 from hysteresis_lab.loop.diagnosis.ranking import diagnose, evidence_lags
 from hysteresis_lab.models.augment import augment_splits, context_to_dict, feature_context
-from hysteresis_lab.training import build_model
 from narx import datamodule_for, narx_data
 
 

@@ -14,9 +14,9 @@ from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.effects.nonlinear_feedback import StaticFeedback
 from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.fitting import build_model
 from hysteresis_lab.models.augment import augment_splits, context_to_dict
 from hysteresis_lab.models.linear import LinearModel
-from hysteresis_lab.training import build_model
 from narx import datamodule_for, narx_data
 
 

@@ -24,23 +24,24 @@ def overridden(**values) -> DictConfig:
 
 
 def test_values_of_the_packaged_type_pass():
-    cfg = overridden(seed=3, model__lr=5, n_step=100, plots=False, model__effects=["creep"],
-                     model__lr_schedule="plateau", trainer__devices="auto", model__num_layers=3)
-    keys = ["seed", "model.lr", "n_step", "plots", "model.effects", "model.lr_schedule",
+    cfg = overridden(seed=3, training__lr=5, n_step=100, plots=False, model__effects=["creep"],
+                     training__lr_schedule="plateau", trainer__devices="auto",
+                     model__num_layers=3)
+    keys = ["seed", "training.lr", "n_step", "plots", "model.effects", "training.lr_schedule",
             "trainer.devices", "model.num_layers"]
     assert type_mismatches(cfg, PACKAGED, keys) == []
 
 
 def test_each_changed_type_is_named_with_its_fix():
-    cfg = overridden(seed="abc", model__lr=True, n_step="x", plots="maybe",
+    cfg = overridden(seed="abc", training__lr=True, n_step="x", plots="maybe",
                      model__effects="creep", data__effects__creep=True)
     problems = type_mismatches(
-        cfg, PACKAGED, ["seed", "model.lr", "n_step", "plots", "model.effects",
+        cfg, PACKAGED, ["seed", "training.lr", "n_step", "plots", "model.effects",
                         "data.effects.creep"],
     )
     assert problems == [
         "seed='abc' must be a whole number. Fix: seed=0",
-        "model.lr=True must be a number. Fix: model.lr=0.001",
+        "training.lr=True must be a number or null. Fix: e.g. training.lr=0.001",
         "n_step='x' must be a whole number or null. Fix: e.g. n_step=null",
         "plots='maybe' must be true or false. Fix: plots=true (true or false)",
         "model.effects='creep' must be a list. Fix: model.effects=[a,b] (brackets even for one "
@@ -52,7 +53,7 @@ def test_each_changed_type_is_named_with_its_fix():
 
 def test_only_the_overridden_keys_are_checked():
     cfg = overridden(seed="abc")
-    assert type_mismatches(cfg, PACKAGED, ["model.lr"]) == []
+    assert type_mismatches(cfg, PACKAGED, ["training.lr"]) == []
 
 
 def test_a_count_takes_only_whole_numbers():
@@ -62,3 +63,14 @@ def test_a_count_takes_only_whole_numbers():
         "seed=1.0 must be a whole number. Fix: seed=0",
         "n_step=2.5 must be a whole number or null. Fix: e.g. n_step=null",
     ]
+
+
+def test_a_training_setting_under_its_old_name_is_renamed_with_a_warning(caplog):
+    from hysteresis_lab.cli._overrides import renamed_overrides
+
+    with caplog.at_level("WARNING"):
+        renamed = renamed_overrides(["model.lr=0.01", "+model.horizon=50", "model.units=8",
+                                     "~model.patience", "model=lstm"])
+    assert renamed == ["training.lr=0.01", "training.horizon=50", "model.units=8",
+                       "~training.patience", "model=lstm"]
+    assert sum("is deprecated" in r.getMessage() for r in caplog.records) == 3

@@ -5,7 +5,7 @@ import os
 import pytest
 
 from hysteresis_lab.errors import ConfigError
-from hysteresis_lab.trainer import TrainerSettings
+from hysteresis_lab.lightning_trainer import TrainerSettings
 from hysteresis_lab.workflows import paper
 from hysteresis_lab.workflows.paper import available_cores, plan_workers
 

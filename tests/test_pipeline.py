@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import replace
 from pathlib import Path
@@ -9,15 +10,16 @@ from pathlib import Path
 import hysteresis_lab as hl
 from hysteresis_lab import fit_record
 from hysteresis_lab.data.spec import DataSpec
+from hysteresis_lab.lightning_trainer import TrainerSettings
+from hysteresis_lab.models.settings import TrainingSettings
+from hysteresis_lab.models.spec import ModelSpec
 from hysteresis_lab.run_folder import RunFolder
-from hysteresis_lab.trainer import TrainerSettings
 from hysteresis_lab.workflows.pipeline import (
     RunConfig,
     RunSettings,
     _fit_record_key,
     plain_dict,
     run_model,
-    train_and_evaluate,
 )
 from narx import CONFIGS, TRAINER, narx_data
 
@@ -27,8 +29,8 @@ DATA = {"window": {"na": 2, "nb": 2, "nk": 1}, "scaling": {"mode": "standard"}}
 def test_a_run_scores_writes_its_folder_and_is_reused_with_the_same_settings(tmp_path, caplog):
     splits = narx_data(600)
     settings = RunSettings(seed=3, use_tensorboard=False, plots=False, reuse=True)
-    config = RunConfig(dict(CONFIGS["ffnn"]), DATA, TRAINER.with_changes(max_epochs=2),
-                       tmp_path / "run", settings)
+    config = RunConfig.build(dict(CONFIGS["ffnn"]), DATA, TRAINER.with_changes(max_epochs=2),
+                             tmp_path / "run", **dataclasses.asdict(settings))
     result = run_model(config, splits=splits)
     folder = RunFolder(tmp_path / "run")
     written = json.loads((tmp_path / "run" / "metrics.json").read_text())
@@ -36,22 +38,19 @@ def test_a_run_scores_writes_its_folder_and_is_reused_with_the_same_settings(tmp
     assert set(written["tests"]) == {"sine1.0", "sine3.0"}
     assert folder.model_file() == tmp_path / "run" / "model.ckpt"
     assert (tmp_path / "run" / fit_record.FIT_RECORD).is_file() and folder.fit_record.is_file()
-    # the keyword form is the same run: its finished fit is found and scored again
+    # the same run built again from its objects: its finished fit is found and scored again
     saved = (tmp_path / "run" / "model.ckpt").stat().st_mtime_ns
     caplog.set_level("INFO", logger="hysteresis_lab.workflows.pipeline")
-    again = train_and_evaluate(
-        dict(CONFIGS["ffnn"]), DataSpec.from_config(DATA), TRAINER.with_changes(max_epochs=2),
-        tmp_path / "run", seed=3,
-        splits=splits, use_tensorboard=False, plots=False, reuse=True,
-    )
+    again = run_model(RunConfig(config.model, DataSpec.from_config(DATA), config.trainer,
+                                tmp_path / "run", settings, config.training), splits=splits)
     assert again.document == result.document and again.val_mse == result.val_mse
     assert "reusing the finished fit" in caplog.text
     assert (tmp_path / "run" / "model.ckpt").stat().st_mtime_ns == saved
 
 
 def test_a_run_without_evaluation_reports_its_validation_loss_only(tmp_path):
-    config = RunConfig(dict(CONFIGS["svm"]), DATA, TRAINER, tmp_path,
-                       RunSettings(use_tensorboard=False, evaluate=False))
+    config = RunConfig.build(dict(CONFIGS["svm"]), DATA, TRAINER, tmp_path,
+                             use_tensorboard=False, evaluate=False)
     result = run_model(config, splits=narx_data(600))
     assert set(result.document) == {"model", "data", "val_mse_scaled", "train_seconds"}
     assert result.document["val_mse_scaled"] == result.val_mse < 1.0
@@ -59,8 +58,8 @@ def test_a_run_without_evaluation_reports_its_validation_loss_only(tmp_path):
 
 
 def test_a_losing_refit_is_set_aside_under_the_run_folders_rejected_names(tmp_path):
-    config = RunConfig(dict(CONFIGS["svm"]), DATA, TRAINER, tmp_path / "run",
-                       RunSettings(use_tensorboard=False, plots=False))
+    config = RunConfig.build(dict(CONFIGS["svm"]), DATA, TRAINER, tmp_path / "run",
+                             use_tensorboard=False, plots=False)
     run_model(config, splits=narx_data(600))
     folder = RunFolder(tmp_path / "run")
     model_file, scores = folder.model_file(), folder.read_metrics()
@@ -82,8 +81,8 @@ def test_a_fit_record_of_the_dict_configs_is_recognised_from_the_typed_ones():
     settings = RunSettings(seed=1, reuse=True)
     data, trainer = plain_dict(cfg.data), plain_dict(cfg.trainer)
     as_dicts = {"model": model, "data": data, "trainer": trainer, "seed": 1, "n_steps": None,
-                "refit": None, "min_refit_gain": 0.0}
-    config = RunConfig(model, DataSpec.from_config(cfg.data),
+                "refit": None, "min_refit_gain": 0.0, "training": TrainingSettings().to_dict()}
+    config = RunConfig(ModelSpec.from_config(model), DataSpec.from_config(cfg.data),
                        TrainerSettings.from_config(cfg.trainer), Path("unused"), settings)
     assert isinstance(config.trainer, TrainerSettings) and isinstance(config.data, DataSpec)
     assert _fit_record_key(config, splits, None) == fit_record.fingerprint(as_dicts, splits, None)

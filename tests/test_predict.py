@@ -10,7 +10,7 @@ from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.errors import ConfigError, DataError
 from hysteresis_lab.evaluation.predict import free_run, n_step, one_step
-from hysteresis_lab.training import build_model
+from hysteresis_lab.fitting import build_model
 from narx import CONFIGS
 
 NAMES = ["ffnn", "lstm", "cnn", "svm"]

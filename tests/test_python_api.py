@@ -77,7 +77,7 @@ def test_train_refuses_the_paper_task():
 @pytest.mark.parametrize(
     ("override", "message"),
     [
-        ("model.lr=abc", "model.lr='abc' must be a number. Fix: model.lr=0.001"),
+        ("model.lr=abc", "training.lr='abc' must be a number or null. Fix: e.g. training.lr=0.001"),
         ("model.effects=creep", "model.effects='creep' must be a list. Fix: model.effects=[a,b]"),
         ("model.num_layers=2.5", "model.num_layers=2.5 must be a whole number. Fix: "),
     ],

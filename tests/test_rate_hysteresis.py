@@ -121,11 +121,11 @@ def test_rate_alone_brings_the_cell_and_the_loop_refits_whole() -> None:
     effect; the loop refits the whole model when it adds ``rate`` (the fitted ``alpha``
     shares the loop width with the gain)."""
     from hysteresis_lab.data.datamodules import WindowDataModule
+    from hysteresis_lab.fitting import build_model
     from hysteresis_lab.loop.driver import _refit_mode
     from hysteresis_lab.models.augment import augment_splits, context_to_dict
     from hysteresis_lab.models.linear import LinearModel
     from hysteresis_lab.sim.default_dataset import make_default_dataset
-    from hysteresis_lab.training import build_model
 
     data = make_default_dataset(effects={}, n_train=2000, test_frequencies=(10.0,),
                                 max_test_samples=500, val_samples=0)

@@ -10,9 +10,9 @@ import torch
 from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.evaluation.predict import free_run
+from hysteresis_lab.fitting import build_model, fit
 from hysteresis_lab.loop.driver import LoopSettings
 from hysteresis_lab.models.augment import augment_splits, context_to_dict
-from hysteresis_lab.training import build_model, fit
 from narx import CONFIGS, TRAINER
 
 
@@ -64,11 +64,11 @@ def test_refit_trains_only_the_new_inputs(name, effect_path, fine_tune, splits, 
         torch.testing.assert_close(value, dict(fitted.named_parameters())[key].detach(),
                                    rtol=0, atol=0, msg=f"{key} moved")
     new = [p.detach()[mask] for n, p in refit.named_parameters()
-           if (mask := refit._new_entries.get(n)) is not None]
+           if (mask := refit.new_entries.get(n)) is not None]
     assert max(float(v.abs().max()) for v in new) > 1e-4  # the new inputs were learned
     with torch.no_grad():  # without the new weights the refit is the fitted network again
         for n, p in refit.named_parameters():
-            if (mask := refit._new_entries.get(n)) is not None:
+            if (mask := refit.new_entries.get(n)) is not None:
                 p[mask] = 0.0
     for a, b in zip(free_run(refit, augmented.test, refit.window),
                     free_run(fitted, splits.test, refit.window), strict=True):
@@ -103,7 +103,7 @@ def test_unknown_refit_is_a_config_error():
 def test_a_refit_fine_tunes_at_the_refit_learning_rate(refit_lr, expected, splits, trained):
     """A refit starts from a fitted network: Adam at the full training rate throws it off its
     minimum in the first steps, so it trains at ``refit_lr`` (default lr / 10)."""
-    from hysteresis_lab.training import stage_lr
+    from hysteresis_lab.fitting import stage_lr
 
     model, *_ = grown_model("ffnn", splits, trained, lr=1e-3, lr_schedule="none",
                             refit_lr=refit_lr)
@@ -117,5 +117,5 @@ def test_a_refit_fine_tunes_at_the_refit_learning_rate(refit_lr, expected, split
 
 
 def test_bad_refit_learning_rate_is_a_config_error(trained):
-    with pytest.raises(ConfigError, match="model.refit_lr"):
+    with pytest.raises(ConfigError, match="training.refit_lr"):
         build_model({**CONFIGS["ffnn"], "refit_lr": -1.0}, trained["ffnn"][1])

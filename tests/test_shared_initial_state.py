@@ -7,7 +7,7 @@ import torch
 
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.splits import DatasetSplits
-from hysteresis_lab.training import build_model
+from hysteresis_lab.fitting import build_model
 from hysteresis_lab.workflows.pipeline import _trained_on
 from narx import datamodule_for, narx_data
 

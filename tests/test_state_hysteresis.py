@@ -15,12 +15,12 @@ from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.evaluation.predict import free_run
+from hysteresis_lab.fitting import build_model, fit
+from hysteresis_lab.lightning_trainer import TrainerSettings
 from hysteresis_lab.loop.driver import _refit_mode
 from hysteresis_lab.models.augment import augment_splits, context_to_dict
 from hysteresis_lab.models.linear import LinearModel
 from hysteresis_lab.signals import multisine
-from hysteresis_lab.trainer import TrainerSettings
-from hysteresis_lab.training import build_model, fit
 
 FS = 100.0
 STIFFNESS = (2 * np.pi * 3.0) ** 2  # k = alpha: a 3 Hz mode whose spring is half hysteretic

@@ -11,8 +11,8 @@ import torch
 from conftest import optional_dependency
 from hysteresis_lab.data.segments import SegmentDataModule
 from hysteresis_lab.evaluation.predict import free_run, n_step, one_step
+from hysteresis_lab.fitting import build_model, fit
 from hysteresis_lab.models.io import load_model, save_model
-from hysteresis_lab.training import build_model, fit
 from narx import TRAINER, datamodule_for
 
 SUBNET = {"name": "subnet", "nx": 4, "neurons": 16, "encoder_neurons": 16, "horizon": 40,

@@ -13,8 +13,8 @@ from hysteresis_lab.blocks.sections import arx_least_squares
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.evaluation.predict import free_run, one_step
+from hysteresis_lab.fitting import _initialise_from_data, build_model
 from hysteresis_lab.models.subnet_init import stabilise
-from hysteresis_lab.training import _initialise_from_data, build_model
 from narx import datamodule_for, narx_data
 
 SUBNET = {"name": "subnet", "nx": 4, "neurons": 16, "encoder_neurons": 16}

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from hysteresis_lab.evaluation.predict import free_run
+from hysteresis_lab.fitting import build_model, fit
 from hysteresis_lab.kernels.svm import SVMKernel
-from hysteresis_lab.training import build_model, fit
 from kernel_checks import step_loop
 from narx import TRAINER, datamodule_for, narx_data
 

@@ -12,8 +12,12 @@ from lightning.pytorch.callbacks import TQDMProgressBar
 from omegaconf import OmegaConf
 
 from hysteresis_lab.errors import ConfigError
-from hysteresis_lab.trainer import PROGRESS_BAR_REFRESH_BATCHES, TrainerSettings, build_trainer
-from hysteresis_lab.training import check_trainer_settings
+from hysteresis_lab.fitting import check_trainer_settings
+from hysteresis_lab.lightning_trainer import (
+    PROGRESS_BAR_REFRESH_BATCHES,
+    TrainerSettings,
+    build_trainer,
+)
 
 PACKAGED = Path(__file__).resolve().parents[1] / "src/hysteresis_lab/conf/trainer/default.yaml"
 QUIET = {"logger": False, "enable_checkpointing": False}

@@ -169,7 +169,7 @@ def test_a_worker_dead_right_after_asking_is_seen_dead_at_once(tmp_path):
 @pytest.mark.parametrize(
     ("override", "message"),
     [
-        ("model.lr=tag(log, interval(1e-3, 1e-4))",
+        ("training.lr=tag(log, interval(1e-3, 1e-4))",
          r"invalid search space in hydra\.sweeper\.params: .*\(low=0\.001, high=0\.0001\)"),
         ("hydra.sweeper.sampler=bayes", r"unknown sampler 'bayes'"),
         ("+model.neuronz=range(1,3)",
@@ -218,7 +218,7 @@ def test_nan_trial_fails_and_the_study_goes_on(tmp_path, csv_data):
         *sweep_args(
             results,
             2,
-            "model.lr=tag(log, interval(1e8, 1e9))",
+            "training.lr=tag(log, interval(1e8, 1e9))",
             "trainer.max_epochs=3",
         ),
     )
@@ -231,12 +231,13 @@ def test_nan_trial_fails_and_the_study_goes_on(tmp_path, csv_data):
 
 #: each architecture's search space in conf/hparams_search/<name>.yaml
 SEARCH_SPACES = {
-    "lstm": {"model.num_layers", "model.lstm_layers", "model.units", "model.lr"},
+    "lstm": {"model.num_layers", "model.lstm_layers", "model.units", "training.lr"},
     "cnn": {"model.num_layers", "model.conv_layers", "model.units", "model.kernel_size",
-            "model.lr"},
+            "training.lr"},
     "svm": {"model.kernel", "model.C", "model.degree", "model.gamma"},
-    "subnet": {"model.nx", "model.neurons", "model.hidden_layers", "model.lr", "model.horizon"},
-    "greybox": {"model.hysteresis", "model.n_modes", "model.delay", "model.lr"},
+    "subnet": {"model.nx", "model.neurons", "model.hidden_layers", "training.lr",
+               "training.horizon"},
+    "greybox": {"model.hysteresis", "model.n_modes", "model.delay", "training.lr"},
 }
 #: the learning-rate range each search config gives (the study's for its four)
 LR_RANGES = {"subnet": (1e-4, 1e-2), "greybox": (1e-3, 1e-1)}
@@ -261,7 +262,7 @@ def test_each_architectures_search_config_runs_trials(name, tmp_path, csv_data):
     for trial in trials:
         assert set(trial.params) == SEARCH_SPACES[name]
         low, high = LR_RANGES.get(name, (1e-4, 1e-3))
-        assert low <= trial.params.get("model.lr", low) <= high
+        assert low <= trial.params.get("training.lr", low) <= high
     best = results / "best" / "experiment" / f"best_{name}_csv.yaml"
     assert f"override /model: {name}" in best.read_text()
 

@@ -14,6 +14,7 @@ import pytest
 
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.spec import DataSpec
+from hysteresis_lab.lightning_trainer import TrainerSettings
 from hysteresis_lab.loop.diagnosis.ranking import (
     MAX_SKIPPED_SHARE,
     _holds_input,
@@ -28,7 +29,6 @@ from hysteresis_lab.models.augment import feature_context
 from hysteresis_lab.signals import multisine, sine
 from hysteresis_lab.sim.default_dataset import make_default_dataset
 from hysteresis_lab.sim.positioner import simulate_recording
-from hysteresis_lab.trainer import TrainerSettings
 
 FS = 2000.0
 #: the small positioner: modes inside the band 2 kHz can show

@@ -14,7 +14,6 @@ from hysteresis_lab.data.factory import build_datamodule
 from hysteresis_lab.data.readers import write_csv
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.spec import DataSpec
-from hysteresis_lab.evaluation.predict import _scaler
 from hysteresis_lab.models.io import load_model
 
 CONF = Path(__file__).resolve().parents[1] / "src" / "hysteresis_lab" / "conf"
@@ -77,7 +76,7 @@ def test_the_fitted_scaling_is_logged_and_saved_with_the_model(files, tmp_path):
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "scaling=standard" in proc.stdout + proc.stderr
-    scaler = _scaler(load_model(tmp_path / "run" / "model.ckpt"))
+    scaler = load_model(tmp_path / "run" / "model.ckpt").scaler
     data = p885_like(1400)
     np.testing.assert_allclose(scaler.y_offset, [data.y.mean()], rtol=1e-5)
     np.testing.assert_allclose(scaler.y_scale, [data.y.std()], rtol=1e-5)

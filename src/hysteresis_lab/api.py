@@ -40,12 +40,19 @@ def compose(*overrides: str, config: str = "train") -> DictConfig:
     """The packaged config ``config`` (``train``, ``loop``, ``evaluate``, ``simulate``) with
     Hydra ``overrides`` such as ``"model=lstm"`` or ``"trainer.max_epochs=20"``, composed and
     checked as the console app of that name does: an unknown group choice or an override
-    that changes a value's type (``model.lr=abc``) is a `ConfigError` naming the fix."""
+    that changes a value's type (``training.lr=abc``) is a `ConfigError` naming the fix; a
+    training setting under its old name (``model.lr=1e-4``) is taken as its new one
+    (``training.lr``), with a deprecation warning."""
     from hydra import compose as hydra_compose
     from hydra import initialize_config_module
 
-    from hysteresis_lab.cli._overrides import check_group_choices, check_overrides
+    from hysteresis_lab.cli._overrides import (
+        check_group_choices,
+        check_overrides,
+        renamed_overrides,
+    )
 
+    overrides = tuple(renamed_overrides(list(overrides)))
     check_group_choices(config, list(overrides))
     with warnings.catch_warnings():
         # outputs/optuna/best exists only after a finished sweep; until then its search-path

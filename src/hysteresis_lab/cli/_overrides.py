@@ -1,6 +1,6 @@
 """Check that command-line overrides keep the type of the packaged value they replace.
 
-The configs are plain YAML, so OmegaConf takes ``model.lr=abc`` or ``loop.warm_start=maybe``
+The configs are plain YAML, so OmegaConf takes ``training.lr=abc`` or ``loop.warm_start=maybe``
 as strings and the mistake surfaces later as a traceback deep inside a library (or, worse, a
 truthy string silently counts as ``true``). Before a command does any work, every value an
 override changed is compared with the value the packaged configs give the same key (composed
@@ -14,6 +14,10 @@ A group choice (``model=<name>``, ``data=<name>``) is checked before Hydra compo
 an unknown name is one line that lists the public choices (not the ``_``-prefixed internal
 entries such as ``_network``) and the fix. The console apps and `hysteresis_lab.api.compose`
 run the same two checks (`check_group_choices`, `check_overrides`).
+
+Training settings moved from ``model`` to their own group (``training``); an override of
+one under its old name (``model.lr=1e-4``) is rewritten to the new key before Hydra composes
+(`renamed_overrides`), with one deprecation warning naming it.
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ from hydra.core.override_parser.types import Override, OverrideType
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from hysteresis_lab.errors import ConfigError, HysteresisLabError
+from hysteresis_lab.models.settings import TRAINING_SETTINGS
 
 log = logging.getLogger(__name__)
 
@@ -38,10 +43,18 @@ WHOLE = "a whole number"
 #: keys whose packaged value is null (off / automatic) but which take a number when set,
 #: with the kind of number they take
 NULLABLE_NUMBERS = {
-    "n_step": WHOLE, "model.simulation_lr": NUMBER,
-    "model.simulation_epochs": WHOLE, "model.patience": WHOLE, "model.refit_lr": NUMBER,
-    "trainer.gradient_clip_val": NUMBER, "data.fs": NUMBER,
+    "n_step": WHOLE, "training.lr": NUMBER, "training.weight_decay": NUMBER,
+    "training.horizon": WHOLE, "training.simulation_lr": NUMBER,
+    "training.simulation_epochs": WHOLE, "training.patience": WHOLE,
+    "training.refit_lr": NUMBER, "trainer.gradient_clip_val": NUMBER, "data.fs": NUMBER,
     "data.splits.train_sine_amplitude": NUMBER,
+}
+
+#: a value to show in the fix for a nullable key whose null means "the model's own"
+NULLABLE_EXAMPLES = {
+    "training.lr": "0.001", "training.weight_decay": "0.0", "training.horizon": "200",
+    "training.simulation_epochs": "5", "training.simulation_lr": "0.0001",
+    "training.patience": "10", "training.refit_lr": "0.0001",
 }
 #: keys whose packaged value is a number but which also take other types (Lightning's
 #: ``devices`` takes "auto" or a list of device indices)
@@ -92,7 +105,9 @@ def type_mismatches(cfg: DictConfig, reference: DictConfig, keys: list[str]) -> 
         if packaged is None and key in NULLABLE_NUMBERS:
             expected = NULLABLE_NUMBERS[key]
             if value is not None and not _keeps(expected, value):
-                problems.append(f"{key}={value!r} must be {expected} or null. Fix: e.g. {key}=null")
+                example = NULLABLE_EXAMPLES.get(key, "null")
+                problems.append(
+                    f"{key}={value!r} must be {expected} or null. Fix: e.g. {key}={example}")
             continue
         expected = _kind(packaged)
         if expected is None or value is None or _keeps(expected, value):
@@ -195,6 +210,30 @@ def check_group_choices(config_name: str, overrides: list[str]) -> None:
             f"unknown {group} '{name}'. Valid: {', '.join(public)}. Fix: {group}=<one of "
             f"those>, e.g. {group}={public[0]}{plugin}."
         )
+
+
+def renamed_overrides(overrides: list[str]) -> list[str]:
+    """``overrides`` with each training setting given under its old name (``model.lr=1e-4``,
+    also ``+model.lr=...``) under its new one (``training.lr=1e-4``), one deprecation
+    warning per rewritten override."""
+    renamed = []
+    for override in overrides:
+        prefix = override[: len(override) - len(override.lstrip("+~"))]
+        key, sep, value = override[len(prefix):].partition("=")
+        group, _, name = key.partition(".")
+        if group == "model" and name in TRAINING_SETTINGS:
+            new = f"training.{name}{sep}{value}"
+            log.warning("model.%s is deprecated: training settings have their own group. "
+                        "Fix: %s", name, new)
+            override = ("~" if prefix.startswith("~") else "") + new
+        renamed.append(override)
+    return renamed
+
+
+def rename_command_line_overrides() -> None:
+    """`renamed_overrides` on a console app's command line (``sys.argv``), before Hydra
+    reads it."""
+    sys.argv[1:] = renamed_overrides(sys.argv[1:])
 
 
 def exit_on_unknown_choice(config_name: str, argv: list[str] | None = None) -> None:

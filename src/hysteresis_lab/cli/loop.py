@@ -26,7 +26,7 @@ from omegaconf import DictConfig, OmegaConf
 from hysteresis_lab._console import SUMMARY, filter_library_warnings, log_file, terminal
 from hysteresis_lab.cli._app import CONFIG_PATH, report_errors
 from hysteresis_lab.cli._interrupt import interruptible, run_console_app
-from hysteresis_lab.cli._overrides import exit_on_unknown_choice
+from hysteresis_lab.cli._overrides import exit_on_unknown_choice, rename_command_line_overrides
 from hysteresis_lab.errors import HysteresisLabError
 from hysteresis_lab.run_folder import LoopFolder
 
@@ -49,8 +49,8 @@ def run_config(cfg: DictConfig, output_dir: Path) -> dict:
     from hysteresis_lab.data.factory import build_splits
     from hysteresis_lab.data.spec import DataSpec
     from hysteresis_lab.errors import ConfigError
+    from hysteresis_lab.lightning_trainer import TrainerSettings
     from hysteresis_lab.loop.driver import LoopSettings, run_loop
-    from hysteresis_lab.trainer import TrainerSettings
 
     settings = OmegaConf.to_container(cfg.loop, resolve=True)
     unknown = set(settings) - set(LoopSettings.__dataclass_fields__)
@@ -73,6 +73,7 @@ def run_config(cfg: DictConfig, output_dir: Path) -> dict:
         loop_settings,
         seed=cfg.seed,
         use_tensorboard=bool(cfg.logger.enabled),
+        training=OmegaConf.to_container(cfg.training, resolve=True),
     )
 
 
@@ -129,6 +130,7 @@ def _main(cfg: DictConfig) -> None:
 def main() -> None:
     """Console-script entry point."""
     filter_library_warnings()
+    rename_command_line_overrides()
     exit_on_unknown_choice("loop")
     run_console_app(_main)
 

@@ -22,7 +22,7 @@ from omegaconf import DictConfig, OmegaConf
 from hysteresis_lab._console import filter_library_warnings, terminal
 from hysteresis_lab.cli._app import CONFIG_PATH, report_errors
 from hysteresis_lab.cli._interrupt import interruptible, run_console_app
-from hysteresis_lab.cli._overrides import exit_on_unknown_choice
+from hysteresis_lab.cli._overrides import exit_on_unknown_choice, rename_command_line_overrides
 from hysteresis_lab.errors import ConfigError
 
 log = logging.getLogger(__name__)
@@ -33,7 +33,7 @@ log = logging.getLogger(__name__)
 def run(cfg: DictConfig) -> float | None:
     """Run the task the composed config describes; return the sweep objective."""
     from hysteresis_lab.data.spec import DataSpec
-    from hysteresis_lab.trainer import TrainerSettings
+    from hysteresis_lab.lightning_trainer import TrainerSettings
     from hysteresis_lab.tuning.pruning import trial_callback
     from hysteresis_lab.workflows.paper import run_paper
     from hysteresis_lab.workflows.pipeline import train_from_config
@@ -51,6 +51,7 @@ def run(cfg: DictConfig) -> float | None:
             use_tensorboard=use_tensorboard,
             workers=cfg.paper.get("workers", "auto"),
             resume=bool(cfg.paper.get("resume", True)),
+            training=OmegaConf.to_container(cfg.training, resolve=True),
         )
         return None
     if cfg.task != "train":
@@ -98,6 +99,7 @@ def _main(cfg: DictConfig) -> float | None:
 def main() -> None:
     """Console-script entry point."""
     filter_library_warnings()
+    rename_command_line_overrides()
     exit_on_unknown_choice("train")
     run_console_app(_main)
 

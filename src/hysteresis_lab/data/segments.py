@@ -37,7 +37,7 @@ class SegmentDataModule(L.LightningDataModule):
         super().__init__()
         if steps < 1:
             raise ConfigError(
-                f"model.horizon={steps} must be >= 1 for simulation-error training."
+                f"training.horizon={steps} must be >= 1 for simulation-error training."
             )
         self.windows = windows
         self.length = windows.window.first_target + steps
@@ -57,7 +57,7 @@ class SegmentDataModule(L.LightningDataModule):
                 raise ConfigError(
                     f"only {len(train_u)} free-run segment(s) of {self.length} samples fit in the "
                     "training data; none would be left for training after the validation share. "
-                    "Fix: a smaller model.horizon."
+                    "Fix: a smaller training.horizon."
                 )
             val_u, val_y, train_u, train_y = (
                 train_u[val],
@@ -89,15 +89,15 @@ class SegmentDataModule(L.LightningDataModule):
         most = longest - self.windows.window.first_target
         if not us:
             raise ConfigError(
-                f"free-run segments of {self.length} samples (model.horizon plus the "
+                f"free-run segments of {self.length} samples (training.horizon plus the "
                 f"{self.windows.window.first_target} initial samples) do not fit in recordings "
-                f"of at most {longest} samples. Fix: model.horizon={max(1, most)} or less."
+                f"of at most {longest} samples. Fix: training.horizon={max(1, most)} or less."
             )
         short = [rec.name for rec in recordings if rec.n_samples < self.length]
         if short:
             log.warning(
                 "recordings %s are shorter than one free-run segment (%d samples) and take no "
-                "part in simulation-error training; model.horizon=%d or less would use them",
+                "part in simulation-error training; training.horizon=%d or less would use them",
                 short, self.length, min(r.n_samples for r in recordings)
                 - self.windows.window.first_target,
             )

@@ -19,7 +19,6 @@ import numpy as np
 import torch
 
 from hysteresis_lab.data.recording import Recording
-from hysteresis_lab.data.scaling import Scaler
 from hysteresis_lab.data.windows import WindowSpec, assemble, make_windows
 from hysteresis_lab.errors import ConfigError, DataError
 from hysteresis_lab.kernels.interface import sequence_masks
@@ -29,14 +28,14 @@ from hysteresis_lab.models.interface import SystemModel
 def _check(model: Any, recordings: Sequence[Recording], window: WindowSpec) -> None:
     if not recordings:
         raise DataError("there are no recordings to predict.", fix="supply test recordings")
-    own = getattr(model, "window", None)
-    if own is not None and own != window:
+    own = model.window
+    if own != window:
         raise ConfigError(
             f"the model was built for lags na={own.na}, nb={own.nb}, nk={own.nk} but the data "
             f"window is na={window.na}, nb={window.nb}, nk={window.nk}. Fix: evaluate with the "
             "model's window (hysteresis_lab.models.io.model_window(model))."
         )
-    trained_on = dict(getattr(model, "hparams", {}) or {}).get("trained_on") or {}
+    trained_on = dict(model.hparams or {}).get("trained_on") or {}
     for rec in recordings:
         _check_recorded_like_training(rec, trained_on)
         if (rec.nu, rec.ny) != (model.nu, model.ny):
@@ -77,17 +76,6 @@ def _check_recorded_like_training(rec: Recording, trained_on: dict[str, Any]) ->
         )
 
 
-def _scaler(model: Any) -> Scaler:
-    if isinstance(model, torch.nn.Module):
-        return Scaler(
-            *(
-                getattr(model, k).detach().cpu().numpy().astype(float)
-                for k in ("u_offset", "u_scale", "y_offset", "y_scale")
-            )
-        )
-    return model.scaler
-
-
 def one_step(
     model: SystemModel,
     recordings: Sequence[Recording],
@@ -96,10 +84,10 @@ def one_step(
 ) -> list[np.ndarray]:
     """Predict each sample from measured past inputs and outputs (a model that does not read
     measured outputs, ``predicts_from_outputs = False``, predicts by its free run)."""
-    if not getattr(model, "predicts_from_outputs", True):
+    if not model.predicts_from_outputs:
         return free_run(model, recordings, window)
     _check(model, recordings, window)
-    s = _scaler(model)
+    s = model.scaler
     outputs = []
     for rec in recordings:
         w = make_windows(rec, window, dtype=np.float64)
@@ -109,19 +97,11 @@ def one_step(
         predicted = np.empty((len(w), rec.ny))
         for start in range(0, len(x), batch_size):
             chunk = x[start : start + batch_size]
-            predicted[start : start + batch_size] = _forward_batch(model, chunk)
+            predicted[start : start + batch_size] = model.predict_scaled(chunk)
         y_hat = np.array(rec.y, dtype=float)
         y_hat[window.first_target :] = predicted * s.y_scale + s.y_offset
         outputs.append(y_hat)
     return outputs
-
-
-def _forward_batch(model: Any, x: np.ndarray) -> np.ndarray:
-    if isinstance(model, torch.nn.Module):
-        device = next(model.parameters()).device
-        with torch.inference_mode():
-            return model(torch.from_numpy(x).to(device)).double().cpu().numpy()
-    return model.predict_scaled(x)
 
 
 def free_run(
@@ -184,7 +164,7 @@ def _simulate(
     Recordings run longest first, so the ones still running are always the leading rows
     (finished ones drop out of the batch instead of being simulated on padding).
     """
-    s = _scaler(model)
+    s = model.scaler
     ft = window.first_target
     order = sorted(range(len(recordings)), key=lambda i: -recordings[i].n_samples)
     recs = [recordings[i] for i in order]
@@ -208,12 +188,8 @@ def _simulate(
     return out
 
 
-def _on_cpu(model: Any, device: str | torch.device | None) -> bool:
-    if device is not None:
-        return torch.device(device).type == "cpu"
-    if isinstance(model, torch.nn.Module):
-        return next(model.parameters()).device.type == "cpu"
-    return True
+def _on_cpu(model: SystemModel, device: str | torch.device | None) -> bool:
+    return torch.device(device if device is not None else model.device).type == "cpu"
 
 
 def _run(
@@ -227,22 +203,19 @@ def _run(
     fast: bool = True,
 ) -> np.ndarray:
     """Scaled simulation of all rows: measured lags up to ``first_target``, then predictions."""
-    simulate = getattr(model, "simulate_recordings", None)
-    if simulate is not None:  # a state-space model runs its own state (StateSpaceModule)
-        model_device = next(model.parameters()).device
+    if model.simulates_recordings:  # a state-space model runs its own state
+        model_device = model.device
         model.to(torch.device(device) if device is not None else model_device)
         try:
             lengths = (active[None, :] > np.arange(u.shape[0])[:, None]).sum(axis=1)
-            return simulate(u, y_meas, reset, window, lengths)
+            return model.simulate_recordings(u, y_meas, reset, window, lengths)
         finally:
             model.to(model_device)
-    split = getattr(model, "free_run_split", None)
-    u, term = split(u) if split is not None else (u, None)  # see NarxModule.free_run_split
-    factory = getattr(model, "free_run_kernel", None) if fast else None
-    kernel = factory(u, window) if factory is not None and _on_cpu(model, device) else None
+    u, term = model.free_run_split(u)  # see NarxModule.free_run_split
+    kernel = model.free_run_kernel(u, window) if fast and _on_cpu(model, device) else None
     if kernel is not None and not (kernel.stateful and reset.any()):
         return _loop_kernel(_with_term(kernel, term), y_meas, reset, active, window)
-    if isinstance(model, torch.nn.Module):
+    if model.is_network:
         return _loop_torch(model, u, y_meas, reset, active, window, device, term)
     return _loop_kernel(_GenericKernel(model, u, window), y_meas, reset, active, window)
 
@@ -307,7 +280,7 @@ def _loop_kernel(
 
 
 def _loop_torch(
-    model: torch.nn.Module,
+    model: Any,
     u: np.ndarray,
     y_meas: np.ndarray,
     reset: np.ndarray,
@@ -324,9 +297,9 @@ def _loop_torch(
     """
     ft, na, nb, nk, length = window.first_target, window.na, window.nb, window.nk, window.seq_len
     nu = u.shape[2]
-    device = torch.device(device) if device is not None else next(model.parameters()).device
-    original = next(model.parameters()).device
-    net = getattr(model, "net", model)
+    device = torch.device(device) if device is not None else model.device
+    original = model.device
+    net = model.net
     model.to(device)
     restart_steps = set(np.flatnonzero(reset.any(axis=1)).tolist())
     try:

@@ -39,6 +39,7 @@ from hysteresis_lab.evaluation.evaluate import scoring_start
 from hysteresis_lab.evaluation.plots import loops_figure, save_figure
 from hysteresis_lab.evaluation.predict import free_run
 from hysteresis_lab.evaluation.report import write_json
+from hysteresis_lab.lightning_trainer import TrainerSettings
 from hysteresis_lab.loop.advice import excitation_advice
 from hysteresis_lab.loop.data import LoopData, Stretch, loop_data
 from hysteresis_lab.loop.diagnosis.excitation import operator_excitation
@@ -54,18 +55,18 @@ from hysteresis_lab.loop.report import (
 )
 from hysteresis_lab.models.augment import SETTING as BASELINE_SETTING
 from hysteresis_lab.models.augment import feature_context, for_model
-from hysteresis_lab.models.base import NarxModule
+from hysteresis_lab.models.settings import TrainingSettings
 from hysteresis_lab.models.spec import ModelSpec
 from hysteresis_lab.run_folder import LoopFolder, RunFolder
-from hysteresis_lab.trainer import TrainerSettings
 from hysteresis_lab.workflows.grow import REFIT_LR_FACTORS, refit_mode, refit_rates
-from hysteresis_lab.workflows.pipeline import RunResult, evaluation_device, train_and_evaluate
+from hysteresis_lab.workflows.pipeline import (
+    RunConfig,
+    RunResult,
+    RunSettings,
+    run_model,
+)
 
 log = logging.getLogger(__name__)
-
-#: model settings only networks take
-NETWORK_ONLY = ("effect_path", "refit_lr", "objective", "horizon", "simulation_epochs",
-                "simulation_lr", "patience")
 
 REFITS = ("new_inputs", "full")
 
@@ -91,9 +92,9 @@ class LoopSettings:
     refit: str = "new_inputs"
     #: share of the validation loss a refit must take off to be kept (0: any improvement)
     min_refit_gain: float = 0.0
-    #: a refit runs at each of these multiples of ``model.lr`` and the one with the lowest
-    #: validation free-run loss goes on to the keep-or-reject test (``model.refit_lr``, when
-    #: set, is the only rate tried)
+    #: a refit runs at each of these multiples of ``training.lr`` and the one with the lowest
+    #: validation free-run loss goes on to the keep-or-reject test (``training.refit_lr``,
+    #: when set, is the only rate tried)
     refit_lr_factors: tuple[float, ...] = REFIT_LR_FACTORS
     #: run again in the folder of a stopped loop (``hydra.run.dir``), each fit that finished
     #: there with the same settings, data and start is reused, not trained again
@@ -170,10 +171,12 @@ class _LoopRun:
     """What every round of one loop run shares."""
 
     model: ModelSpec
+    #: how the start model trains (a refit: at its refit rate)
+    training: TrainingSettings
     settings: LoopSettings
     data: LoopData
     context: FeatureContext
-    #: `train_and_evaluate` with the run's data, trainer and bookkeeping settings bound
+    #: `fit_model` with the run's data, trainer and bookkeeping settings bound
     fit_model: Callable[..., RunResult]
     #: `held_out` with the run's data and device bound
     judge: Callable[[RunResult], HeldOut]
@@ -202,7 +205,7 @@ class _LoopState:
 
 
 def run_loop(
-    model_cfg: Mapping[str, Any],
+    model_cfg: Mapping[str, Any] | ModelSpec,
     data_spec: DataSpec,
     trainer: TrainerSettings,
     splits: DatasetSplits,
@@ -210,10 +213,14 @@ def run_loop(
     settings: LoopSettings,
     seed: int = 0,
     use_tensorboard: bool = True,
+    training: Mapping[str, Any] | TrainingSettings | None = None,
 ) -> dict[str, Any]:
-    """Run the loop on ``splits``, the data set of ``data_spec``; write
-    ``loop_report.json``, ``loop_report.md`` and figures."""
-    model = _without_network_only_settings(ModelSpec.from_config(model_cfg))
+    """Run the loop on ``splits``, the data set of ``data_spec``, from the model
+    ``model_cfg`` trained with ``training`` (the ``training`` config, or settings; unset
+    values: the model's own); write ``loop_report.json``, ``loop_report.md`` and figures."""
+    model = model_cfg if isinstance(model_cfg, ModelSpec) else ModelSpec.from_config(model_cfg)
+    if not isinstance(training, TrainingSettings):
+        training = model.training_settings(training)
     if model.settings.get(BASELINE_SETTING):
         raise ConfigError(
             "the loop grows a model from its residual; a start with model.baseline would add "
@@ -225,23 +232,19 @@ def run_loop(
     log.info("loop start: %s", start_label(start))
     data = loop_data(splits, data_spec, settings.holdout)
     log.info("loop data roles: %s", data.roles())
+    bookkeeping = RunSettings(seed=seed, use_tensorboard=use_tensorboard,
+                              min_refit_gain=settings.min_refit_gain, reuse=settings.resume,
+                              resume=settings.resume)
     run = _LoopRun(
         model=model,
+        training=training,
         settings=settings,
         data=data,
         context=feature_context(data.fit.train),
         fit_model=functools.partial(
-            train_and_evaluate,
-            data=data_spec,
-            trainer=trainer,
-            seed=seed,
-            splits=data.fit,
-            use_tensorboard=use_tensorboard,
-            min_refit_gain=settings.min_refit_gain,
-            reuse=settings.resume,
-            resume=settings.resume,
-        ),
-        judge=functools.partial(held_out, data=data, device=evaluation_device(trainer)),
+            fit_model, RunConfig(model, data_spec, trainer, output_dir, bookkeeping, training),
+            data.fit),
+        judge=functools.partial(held_out, data=data, device=trainer.evaluation_device()),
         folder=LoopFolder(output_dir),
         use_tensorboard=use_tensorboard,
         data_spec=data_spec,
@@ -304,14 +307,15 @@ def _fit_round_and_decide(
     log.info("=== loop round %d: effects %s ===", number, round_effects or "none")
     warm_start = (_previous_network([k[0] for k in state.kept])
                   if settings.warm_start else None)
-    model_cfg = {**run.model.to_config(), "effects": round_effects}
-    variants = _refit_variants(run.model.cls, model_cfg, warm_start, trying)
+    model = run.model.with_settings({**run.model.settings, "effects": round_effects})
+    variants = _refit_variants(model, warm_start, trying)
     result, round_dir, refit_lr, losses, check = _fit_round(
         run.fit_model,
         run.judge,
-        model_cfg,
+        model,
+        run.training,
         run.folder.round_dir(number),
-        _refit_rates(run.model.settings, settings) if warm_start is not None else [None],
+        _refit_rates(run.training, settings) if warm_start is not None else [None],
         variants=variants,
         warm_start=warm_start,
         refit=_refit_mode(settings.refit, trying, run.model.cls),
@@ -555,8 +559,7 @@ def next_effect(
 def held_effects(model: ModelSpec, effects: Sequence[str]) -> list[str]:
     """The effects a model holds: those declared and those its structure always has (a
     grey-box's hysteresis cell, `built_in_effects`); the diagnosis looks beyond them."""
-    built_in = getattr(model.cls, "built_in_effects", None)
-    extra = built_in(model.settings) if built_in is not None else ()
+    extra = model.cls.built_in_effects(model.settings)
     return [*effects, *(e for e in extra if e not in effects)]
 
 
@@ -566,7 +569,7 @@ def _not_carried(
     """Significant, input-driven effects the start model's class cannot take (a grey-box
     carries only the effects it has physical blocks for; a network every effect that reaches
     it through its inputs, none that acts on its output)."""
-    carried = getattr(model.cls, "carried_effects", None)
+    carried = model.cls.carried_effects
 
     def carries(effect: str) -> bool:
         if carried is not None:
@@ -606,15 +609,15 @@ def _set_aside_rejected_files(document: dict[str, Any]) -> None:
     document["model_path"] = str(aside)
 
 
-def _without_network_only_settings(model: ModelSpec) -> ModelSpec:
-    """Free-run fine-tuning (on by default in the loop), ``effect_path`` and ``refit_lr`` are
-    network settings; a model that is no network (the SVM) skips them."""
-    network_only = [k for k in model.settings if k in NETWORK_ONLY]
-    if network_only and not issubclass(model.cls, NarxModule):
-        log.info("model '%s' is no network: %s ignored", model.name, network_only)
-        settings = {k: v for k, v in model.settings.items() if k not in network_only}
-        return dataclasses.replace(model, settings=settings)
-    return model
+def fit_model(base: RunConfig, splits: DatasetSplits, model: ModelSpec,
+              training: TrainingSettings, output_dir: Path, warm_start: Any | None,
+              refit: str) -> RunResult:
+    """One fit of the loop: ``base`` (the loop's data, trainer and bookkeeping) with a
+    round's ``model`` and ``training`` settings, in ``output_dir``, started from
+    ``warm_start`` (None: from the data) with that ``refit`` mode."""
+    config = dataclasses.replace(base, model=model, training=training, output_dir=output_dir,
+                                 settings=dataclasses.replace(base.settings, refit=refit))
+    return run_model(config, splits=splits, warm_start=warm_start)
 
 
 def _round_entry(effects: list[str], result: RunResult) -> dict[str, Any]:
@@ -703,14 +706,15 @@ def _from(stretch: Stretch, first: int) -> Recording:
 def _fit_round(
     fit_model: Callable[..., RunResult],
     judge: Callable[[RunResult], HeldOut],
-    model_cfg: dict[str, Any],
+    model: ModelSpec,
+    training: TrainingSettings,
     round_dir: Path,
     rates: list[float] | list[None],
     variants: Sequence[Mapping[str, Any]] = ({},),
     **fit_options: Any,
 ) -> tuple[RunResult, Path, float | None, list[dict[str, Any]], HeldOut]:
-    """Fit a round's model with ``fit_model`` (`train_and_evaluate` bound to the loop's data
-    and settings) once per refit learning rate in ``rates`` (``[None]``: no refit, one fit),
+    """Fit a round's ``model`` with ``fit_model`` (`fit_model` bound to the loop's data and
+    settings) once per refit learning rate in ``rates`` (``[None]``: no refit, one fit),
     each in its own folder when there are several, and score each on the held-out data with
     ``judge``; the one with the lowest held-out validation loss (then training validation
     loss) is returned with its folder, its rate, every rate's losses and its held-out scores
@@ -724,7 +728,8 @@ def _fit_round(
         run_dir = LoopFolder.refit_dir(base, rate, several=len(rates) > 1)
         refit_lr = {"refit_lr": rate} if rate is not None else {}
         try:
-            result = fit_model(model_cfg={**model_cfg, **variant, **refit_lr},
+            result = fit_model(model=model.with_settings({**model.settings, **variant}),
+                               training=training.with_changes(**refit_lr),
                                output_dir=run_dir, **fit_options)
         except DivergedError as exc:
             if rate is None and len(variants) == 1:
@@ -739,7 +744,7 @@ def _fit_round(
         raise DivergedError(
             f"every refit diverged in training (learning rates "
             f"{', '.join(f'{r:.3g}' for r in rates if r is not None)}). Fix: smaller rates, "
-            "e.g. loop.refit_lr_factors=[0.1] or a smaller model.lr."
+            "e.g. loop.refit_lr_factors=[0.1] or a smaller training.lr."
         )
     result, run_dir, rate, check, _ = min(runs, key=lambda run: (run[3].loss,
                                                                  _refit_loss(run[0])))
@@ -755,20 +760,17 @@ def _variant_label(variant: Mapping[str, Any]) -> str:
     return "_".join(f"{key}_{value}" for key, value in variant.items()) or "default"
 
 
-def _refit_variants(model_cls: type | None, model_cfg: Mapping[str, Any], previous: Any | None,
+def _refit_variants(model: ModelSpec, previous: Any | None,
                     added: str | None) -> list[dict[str, Any]]:
     """The model settings a round fits, each a candidate the held-out loss chooses among
     (the class's ``refit_variants``; ``[{}]``: the round's settings alone)."""
-    variants = getattr(model_cls, "refit_variants", None)
-    if variants is None:
-        return [{}]
-    return variants(dict(model_cfg), previous, added) or [{}]
+    return model.cls.refit_variants(model.to_config(), previous, added) or [{}]
 
 
-def _refit_rates(model_cfg: Mapping[str, Any], settings: LoopSettings) -> list[float]:
-    """The learning rates a refit runs at: ``model.refit_lr`` if set, else the loop's
-    multiples of ``model.lr`` (`grow.refit_rates`)."""
-    return refit_rates(model_cfg, settings.refit_lr_factors)
+def _refit_rates(training: TrainingSettings, settings: LoopSettings) -> list[float]:
+    """The learning rates a refit runs at: ``training.refit_lr`` if set, else the loop's
+    multiples of ``training.lr`` (`grow.refit_rates`)."""
+    return refit_rates(training, settings.refit_lr_factors)
 
 
 def _refit_loss(result: RunResult) -> float:
@@ -777,7 +779,7 @@ def _refit_loss(result: RunResult) -> float:
     return float(loss["refit"]) if loss else float("inf")
 
 
-def _refit_mode(refit: str, added: str | None, model_cls: type | None = None) -> str:
+def _refit_mode(refit: str, added: str | None, model_cls: type) -> str:
     """How a round's refit trains (`grow.refit_mode`: the whole model where the added
     effect changes what the fitted part was fitted to)."""
     return refit_mode(added, model_cls, refit)
@@ -785,7 +787,7 @@ def _refit_mode(refit: str, added: str | None, model_cls: type | None = None) ->
 
 def _previous_network(results: list[RunResult]) -> Any | None:
     """The last round's fitted network to start the refit from (None: first round, or SVM)."""
-    if not results or not hasattr(results[-1].model, "warm_start_from"):
+    if not results or not results[-1].model.warm_starts:
         return None
     return results[-1].model
 

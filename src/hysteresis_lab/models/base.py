@@ -4,7 +4,7 @@ A subclass sets ``layout`` ("flat" or "sequence") and builds ``self.net`` mappin
 regressors to the scaled next output. The base owns what every architecture shares:
 normalisation (buffers saved with the weights, so a checkpoint maps volts to micrometres on
 its own), the MSE loss, Adam and the learning-rate schedule, and the differentiable free run
-used by simulation-error training (``objective="simulation"``, see `hysteresis_lab.training`).
+used by simulation-error training (``objective="simulation"``, see `hysteresis_lab.fitting`).
 
 Training objectives (``objective``): ``"one_step"`` is the study's one-step-ahead MSE on
 regression windows; ``"simulation"`` is the free-run MSE over segments of ``horizon`` samples,
@@ -28,7 +28,8 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
+from pathlib import Path
 from typing import Any, ClassVar
 
 import lightning as L
@@ -38,18 +39,21 @@ from lightning.pytorch.plugins.precision import Precision
 from lightning.pytorch.strategies import SingleDeviceStrategy
 from torch import nn
 
-from hysteresis_lab.data.windows import Layout, WindowSpec, assemble
+from hysteresis_lab.data.scaling import Scaler
+from hysteresis_lab.data.windows import Layout, assemble
 from hysteresis_lab.effects.registry import get_effect
 from hysteresis_lab.errors import ConfigError, DivergedError
 from hysteresis_lab.kernels.interface import input_lags
 from hysteresis_lab.models.augment import context_from_dict
-from hysteresis_lab.models.interface import NetworkModel
+from hysteresis_lab.models.interface import ModelContract, NetworkModel
 from hysteresis_lab.models.settings import (
+    MODEL_SETTINGS,
+    TRAINING_SETTINGS,
     EffectSettings,
+    ModelSettings,
     TrainingSettings,
-    as_effect_names,
-    check_channels,
     refuse_output_effects,
+    unknown_settings,
 )
 
 log = logging.getLogger(__name__)
@@ -60,69 +64,37 @@ _STEP_HOOKS = ("on_before_backward", "on_after_backward", "on_before_optimizer_s
 _STEP_BOOKKEEPING = ("_on_before_step", "_on_after_step", "optimizer")
 
 
-class NarxModule(L.LightningModule, NetworkModel):
-    """``y[k] = f(u[k-nk-nb+1 .. k-nk], y[k-na .. k-1])`` with normalisation inside."""
+class NarxModule(L.LightningModule, ModelContract, NetworkModel):
+    """``y[k] = f(u[k-nk-nb+1 .. k-nk], y[k-na .. k-1])`` with normalisation inside.
+
+    Built as ``cls(nu=, ny=, **settings)``: the settings every model shares
+    (`ModelSettings`: lags, scaler, effects, ``trained_on``) and how it trains
+    (`TrainingSettings`), by name; a subclass adds its own keywords before ``**kwargs``.
+    """
 
     layout: ClassVar[Layout] = "flat"
-    registry_name: ClassVar[str] = ""
-    #: the catalogue effects the model can take in ``effects`` (None: every one)
-    carried_effects: ClassVar[tuple[str, ...] | None] = None
-    #: carried effects that change what the fitted dynamics were fitted to: a block taking a
-    #: share of the large-signal gain off what they see (a dead zone: the gain the fit lowered
-    #: to meet it must come back) or one inside their feedback (a restoring force changes the
-    #: loop they sit in). A loop refit adding one trains the whole model
-    whole_refit_effects: ClassVar[tuple[str, ...]] = ()
-    #: True for models built to train on the free-run error alone (no one-step stage)
-    simulation_trained: ClassVar[bool] = False
+    is_network: ClassVar[bool] = True
+    warm_starts: ClassVar[bool] = True
+    #: the keywords ``__init__`` takes through ``**settings`` (`ModelContract.settings_keys`)
+    shared_settings: ClassVar[tuple[str, ...]] = (*MODEL_SETTINGS, *TRAINING_SETTINGS)
 
-    @classmethod
-    def built_in_effects(cls, settings: Mapping[str, Any]) -> tuple[str, ...]:
-        """Catalogue effects the structure holds whatever ``effects`` declares (a grey-box's
-        hysteresis cell), given the model config's ``settings``: the loop's diagnosis counts
-        them as held and never adds them."""
-        return ()
-
-    def __init__(
-        self,
-        nu: int,
-        ny: int,
-        na: int = 10,
-        nb: int = 10,
-        nk: int = 1,
-        scaler: dict[str, Sequence[float]] | None = None,
-        lr: float = 1e-3,
-        lr_schedule: str = "cosine",
-        weight_decay: float = 0.0,
-        effects: Sequence[str] = (),
-        feature_context: dict[str, Any] | None = None,
-        objective: str = "one_step",
-        horizon: int = 200,
-        simulation_epochs: int | None = None,
-        simulation_lr: float | None = None,
-        patience: int | None = None,
-        refit_lr: float | None = None,
-        effect_path: str = "network",
-        n_base_inputs: int | None = None,
-        trained_on: dict[str, Any] | None = None,
-        baseline_channels: int = 0,
-    ) -> None:
+    def __init__(self, nu: int, ny: int, **settings: Any) -> None:
         super().__init__()
-        check_channels(nu, ny)
+        unknown_settings(settings, self.shared_settings, type(self).__name__)
         # checked here, so a bad setting fails before any data is read
-        TrainingSettings(
-            lr=lr, lr_schedule=lr_schedule, weight_decay=weight_decay, objective=objective,
-            horizon=horizon, simulation_epochs=simulation_epochs, simulation_lr=simulation_lr,
-            patience=patience, refit_lr=refit_lr,
-        )
-        effect_settings = EffectSettings(
-            as_effect_names(effects), feature_context, effect_path, n_base_inputs
-        ).checked(nu)
-        self.window = WindowSpec(na=na, nb=nb, nk=nk)
+        model = ModelSettings.from_kwargs(nu, ny, settings)
+        training = TrainingSettings.from_kwargs(settings)
+        effect_settings = model.effects.checked(nu)
+        self.window = model.window
         self.save_hyperparameters()
+        # every setting with its default, as `training_settings` and a checkpoint read them
+        for key, value in {**model.to_kwargs(), **training.to_dict()}.items():
+            self.hparams.setdefault(key, value)
         self.hparams["model_name"] = type(self).registry_name or type(self).__name__
-        self._register_scaler(scaler or {}, nu, ny)
+        self._register_scaler(model.scaler or {}, nu, ny)
         self.nu, self.ny = nu, ny
-        self.n_base_inputs = nu if n_base_inputs is None else n_base_inputs
+        self.n_base_inputs = (nu if effect_settings.n_base_inputs is None
+                              else effect_settings.n_base_inputs)
         self.net: nn.Module = nn.Identity()
         #: weights of the linear effect path, (ny, regressor) flat or (ny, features, L) sequence
         self.effect_weight: nn.Parameter | None = None
@@ -130,14 +102,16 @@ class NarxModule(L.LightningModule, NetworkModel):
         self.input_weight: nn.Parameter | None = None
         self._route_effect_channels(effect_settings)
         self.loss_fn = nn.MSELoss()
-        #: set by `hysteresis_lab.training` while training on free-run segments
+        #: set by `hysteresis_lab.fitting` while training on free-run segments
         self.simulation_mode = False
-        #: the learning rate of the running training stage, set by `hysteresis_lab.training`
+        #: the learning rate of the running training stage, set by `hysteresis_lab.fitting`
         self.stage_lr: float | None = None
         #: (gradient_clip_val, gradient_clip_algorithm) of the running stage, set by
-        #: `hysteresis_lab.training` (a Trainer may not clip under manual optimisation)
+        #: `hysteresis_lab.fitting` (a Trainer may not clip under manual optimisation)
         self.gradient_clipping: tuple[float, str | None] | None = None
         self._skipped_batches = 0
+        #: after `train_new_inputs_only`: each partly trained tensor's kept values and mask
+        self._kept_values: dict[str, tuple[torch.Tensor, torch.Tensor]] = {}
         # manual: a Lightning step may carry a block of batches (see `training_step`)
         self.automatic_optimization = False
 
@@ -175,6 +149,24 @@ class NarxModule(L.LightningModule, NetworkModel):
                 "input_channels", torch.nonzero(to_input).flatten(), persistent=False
             )
             self.input_weight = nn.Parameter(torch.zeros(self.n_base_inputs, int(to_input.sum())))
+
+    @property
+    def scaler(self) -> Scaler:
+        """The normalisation it keeps with its weights (offsets and scales per channel)."""
+        return Scaler(*(getattr(self, k).detach().cpu().numpy().astype(float)
+                        for k in ("u_offset", "u_scale", "y_offset", "y_scale")))
+
+    def predict_scaled(self, x: np.ndarray) -> np.ndarray:
+        """Scaled regressors (float32, the class's layout) -> scaled next outputs (N, ny),
+        computed on the device of its weights."""
+        with torch.inference_mode():
+            return self(torch.from_numpy(x).to(self.device)).cpu().numpy()
+
+    def export_onnx(self, path: Path | str, opset: int = 17) -> Path:
+        """ONNX in physical units (`hysteresis_lab.models.export.export_onnx`)."""
+        from hysteresis_lab.models.export import export_onnx
+
+        return export_onnx(self, path, opset)
 
     @property
     def training_settings(self) -> TrainingSettings:
@@ -375,13 +367,13 @@ class NarxModule(L.LightningModule, NetworkModel):
         """After `warm_start_from`: train only the weights of the new input channels (the
         added effect's operators); every other weight stays exactly as fitted, so a refit
         learns what the new operators add and nothing else moves (nested models)."""
-        new_entries = getattr(self, "_new_entries", None)
+        new_entries = self.new_entries
         if not new_entries:
             raise ConfigError(
                 "train_new_inputs_only needs a warm start (warm_start_from) from a model with "
                 "fewer inputs: there are no new input weights to train."
             )
-        self._kept_values: dict[str, tuple[torch.Tensor, torch.Tensor]] = {}
+        self._kept_values = {}
         for name, parameter in self.named_parameters():
             mask = new_entries.get(name)
             parameter.requires_grad_(mask is not None)
@@ -393,7 +385,7 @@ class NarxModule(L.LightningModule, NetworkModel):
     @property
     def new_inputs_only(self) -> bool:
         """True after `train_new_inputs_only`."""
-        return bool(getattr(self, "_kept_values", None))
+        return bool(self._kept_values)
 
     def _keep_old_entries(self) -> None:
         """After an optimiser step with `train_new_inputs_only`: put back the old entries of
@@ -516,8 +508,8 @@ class NarxModule(L.LightningModule, NetworkModel):
             raise DivergedError(
                 f"every batch of epoch {self.current_epoch} gave a non-finite loss "
                 f"({'free-run' if self.simulation_mode else 'one-step'} error): the model "
-                "diverged. Fix: a smaller model.lr (or model.simulation_lr), a shorter "
-                "model.horizon, or trainer.gradient_clip_val=0.5."
+                "diverged. Fix: a smaller training.lr (or training.simulation_lr), a shorter "
+                "training.horizon, or trainer.gradient_clip_val=0.5."
             )
         if self._skipped_batches:
             log.warning(
@@ -564,7 +556,7 @@ class NarxModule(L.LightningModule, NetworkModel):
     def _parameter_groups(self, lr: float) -> list[dict[str, Any]]:
         """The trainable parameters; in a whole refit (warm-started, not new-inputs-only)
         the new ones at `new_block_lr_factor` times ``lr``."""
-        new = getattr(self, "_new_entries", None) or {}
+        new = self.new_entries or {}
         named = [(n, p) for n, p in self.named_parameters() if p.requires_grad]
         if not new or self.new_inputs_only or self.new_block_lr_factor == 1.0:
             return [{"params": [p for _, p in named], "lr": lr}]

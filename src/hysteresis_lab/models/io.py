@@ -41,7 +41,7 @@ def save_model(model: SystemModel, path: Path) -> Path:
     path that cannot be written (a file where a folder should be, no permission, a full disk)
     is a `DataError` naming it and the fix."""
     path = Path(path)
-    target = path.with_suffix(".ckpt" if isinstance(model, torch.nn.Module) else ".skops")
+    target = path.with_suffix(".ckpt" if model.is_network else ".skops")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         _write(model, target)
@@ -57,17 +57,16 @@ def save_model(model: SystemModel, path: Path) -> Path:
 
 
 def _write(model: SystemModel, target: Path) -> None:
-    if isinstance(model, torch.nn.Module):
-        name = getattr(model, "registry_name", "") or type(model).__name__
+    if model.is_network:
+        name = model.registry_name or type(model).__name__
         checkpoint = {
             "format": FORMAT,
             "model_name": name,
             "hyper_parameters": _plain(dict(model.hparams)),
             "state_dict": model.state_dict(),
         }
-        baseline = getattr(model, "baseline", None)
-        if baseline is not None:  # the model reads its free run: it travels along
-            checkpoint["baseline"] = baseline.to_checkpoint()
+        if model.baseline is not None:  # the model reads its free run: it travels along
+            checkpoint["baseline"] = model.baseline.to_checkpoint()
         try:
             torch.save(checkpoint, target)
         except RuntimeError as exc:  # how torch reports a file it cannot open

@@ -1,16 +1,22 @@
-"""The settings of a network model, grouped and checked once: how it trains
-(`TrainingSettings`) and how declared effects reach it (`EffectSettings`).
+"""The settings a model is built with, grouped and checked once: what every model shares
+(`ModelSettings`: channels, lags, scaling, declared effects and how they reach it, the
+training data's record), and how a network trains (`TrainingSettings`, the ``training``
+config).
 
-`hysteresis_lab.models.base.NarxModule` takes them as flat keyword arguments (the ``model``
-config and saved checkpoints keep that shape) and builds these objects in its ``__init__``.
+Models take them as flat keyword arguments (the configs and saved checkpoints keep that
+shape: ``cls(nu=, ny=, na=, ..., lr=, ...)``) and build these objects in their ``__init__``
+(`ModelSettings.from_kwargs`, `TrainingSettings.from_kwargs`); the lists of names are here
+only (`MODEL_SETTINGS`, `TRAINING_SETTINGS`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Literal
 
+from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.effects.base import MODEL_OUTPUT_BLOCKS
 from hysteresis_lab.effects.registry import check_effects, get_effect
 from hysteresis_lab.errors import ConfigError
@@ -19,14 +25,23 @@ LR_SCHEDULES = ("cosine", "plateau", "none")
 OBJECTIVES = ("one_step", "simulation")
 EFFECT_PATHS = ("network", "linear")
 
-#: the training stages (`hysteresis_lab.training`): the one-step stage (or a whole fit),
+#: the training stages (`hysteresis_lab.fitting`): the one-step stage (or a whole fit),
 #: the free-run error as the only objective, and free-run fine-tuning after a one-step stage
 Stage = Literal["one_step", "simulation", "fine_tune"]
 
 
 @dataclass(frozen=True)
 class TrainingSettings:
-    """Optimiser, schedule and objective of a network (``model.lr`` ... ``model.refit_lr``)."""
+    """Optimiser, schedule and objective of a network: the ``training`` config
+    (``conf/training/default.yaml``; ``training.lr`` ... ``training.refit_lr``).
+
+    ``lr``: Adam's learning rate; ``lr_schedule``: cosine, plateau or none; ``objective``:
+    ``one_step`` (the study's one-step error) or ``simulation`` (the free-run error over
+    ``horizon`` samples); ``simulation_epochs``: with the simulation objective, a one-step
+    stage first and then this many free-run epochs at ``simulation_lr`` (default a tenth of
+    the rate); ``patience``: epochs without a better validation free-run loss before a
+    free-run stage stops; ``refit_lr``: the rate of a warm-started refit (default a tenth).
+    """
 
     lr: float = 1e-3
     lr_schedule: str = "cosine"
@@ -41,22 +56,36 @@ class TrainingSettings:
     def __post_init__(self) -> None:
         if self.lr_schedule not in LR_SCHEDULES:
             raise ConfigError(
-                f"unknown lr_schedule '{self.lr_schedule}'. Fix: model.lr_schedule=one of "
+                f"unknown lr_schedule '{self.lr_schedule}'. Fix: training.lr_schedule=one of "
                 f"{list(LR_SCHEDULES)}."
             )
         if not self.lr > 0:
-            raise ConfigError(f"learning rate lr={self.lr} must be positive. Fix: model.lr=1e-3.")
+            raise ConfigError(
+                f"learning rate lr={self.lr} must be positive. Fix: training.lr=1e-3.")
         check_objective(self.objective, self.horizon, self.simulation_epochs, self.simulation_lr)
         if self.patience is not None and not self.patience >= 1:
             raise ConfigError(
-                f"model.patience={self.patience!r} must be >= 1 epochs, or null (no early "
+                f"training.patience={self.patience!r} must be >= 1 epochs, or null (no early "
                 "stopping)."
             )
         if self.refit_lr is not None and not self.refit_lr > 0:
             raise ConfigError(
-                f"model.refit_lr must be positive or null (got {self.refit_lr}). Fix: e.g. "
-                "model.refit_lr=1e-4, or null for lr / 10."
+                f"training.refit_lr must be positive or null (got {self.refit_lr}). Fix: e.g. "
+                "training.refit_lr=1e-4, or null for lr / 10."
             )
+
+    @classmethod
+    def from_kwargs(cls, values: Mapping[str, Any]) -> TrainingSettings:
+        """The settings among keyword arguments ``values`` (defaults for those missing)."""
+        return cls(**{k: v for k, v in values.items() if k in TRAINING_SETTINGS})
+
+    def to_dict(self) -> dict[str, Any]:
+        """Every setting by name (the keyword arguments a network takes)."""
+        return dataclasses.asdict(self)
+
+    def with_changes(self, **changes: Any) -> TrainingSettings:
+        """A copy with ``changes`` (checked as new settings are)."""
+        return dataclasses.replace(self, **changes)
 
     @classmethod
     def from_hparams(cls, hparams: Mapping[str, Any]) -> TrainingSettings:
@@ -91,6 +120,9 @@ class EffectSettings:
     feature_context: dict[str, Any] | None = None
     effect_path: str = "network"
     n_base_inputs: int | None = None
+    #: channels of a baseline's free run after the effect channels
+    #: (`hysteresis_lab.models.augment`)
+    baseline_channels: int = 0
 
     def checked(self, nu: int) -> EffectSettings:
         """These settings, refused with a clear error unless they fit a model of ``nu``
@@ -112,6 +144,61 @@ class EffectSettings:
         return self
 
 
+@dataclass(frozen=True)
+class ModelSettings:
+    """What every model is built with: ``nu`` inputs and ``ny`` outputs, its ``window``
+    of lags (``na``, ``nb``, ``nk``), the ``scaler`` of its data (offsets and scales per
+    channel, saved with it), its declared effects (`EffectSettings`) and ``trained_on``, what
+    it keeps of its training data (sampling rate, units) to refuse data it cannot score."""
+
+    nu: int
+    ny: int
+    window: WindowSpec = field(default_factory=lambda: WindowSpec(na=10, nb=10, nk=1))
+    scaler: dict[str, Sequence[float]] | None = None
+    effects: EffectSettings = field(default_factory=EffectSettings)
+    trained_on: dict[str, Any] | None = None
+
+    def __post_init__(self) -> None:
+        check_channels(self.nu, self.ny)
+
+    @classmethod
+    def from_kwargs(cls, nu: int, ny: int, values: Mapping[str, Any]) -> ModelSettings:
+        """The settings among a model's keyword arguments ``values`` (`MODEL_SETTINGS`;
+        defaults for those missing)."""
+        window = WindowSpec(na=values.get("na", 10), nb=values.get("nb", 10),
+                            nk=values.get("nk", 1))
+        effects = EffectSettings(
+            as_effect_names(values.get("effects", ())), values.get("feature_context"),
+            values.get("effect_path", "network"), values.get("n_base_inputs"),
+            int(values.get("baseline_channels", 0)),
+        )
+        return cls(nu, ny, window, values.get("scaler"), effects, values.get("trained_on"))
+
+    def to_kwargs(self) -> dict[str, Any]:
+        """The flat keyword arguments (and saved ``hparams``) these settings came from."""
+        w, e = self.window, self.effects
+        return {"nu": self.nu, "ny": self.ny, "na": w.na, "nb": w.nb, "nk": w.nk,
+                "scaler": self.scaler, "effects": list(e.effects),
+                "feature_context": e.feature_context, "effect_path": e.effect_path,
+                "n_base_inputs": e.n_base_inputs, "baseline_channels": e.baseline_channels,
+                "trained_on": self.trained_on}
+
+
+#: the training settings' names (`TrainingSettings`): the ``training`` config's keys
+TRAINING_SETTINGS = tuple(f.name for f in dataclasses.fields(TrainingSettings))
+#: the shared model settings' names besides ``nu`` and ``ny`` (`ModelSettings.from_kwargs`)
+MODEL_SETTINGS = ("na", "nb", "nk", "scaler", "effects", "feature_context", "effect_path",
+                  "n_base_inputs", "baseline_channels", "trained_on")
+
+
+def unknown_settings(values: Mapping[str, Any], known: Sequence[str], owner: str) -> None:
+    """Refuse keyword arguments ``values`` not among ``known`` (as Python refuses an
+    unexpected keyword argument)."""
+    unknown = sorted(set(values) - set(known))
+    if unknown:
+        raise TypeError(f"{owner}.__init__() got unexpected keyword argument(s) {unknown}")
+
+
 def check_channels(nu: int, ny: int) -> None:
     """Refuse a model without inputs or outputs."""
     if nu < 1 or ny < 1:
@@ -128,7 +215,7 @@ def check_objective(
     `hysteresis_lab.models.base`)."""
     if objective not in OBJECTIVES:
         raise ConfigError(
-            f"unknown model.objective '{objective}'. Fix: model.objective=one of "
+            f"unknown training.objective '{objective}'. Fix: training.objective=one of "
             f"{list(OBJECTIVES)} (simulation: the free-run error, our recommendation)."
         )
     bad = []
@@ -141,7 +228,7 @@ def check_objective(
     if bad:
         raise ConfigError(
             f"simulation-error training settings out of range: {', '.join(bad)}. Fix: e.g. "
-            "model.objective=simulation model.horizon=200 model.simulation_epochs=null."
+            "training.objective=simulation training.horizon=200 training.simulation_epochs=null."
         )
 
 

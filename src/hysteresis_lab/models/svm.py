@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Sequence
 from typing import Any, ClassVar
 
 import numpy as np
@@ -31,8 +30,8 @@ from hysteresis_lab.data.windows import WindowSpec, assemble
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.kernels.interface import FlatKernel, FreeRunKernel
 from hysteresis_lab.kernels.svm import SVMKernel
-from hysteresis_lab.models.interface import EstimatorModel
-from hysteresis_lab.models.settings import refuse_output_effects
+from hysteresis_lab.models.interface import EstimatorModel, ModelContract
+from hysteresis_lab.models.settings import ModelSettings, refuse_output_effects, unknown_settings
 
 log = logging.getLogger(__name__)
 
@@ -40,20 +39,23 @@ KERNELS = ("linear", "poly", "rbf", "sigmoid")
 STRATEGIES = ("nystroem", "subsample")
 
 
-class SVMModel(EstimatorModel):
-    """Epsilon-SVR per output channel, with the scaler and lag structure of the data."""
+class SVMModel(ModelContract, EstimatorModel):
+    """Epsilon-SVR per output channel, with the scaler and lag structure of the data.
+
+    Built as ``SVMModel(nu=, ny=, <its own settings>, **settings)``: the settings every model
+    shares (`ModelSettings`: lags, scaler, effects, ``trained_on``) by name."""
 
     layout: ClassVar[str] = "flat"
     registry_name: ClassVar[str] = "svm"
+    #: the shared settings it takes (`ModelContract.settings_keys`): no effect path, input
+    #: block or baseline, no training settings (it is fitted in one call)
+    shared_settings: ClassVar[tuple[str, ...]] = (
+        "na", "nb", "nk", "scaler", "effects", "feature_context", "trained_on")
 
     def __init__(
         self,
         nu: int,
         ny: int,
-        na: int = 10,
-        nb: int = 10,
-        nk: int = 1,
-        scaler: dict[str, Sequence[float]] | None = None,
         kernel: str = "rbf",
         C: float = 10.0,
         degree: int = 3,
@@ -64,10 +66,10 @@ class SVMModel(EstimatorModel):
         n_components: int = 1000,
         max_samples: int = 5000,
         seed: int = 0,
-        effects: Sequence[str] = (),
-        feature_context: dict[str, Any] | None = None,
-        trained_on: dict[str, Any] | None = None,
+        **settings: Any,
     ) -> None:
+        unknown_settings(settings, self.shared_settings, type(self).__name__)
+        shared = ModelSettings.from_kwargs(nu, ny, settings)
         if kernel not in KERNELS:
             raise ConfigError(
                 f"unknown SVM kernel '{kernel}'. Fix: model.kernel=one of {list(KERNELS)}."
@@ -76,19 +78,16 @@ class SVMModel(EstimatorModel):
             raise ConfigError(
                 f"unknown SVM strategy '{strategy}'. Fix: model.strategy=one of {list(STRATEGIES)}."
             )
-        refuse_output_effects(effects, "the SVM")
+        refuse_output_effects(shared.effects.effects, "the SVM")
         if C <= 0 or gamma <= 0 or degree < 1:
             raise ConfigError(
                 f"SVM needs C > 0, gamma > 0 and degree >= 1 (got C={C}, gamma={gamma}, "
                 f"degree={degree}). Fix: e.g. model.C=10 model.gamma=0.1 model.degree=3 (the "
                 "study's search space: C 0.1-100, gamma 1e-4-10, degree 2-6)."
             )
+        flat = shared.to_kwargs()
         self.hparams: dict[str, Any] = {
-            "nu": nu,
-            "ny": ny,
-            "na": na,
-            "nb": nb,
-            "nk": nk,
+            **{k: flat[k] for k in ("nu", "ny", "na", "nb", "nk")},
             "kernel": kernel,
             "C": C,
             "degree": degree,
@@ -99,14 +98,15 @@ class SVMModel(EstimatorModel):
             "n_components": n_components,
             "max_samples": max_samples,
             "seed": seed,
-            "effects": list(effects),
-            "feature_context": feature_context,
+            "effects": flat["effects"],
+            "feature_context": flat["feature_context"],
             "model_name": "svm",
-            "scaler": scaler,
-            "trained_on": trained_on,
+            "scaler": flat["scaler"],
+            "trained_on": flat["trained_on"],
         }
         self.nu, self.ny = nu, ny
-        self.window = WindowSpec(na=na, nb=nb, nk=nk)
+        self.window = shared.window
+        scaler = shared.scaler
         self.scaler = (
             Scaler.from_dict(scaler)
             if scaler

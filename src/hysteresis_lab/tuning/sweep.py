@@ -70,7 +70,7 @@ def parse_search_space(
         if OmegaConf.select(config, name, default="__missing__") == "__missing__":
             raise ConfigError(
                 f"search-space parameter '{name}' is not in the config. Fix: correct the name "
-                "in hydra.sweeper.params (e.g. model.neurons, model.lr)."
+                "in hydra.sweeper.params (e.g. model.neurons, training.lr)."
             )
     for name, dist in space.items():
         low, high = getattr(dist, "low", None), getattr(dist, "high", None)

@@ -1,5 +1,5 @@
 """The orchestrators: they train, score and write run folders, built on the pure parts
-(`hysteresis_lab.training`, `hysteresis_lab.evaluation`).
+(`hysteresis_lab.fitting`, `hysteresis_lab.evaluation`).
 
 * `pipeline`: train and evaluate one model (``hysteresis-lab-train``, `hysteresis_lab.api`);
 * `paper`: the study's four models, trained in parallel, and its Table 2;

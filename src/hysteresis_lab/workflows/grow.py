@@ -4,8 +4,8 @@ A physical model declared with effects (``model=linear model.effects=[hysteresis
 ``model=greybox``) is not trained with every block at once. Like the loop, it starts from the
 linear dynamics alone (least squares, then the simulation error), then adds each declared
 effect's block, in the order the physics puts them, from where it changes nothing on the
-warm model, and refits (`PhysicalChainModule.growth_stages`). Each refit runs at the loop's
-learning rates (`REFIT_LR_FACTORS` of ``model.lr``, or ``model.refit_lr``); the one with the
+warm model, and refits (`ModelContract.growth_stages`). Each refit runs at the loop's
+learning rates (`REFIT_LR_FACTORS` of ``training.lr``, or ``training.refit_lr``); the one with the
 lowest validation free-run loss goes on, and a refit that does not beat the model it grew
 from keeps that model (its block stays, at no effect). ``model.grow=false`` trains every
 declared block at once, from the start.
@@ -26,12 +26,13 @@ from typing import Any
 from hysteresis_lab.effects.base import MODEL_OUTPUT_BLOCKS
 from hysteresis_lab.effects.registry import get_effect
 from hysteresis_lab.errors import DivergedError
+from hysteresis_lab.fitting import TrainResult
+from hysteresis_lab.models.settings import TrainingSettings
 from hysteresis_lab.models.spec import ModelSpec
-from hysteresis_lab.training import TrainResult
 
 log = logging.getLogger(__name__)
 
-#: a refit runs at each of these multiples of ``model.lr`` (the loop's default too)
+#: a refit runs at each of these multiples of ``training.lr`` (the loop's default too)
 REFIT_LR_FACTORS = (0.1, 1.0)
 #: the model setting that switches growing off (``model.grow=false``)
 SETTING = "grow"
@@ -51,15 +52,14 @@ class Stage:
 
 def growth_stages(spec: ModelSpec) -> list[Stage]:
     """The stages a declared model grows through (the class's ``growth_stages``); a single
-    stage (trained as declared) when the class does not grow or ``model.grow`` is false."""
-    stages = getattr(spec.cls, "growth_stages", None)
-    if stages is None or not spec.settings.get(SETTING, True):
+    stage (trained as declared) when ``model.grow`` is false."""
+    if not spec.settings.get(SETTING, True):
         return [Stage("declared", dict(spec.settings), None)]
     return [Stage(label, settings, added) for label, settings, added
-            in stages(dict(spec.settings))]
+            in spec.cls.growth_stages(dict(spec.settings))]
 
 
-def refit_mode(added: str | None, model_cls: type | None, refit: str = "new_inputs") -> str:
+def refit_mode(added: str | None, model_cls: type, refit: str = "new_inputs") -> str:
     """How a warm-started model that adds ``added`` refits: ``refit`` (``"new_inputs"``:
     only the new block's parameters), except for an effect that enters through the input
     block (it changes what the fitted dynamics see) or acts on the output (the gain a fit
@@ -72,21 +72,20 @@ def refit_mode(added: str | None, model_cls: type | None, refit: str = "new_inpu
     if block in ("input", *MODEL_OUTPUT_BLOCKS):
         log.info("'%s' acts on the model's %s: the whole model refits", added, block)
         return "full"
-    if added in getattr(model_cls, "whole_refit_effects", ()):
+    if added in model_cls.whole_refit_effects:
         log.info("'%s' changes what %s's dynamics were fitted to: the whole model refits",
-                 added, getattr(model_cls, "__name__", "the model"))
+                 added, model_cls.__name__)
         return "full"
     return refit
 
 
-def refit_rates(settings: Mapping[str, Any],
+def refit_rates(training: TrainingSettings,
                 factors: Sequence[float] = REFIT_LR_FACTORS) -> list[float]:
-    """The learning rates a refit runs at: ``model.refit_lr`` if set, else ``factors`` of
-    ``model.lr``."""
-    if settings.get("refit_lr") is not None:
-        return [float(settings["refit_lr"])]
-    lr = float(settings.get("lr", 1e-3))
-    return [factor * lr for factor in factors]
+    """The learning rates a refit runs at: ``training.refit_lr`` if set, else ``factors``
+    of ``training.lr``."""
+    if training.refit_lr is not None:
+        return [float(training.refit_lr)]
+    return [factor * float(training.lr) for factor in factors]
 
 
 def kept_loss(result: TrainResult) -> float:
@@ -97,13 +96,15 @@ def kept_loss(result: TrainResult) -> float:
     return float(losses["refit"] if result.improved else losses["start"])
 
 
-#: trains one stage: (model settings, its folder, the model it grows from or None, refit
-#: mode) -> the trained result
-TrainStage = Callable[[Mapping[str, Any], Path, Any | None, str], TrainResult]
+#: trains one stage: (model settings, training settings, its folder, the model it grows
+#: from or None, refit mode) -> the trained result
+TrainStage = Callable[[Mapping[str, Any], TrainingSettings, Path, Any | None, str], TrainResult]
 
 
-def grow(spec: ModelSpec, output_dir: Path, train_stage: TrainStage) -> TrainResult:
-    """Train ``spec`` through its `growth_stages` with ``train_stage``; the last stage's
+def grow(spec: ModelSpec, training: TrainingSettings, output_dir: Path,
+         train_stage: TrainStage) -> TrainResult:
+    """Train ``spec`` through its `growth_stages` with ``train_stage`` (each stage with the
+    ``training`` settings, a refit at its rate); the last stage's
     result (with the best refit rate) is returned, its start's rejected weights dropped (a
     declared block kept at no effect is the declared model, not a rejected refit)."""
     stages = growth_stages(spec)
@@ -114,25 +115,26 @@ def grow(spec: ModelSpec, output_dir: Path, train_stage: TrainStage) -> TrainRes
         if previous is None:
             log.info("growing %s: stage %d of %d, %s", spec.name, number + 1, len(stages),
                      stage.label)
-            previous = train_stage(stage.settings, folder, None, "full")
+            previous = train_stage(stage.settings, training, folder, None, "full")
             continue
+        rates = refit_rates(training)
         mode = refit_mode(stage.added, spec.cls)
         candidates = []
-        for rate in refit_rates(stage.settings):
+        for rate in rates:
             log.info("growing %s: stage %d of %d, + %s (refit %s at learning rate %.3g)",
                      spec.name, number + 1, len(stages), stage.label, mode, rate)
-            settings = {**stage.settings, "refit_lr": rate}
             try:
-                candidates.append(train_stage(settings, folder / f"refit_lr_{rate:.3g}",
-                                              previous.model, mode))
+                candidates.append(train_stage(stage.settings, training.with_changes(refit_lr=rate),
+                                              folder / f"refit_lr_{rate:.3g}", previous.model,
+                                              mode))
             except DivergedError as exc:
                 log.warning("growing %s: the refit with %s at learning rate %.3g diverged: "
                             "not a candidate (%s)", spec.name, stage.label, rate, exc)
         if not candidates:
             raise DivergedError(
                 f"every refit that grew {stage.label} on the fitted {spec.name} model diverged "
-                f"(learning rates {refit_rates(stage.settings)}). Fix: a smaller "
-                "model.refit_lr, or model.grow=false (every declared block trained at once)."
+                f"(learning rates {refit_rates(training)}). Fix: a smaller "
+                "training.refit_lr, or model.grow=false (every declared block trained at once)."
             )
         chosen = min(candidates, key=kept_loss)
         log.info("growing %s: + %s %s (validation loss %.4e)", spec.name, stage.label,

@@ -37,10 +37,11 @@ from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.evaluation.plots import loops_figure, save_figure
 from hysteresis_lab.evaluation.report import write_json, write_table2
+from hysteresis_lab.fitting import check_trainer_settings
 from hysteresis_lab.interrupts import RunInterrupted, stopping_on_signals
-from hysteresis_lab.trainer import TrainerSettings
-from hysteresis_lab.training import check_trainer_settings, is_network, model_layout
-from hysteresis_lab.workflows.pipeline import evaluation_device, plain_dict, train_and_evaluate
+from hysteresis_lab.lightning_trainer import TrainerSettings
+from hysteresis_lab.models.settings import TrainingSettings
+from hysteresis_lab.workflows.pipeline import RunConfig, run_model
 
 log = logging.getLogger(__name__)
 
@@ -64,16 +65,12 @@ class PaperEntry:
 
 @dataclass
 class _Job:
+    """One model's run (its configs as objects, `RunConfig`) on the shared ``splits``."""
+
     key: str
-    model_cfg: dict[str, Any]
-    data: DataSpec
-    trainer: TrainerSettings
-    output_dir: Path
-    seed: int
-    use_tensorboard: bool
+    config: RunConfig
     splits: DatasetSplits
     threads: int | None = None
-    resume: bool = True
 
 
 def available_cores() -> int:
@@ -89,7 +86,7 @@ def plan_workers(
 ) -> tuple[int, int | None]:
     """``(processes, torch threads per process)``; threads None means torch's default."""
     if workers == "auto":
-        if evaluation_device(trainer) != "cpu":
+        if trainer.evaluation_device() != "cpu":
             return 1, None
         workers = min(n_models, available_cores())
     if not isinstance(workers, int) or isinstance(workers, bool) or workers < 1:
@@ -103,11 +100,7 @@ def plan_workers(
 def _run_job(job: _Job, callbacks: list[Any] | None = None) -> PaperEntry:
     if job.threads is not None:
         torch.set_num_threads(job.threads)
-    result = train_and_evaluate(
-        job.model_cfg, job.data, job.trainer, job.output_dir, seed=job.seed,
-        splits=job.splits, use_tensorboard=job.use_tensorboard, reuse=job.resume,
-        resume=job.resume, callbacks=callbacks,
-    )
+    result = run_model(job.config, splits=job.splits, callbacks=callbacks)
     free_run = {name: p["free_run"] for name, p in result.evaluation.predictions.items()}
     return PaperEntry(result.document, free_run)
 
@@ -178,12 +171,13 @@ def _run_job_in_worker(job: _Job) -> PaperEntry:
     """Entry point of a worker process: the full log goes to the model's own train.log only;
     Lightning's progress bar and model summary are off; the epoch progress, the pipeline's
     milestones and any warning go to the parent through the queue (one labelled line each)."""
-    job.output_dir.mkdir(parents=True, exist_ok=True)
-    job = replace(job, trainer=job.trainer.with_changes(
+    output_dir = job.config.output_dir
+    output_dir.mkdir(parents=True, exist_ok=True)
+    job = replace(job, config=replace(job.config, trainer=job.config.trainer.with_changes(
         enable_progress_bar=False, enable_model_summary=False,
-    ))
+    )))
     formatter = logging.Formatter(LOG_FORMAT.replace("%(message)s", f"[{job.key}] %(message)s"))
-    handlers: list[logging.Handler] = [logging.FileHandler(job.output_dir / "train.log")]
+    handlers: list[logging.Handler] = [logging.FileHandler(output_dir / "train.log")]
     root = logging.getLogger()
     root.setLevel(logging.INFO)
     for handler in handlers:
@@ -205,7 +199,7 @@ def _run_job_in_worker(job: _Job) -> PaperEntry:
         package_log.addHandler(forward)
     try:
         if queue is not None:
-            queue.put((job.key, f"started (log: {job.output_dir / 'train.log'})"))
+            queue.put((job.key, f"started (log: {output_dir / 'train.log'})"))
         reporter = [EpochReporter(job.key, queue)] if queue is not None else None
         with stopping_on_signals((signal.SIGTERM,)):  # the job stops where the parent asks
             entry = _run_job(job, reporter)
@@ -264,14 +258,21 @@ def run_paper(
     use_tensorboard: bool = True,
     workers: int | str = "auto",
     resume: bool = True,
+    training: Mapping[str, Any] | TrainingSettings | None = None,
 ) -> dict[str, PaperEntry]:
-    """Train and score every model (their configs) on the data set ``data``; write
+    """Train and score every model (their configs) on the data set ``data``, each network
+    with the ``training`` config (its unset values: each model's own); write
     table2.md/.csv, paper_results.json, figure1.png.
 
     ``resume``: a model whose fit finished in its folder with the same settings and data (a
     rerun of a stopped experiment in its folder) is loaded and scored, not trained again.
     """
-    if any(is_network(cfg) for cfg in models.values()):
+    configs = {
+        key: RunConfig.build(cfg, data, trainer, output_dir / key, training, seed=seed,
+                             use_tensorboard=use_tensorboard, reuse=resume, resume=resume)
+        for key, cfg in models.items()
+    }
+    if any(config.model.is_network for config in configs.values()):
         check_trainer_settings(trainer)  # before any model trains, not in a worker
     splits = build_splits(data)
     if not splits.val:
@@ -282,11 +283,7 @@ def run_paper(
             100 * float(data.val_fraction),
         )
     processes, threads = plan_workers(len(models), trainer, workers)
-    jobs = [
-        _Job(key, plain_dict(cfg), data, trainer, output_dir / key, seed,
-             use_tensorboard, splits, threads, resume)
-        for key, cfg in models.items()
-    ]
+    jobs = [_Job(key, config, splits, threads) for key, config in configs.items()]
     if processes == 1:
         entries = {}
         for job in jobs:
@@ -294,7 +291,7 @@ def run_paper(
             entries[job.key] = _run_job(job)
     else:
         # sequence models (LSTM, CNN) take longest: start them first to balance the workers
-        jobs.sort(key=lambda job: model_layout(job.model_cfg) != "sequence")
+        jobs.sort(key=lambda job: job.config.model.layout != "sequence")
         log.info("training %s in %d processes with %d torch thread(s) each",
                  ", ".join(job.key for job in jobs), processes, threads)
         context = multiprocessing.get_context("spawn")  # fork after torch init can deadlock

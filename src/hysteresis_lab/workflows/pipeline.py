@@ -1,7 +1,8 @@
 """Train-and-evaluate runs of one model (the study's four: `hysteresis_lab.workflows.paper`).
 
-`train_and_evaluate` (or `run_model` with a `RunConfig`) prepares the data, reuses a finished
-fit or trains one, scores it and writes the run folder; each step is its own function below.
+`run_model` on a `RunConfig` (its configs made objects once, where the run starts) prepares
+the data, reuses a finished fit or trains one, scores it and writes the run folder; each step
+is its own function below.
 
 Everything a run produces lands in its output folder: checkpoints, ``metrics.json``,
 hysteresis-loop and residual figures, and TensorBoard event files (loss curves, figures,
@@ -36,18 +37,19 @@ from hysteresis_lab.evaluation.evaluate import Evaluation, evaluate_model, scori
 from hysteresis_lab.evaluation.plots import loops_figure, residuals_figure, save_figure
 from hysteresis_lab.evaluation.predict import check_n_step
 from hysteresis_lab.evaluation.report import metrics_document
-from hysteresis_lab.models.augment import Baseline, augment_splits, context_to_dict, warn_unshown
-from hysteresis_lab.models.interface import SystemModel
-from hysteresis_lab.models.io import baseline_of, load_model, model_window, save_model
-from hysteresis_lab.models.spec import ModelSpec
-from hysteresis_lab.run_folder import RunFolder
-from hysteresis_lab.trainer import TrainerSettings
-from hysteresis_lab.training import (
+from hysteresis_lab.fitting import (
     TrainResult,
     build_model,
     check_trainer_settings,
     fit,
 )
+from hysteresis_lab.lightning_trainer import TrainerSettings
+from hysteresis_lab.models.augment import Baseline, augment_splits, context_to_dict, warn_unshown
+from hysteresis_lab.models.interface import SystemModel
+from hysteresis_lab.models.io import baseline_of, load_model, model_window, save_model
+from hysteresis_lab.models.settings import TrainingSettings
+from hysteresis_lab.models.spec import ModelSpec
+from hysteresis_lab.run_folder import RunFolder
 from hysteresis_lab.workflows.grow import TrainStage, grow, growth_stages
 
 log = logging.getLogger(__name__)
@@ -75,20 +77,6 @@ def plain_dict(cfg: Mapping[str, Any] | DictConfig) -> dict[str, Any]:
     if isinstance(cfg, DictConfig):
         return OmegaConf.to_container(cfg, resolve=True)  # type: ignore[return-value]
     return dict(cfg)
-
-
-def evaluation_device(trainer: TrainerSettings) -> str:
-    """The device free-run simulation uses: the GPU when training may use one and it exists."""
-    accelerator = str(trainer.accelerator)
-    if accelerator in {"auto", "gpu", "cuda"} and torch.cuda.is_available():
-        return "cuda"
-    return "cpu"
-
-
-def shows_progress(trainer: TrainerSettings) -> bool:
-    """Whether a run shows progress bars (training's and scoring's): unless the trainer
-    settings turn Lightning's off."""
-    return trainer.enable_progress_bar is not False
 
 
 @dataclass(frozen=True)
@@ -119,63 +107,63 @@ class RunSettings:
 
 @dataclass(frozen=True)
 class RunConfig:
-    """One run: the ``model`` (a `ModelSpec`), ``data`` (a `DataSpec`) and ``trainer``
-    (`TrainerSettings`), where it writes, and its `RunSettings`. Config mappings given for
-    the first three are turned into those objects here, once."""
+    """One run, its configs as objects: the ``model`` (a `ModelSpec`), ``data`` (a
+    `DataSpec`), ``trainer`` (`TrainerSettings`) and ``training`` (`TrainingSettings`, how a
+    network trains), where it writes, and its `RunSettings`. Made once where a run starts
+    (`RunConfig.build` from config mappings, `RunConfig.from_config` from a composed
+    ``train`` config) and passed on as it is."""
 
     model: ModelSpec
     data: DataSpec
     trainer: TrainerSettings
     output_dir: Path
     settings: RunSettings = RunSettings()
+    #: None: the model's own (`ModelSpec.training_settings`)
+    training: TrainingSettings = None  # type: ignore[assignment]
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "model", ModelSpec.from_config(self.model))
-        object.__setattr__(self, "data", DataSpec.from_config(self.data))
-        object.__setattr__(self, "trainer", TrainerSettings.from_config(self.trainer))
+        if self.training is None:
+            object.__setattr__(self, "training", self.model.training_settings())
+
+    @classmethod
+    def build(
+        cls,
+        model: Mapping[str, Any] | ModelSpec,
+        data: Mapping[str, Any] | DataSpec,
+        trainer: Mapping[str, Any] | TrainerSettings,
+        output_dir: Path | str,
+        training: Mapping[str, Any] | TrainingSettings | None = None,
+        **settings: Any,
+    ) -> RunConfig:
+        """A run of ``model`` on ``data``: each config turned into its object here, once
+        (objects pass as they are); ``training``: the ``training`` config (its unset values:
+        the model's own defaults) or settings; ``settings``: `RunSettings` by name."""
+        spec = model if isinstance(model, ModelSpec) else ModelSpec.from_config(plain_dict(model))
+        if not isinstance(training, TrainingSettings):
+            training = spec.training_settings(plain_dict(training or {}))
+        return cls(spec, DataSpec.from_config(data), TrainerSettings.from_config(trainer),
+                   Path(output_dir), RunSettings(**settings), training)
+
+    @classmethod
+    def from_config(cls, cfg: Mapping[str, Any], output_dir: Path) -> RunConfig:
+        """The run of a composed ``train`` config (``model``, ``data``, ``trainer``,
+        ``training``, ``seed``, ``logger``, ``n_step``, ``plots``, ``evaluate``)."""
+        return cls.build(
+            cfg["model"], cfg["data"], cfg["trainer"], output_dir, cfg.get("training"),
+            seed=cfg["seed"],
+            use_tensorboard=bool(cfg["logger"].get("enabled", True)),
+            n_steps=cfg.get("n_step"),
+            plots=cfg["plots"],
+            evaluate=cfg.get("evaluate", True),
+            initial_state=str((cfg.get("evaluation") or {}).get("initial_state", "rest")),
+            # a sweep's trial starts afresh: a resumed sweep hands its folder (runs/<job>) to
+            # another trial, whose interrupted predecessor it must not continue
+            resume=(cfg.get("sweep_trial") or {}).get("number") is None,
+        )
 
     @property
     def model_name(self) -> str:
         return self.model.name
-
-
-def train_and_evaluate(
-    model_cfg: Mapping[str, Any] | ModelSpec,
-    data: DataSpec,
-    trainer: TrainerSettings,
-    output_dir: Path,
-    seed: int = 0,
-    splits: DatasetSplits | None = None,
-    use_tensorboard: bool = True,
-    n_steps: int | None = None,
-    plots: bool = True,
-    evaluate: bool = True,
-    callbacks: list[Any] | None = None,
-    warm_start: Any | None = None,
-    refit: str = "full",
-    min_refit_gain: float = 0.0,
-    reuse: bool = False,
-    resume: bool = True,
-    initial_state: str = "rest",
-) -> RunResult:
-    """Fit the model ``model_cfg`` (its config, or spec) on the data set ``data`` (loaded unless
-    ``splits`` are given), score it on every test recording.
-
-    ``warm_start``: a fitted network of the same architecture whose inputs are the first of
-    this model's (see `NarxModule.warm_start_from`); both training stages run from it, and
-    it is kept when they do not beat it on validation (by more than the share
-    ``min_refit_gain``). The other keywords are `RunSettings`; `run_model` takes them grouped.
-    """
-    model = model_cfg if isinstance(model_cfg, ModelSpec) else plain_dict(model_cfg)
-    config = RunConfig(
-        ModelSpec.from_config(model),
-        data,
-        trainer,
-        output_dir,
-        RunSettings(seed, use_tensorboard, n_steps, plots, evaluate, refit, min_refit_gain, reuse,
-                    resume, initial_state),
-    )
-    return run_model(config, splits=splits, callbacks=callbacks, warm_start=warm_start)
 
 
 def train_from_config(
@@ -184,27 +172,10 @@ def train_from_config(
     splits: DatasetSplits | None = None,
     callbacks: list[Any] | None = None,
 ) -> RunResult:
-    """`train_and_evaluate` with the settings of a composed ``train`` config (``model``,
-    ``data``, ``trainer``, ``seed``, ``logger``, ``n_step``, ``plots``, ``evaluate``): what
-    ``hysteresis-lab-train`` and `hysteresis_lab.api.train` run; the model, data and trainer
-    configs become their spec and settings objects here."""
-    return train_and_evaluate(
-        ModelSpec.from_config(plain_dict(cfg["model"])),
-        DataSpec.from_config(cfg["data"]),
-        TrainerSettings.from_config(cfg["trainer"]),
-        Path(output_dir),
-        seed=cfg["seed"],
-        splits=splits,
-        use_tensorboard=bool(cfg["logger"].get("enabled", True)),
-        n_steps=cfg.get("n_step"),
-        plots=cfg["plots"],
-        evaluate=cfg.get("evaluate", True),
-        initial_state=str((cfg.get("evaluation") or {}).get("initial_state", "rest")),
-        # a sweep's trial starts afresh: a resumed sweep hands its folder (runs/<job>) to
-        # another trial, whose interrupted predecessor it must not continue
-        resume=(cfg.get("sweep_trial") or {}).get("number") is None,
-        callbacks=callbacks,
-    )
+    """`run_model` on the run of a composed ``train`` config (`RunConfig.from_config`): what
+    ``hysteresis-lab-train`` and `hysteresis_lab.api.train` run."""
+    return run_model(RunConfig.from_config(cfg, Path(output_dir)), splits=splits,
+                     callbacks=callbacks)
 
 
 def run_model(
@@ -213,20 +184,23 @@ def run_model(
     callbacks: list[Any] | None = None,
     warm_start: Any | None = None,
 ) -> RunResult:
-    """`train_and_evaluate` on a `RunConfig`: prepare the data, reuse a finished fit or
-    train, then score and write the run folder."""
-    _prepare_run(config)
-    effects = config.model.effects
-    baseline = baseline_of(config.model)
-    splits, data, context = _run_data(config, effects, splits, baseline)
-    record_key = _fit_record_key(config, splits, warm_start, baseline)
-    if record_key is not None:
-        reused = _reuse_finished_fit(config, record_key, data)
-        if reused is not None:
-            return reused
-    resume = _resume_interrupted_fit(
-        config, _fingerprint(config, splits, warm_start, baseline, ignore=DISPLAY_SETTINGS)
-    )
+    """Run ``config``: prepare the data (``splits``, else loaded from the data config),
+    reuse a finished fit or train, then score and write the run folder.
+
+    ``warm_start``: a fitted network of the same architecture whose inputs are the first of
+    this model's (see `NarxModule.warm_start_from`); both training stages run from it, and
+    it is kept when they do not beat it on validation (by more than the share
+    `RunSettings.min_refit_gain`)."""
+    if config.model.is_network:  # before any data or training work
+        check_trainer_settings(config.trainer)
+    config.output_dir.mkdir(parents=True, exist_ok=True)
+    L.seed_everything(config.settings.seed, workers=True, verbose=False)
+    splits, data, context, baseline = _run_data(config, splits)
+    record_key, fit_key = _fit_keys(config, splits, warm_start, baseline)
+    reused = _reuse_finished_fit(config, record_key, data)
+    if reused is not None:
+        return reused
+    resume = _resume_interrupted_fit(config, fit_key)
     # this fit overwrites the folder's files: an older record must not vouch for them
     fit_record.forget(config.output_dir)
     try:
@@ -257,7 +231,7 @@ def _train_and_score(
     settings = config.settings
     logger = _tensorboard_logger(config)
     if warm_start is None and len(growth_stages(config.model)) > 1:
-        trained = grow(config.model, config.output_dir,
+        trained = grow(config.model, config.training, config.output_dir,
                        _stage_trainer(config, splits, baseline, callbacks))
         window = model_window(trained.model)
     else:
@@ -284,10 +258,10 @@ def _stage_trainer(
     settings, in its folder, warm-started from the model it grows from (None: from the
     data), with that refit mode; the start is kept unless the refit beats it."""
 
-    def train_stage(settings: Mapping[str, Any], folder: Path, previous: Any | None,
-                    refit: str) -> TrainResult:
+    def train_stage(settings: Mapping[str, Any], training: TrainingSettings, folder: Path,
+                    previous: Any | None, refit: str) -> TrainResult:
         stage = dataclasses.replace(
-            config, model=dataclasses.replace(config.model, settings=dict(settings)),
+            config, model=config.model.with_settings(settings), training=training,
             output_dir=folder, settings=dataclasses.replace(config.settings, refit=refit))
         folder.mkdir(parents=True, exist_ok=True)
         data, context = augment_splits(splits, stage.model.effects)
@@ -327,21 +301,14 @@ def _resume_interrupted_fit(config: RunConfig, key: str) -> bool:
     return resume
 
 
-def _prepare_run(config: RunConfig) -> None:
-    """Check the trainer settings (networks), make the output folder, seed every generator."""
-    if config.model.is_network:
-        check_trainer_settings(config.trainer)
-    config.output_dir.mkdir(parents=True, exist_ok=True)
-    L.seed_everything(config.settings.seed, workers=True, verbose=False)
-
-
 def _run_data(
-    config: RunConfig, effects: list[str], splits: DatasetSplits | None,
-    baseline: Baseline | None = None,
-) -> tuple[DatasetSplits, DatasetSplits, Any]:
+    config: RunConfig, splits: DatasetSplits | None
+) -> tuple[DatasetSplits, DatasetSplits, Any, Baseline | None]:
     """The data set (``splits``, else built from the data config), the same with the effects'
-    operator channels (and the ``baseline``'s free run) added, and the effects' feature
-    context; checked for scoring when it will be."""
+    operator channels (and the free run of the model's ``baseline``, returned too) added,
+    and the effects' feature context; checked for scoring when it will be."""
+    effects = config.model.effects
+    baseline = baseline_of(config.model)
     check_effects(effects)
     splits = splits or build_splits(config.data)
     warn_weak_excitation(splits, config.data.window)
@@ -351,7 +318,7 @@ def _run_data(
         data = baseline.append_to_splits(data, splits)
     if config.settings.evaluate:
         _check_evaluation_settings(data, config.settings.n_steps, config.data.window)
-    return splits, data, context
+    return splits, data, context, baseline
 
 
 def _fit_record_key(
@@ -359,10 +326,22 @@ def _fit_record_key(
     baseline: Baseline | None = None,
 ) -> str | None:
     """The fingerprint a finished fit of this run records, when the run may reuse one."""
+    return _fit_keys(config, splits, warm_start, baseline)[0]
+
+
+def _fit_keys(
+    config: RunConfig, splits: DatasetSplits, warm_start: Any | None,
+    baseline: Baseline | None = None,
+) -> tuple[str | None, str]:
+    """The fingerprint a finished fit of this run records, when the run may reuse one
+    (else None), and the one an interrupted fit of it resumes under (display settings of
+    the trainer aside)."""
     settings = config.settings
-    if not (settings.reuse and settings.evaluate):
-        return None
-    return _fingerprint(config, splits, warm_start, baseline)
+    whole = _fingerprinted(config, warm_start, baseline)
+    resumed = _fingerprinted(config, warm_start, baseline, ignore=DISPLAY_SETTINGS)
+    record = (fit_record.fingerprint(whole, splits, warm_start)
+              if settings.reuse and settings.evaluate else None)
+    return record, fit_record.fingerprint(resumed, splits, warm_start)
 
 
 #: trainer settings that change what a fit shows, not what it computes: an interrupted fit
@@ -370,12 +349,12 @@ def _fit_record_key(
 DISPLAY_SETTINGS = ("enable_progress_bar", "enable_model_summary", "log_every_n_steps")
 
 
-def _fingerprint(
-    config: RunConfig, splits: DatasetSplits, warm_start: Any | None,
-    baseline: Baseline | None = None, ignore: tuple[str, ...] = (),
-) -> str:
-    """A digest of everything the fit depends on (`fit_record.fingerprint`), but the
-    trainer settings ``ignore`` names."""
+def _fingerprinted(
+    config: RunConfig, warm_start: Any | None, baseline: Baseline | None = None,
+    ignore: tuple[str, ...] = (),
+) -> dict[str, Any]:
+    """Every setting the fit depends on, as `fit_record.fingerprint` digests them (with the
+    data and the start), but the trainer settings ``ignore`` names."""
     settings = config.settings
     trainer = {k: v for k, v in config.trainer.to_config().items() if k not in ignore}
     fingerprinted = {
@@ -385,19 +364,47 @@ def _fingerprint(
         "refit": settings.refit if warm_start is not None else None,
         "min_refit_gain": settings.min_refit_gain,
     }
+    if config.model.is_network:
+        fingerprinted["training"] = config.training.to_dict()
     if baseline is not None:  # only then: the records of runs without one stay valid
         fingerprinted["baseline"] = baseline.digest
-    return fit_record.fingerprint(fingerprinted, splits, warm_start)
+    return fingerprinted
 
 
-def _reuse_finished_fit(config: RunConfig, key: str, data: DatasetSplits) -> RunResult | None:
-    """The finished fit recorded under ``key`` in the run folder, scored again; None when
-    there is none (or it cannot be loaded)."""
-    record = fit_record.finished_fit(config.output_dir, key)
+def _reuse_finished_fit(
+    config: RunConfig, key: str | None, data: DatasetSplits
+) -> RunResult | None:
+    """The finished fit recorded under ``key`` in the run folder, its model loaded and scored
+    again (the same weights give the same predictions; nothing is trained or rewritten);
+    None when there is none, its model file cannot be loaded any more, or the run may not
+    reuse one (no ``key``)."""
+    output_dir, trainer = config.output_dir, config.trainer
+    record = None if key is None else fit_record.finished_fit(output_dir, key)
     if record is None:
         return None
-    return _reused_fit(record, data, config.output_dir, config.trainer, config.settings.n_steps,
-                       config.settings.initial_state)
+    try:
+        model = load_model(output_dir / record["model_file"])
+    except DataError as exc:
+        log.warning("the fit in %s cannot be reused (%s): it trains again", output_dir, exc)
+        return None
+    log.info(
+        "%s: reusing the finished fit there (same settings, data and start; %s). To train "
+        "it again, delete that file or run with loop.resume=false (paper.resume=false)",
+        output_dir, fit_record.FIT_RECORD,
+    )
+    folder = RunFolder(output_dir)
+    document = folder.read_metrics()
+    rejected_refit = folder.read_rejected_refit_metrics() if record["rejected"] else None
+    window = model_window(model)
+    evaluation = evaluate_model(
+        model, data.test, window, n_init=data.n_init, n_steps=config.settings.n_steps,
+        device=trainer.evaluation_device(), progress=trainer.shows_progress,
+        initial_state=config.settings.initial_state,
+    )
+    return RunResult(
+        document, record["val_mse"], evaluation, model, window, record["improved"],
+        record["refit_validation"], rejected_refit,
+    )
 
 
 def _build(
@@ -410,18 +417,16 @@ def _build(
 ) -> tuple[WindowDataModule, SystemModel]:
     """The DataModule and the untrained model (started from ``warm_start`` when given; with
     the ``baseline`` whose free run it reads, saved with it)."""
+    extra: dict[str, Any] = {"trained_on": _trained_on(data)}
+    if effects:
+        extra.update(feature_context=context_to_dict(context),
+                     n_base_inputs=data.metadata["n_base_inputs"])
+    if baseline is not None:  # its free run: the last channels, one per output
+        extra.update(n_base_inputs=data.metadata["n_base_inputs"], baseline_channels=data.ny)
     datamodule = build_datamodule(
         config.data, config.model.layout, seed=config.settings.seed, splits=data
     )
-    extra = (
-        {"feature_context": context_to_dict(context),
-         "n_base_inputs": data.metadata["n_base_inputs"]}
-        if effects
-        else {}
-    )
-    if baseline is not None:  # its free run: the last channels, one per output
-        extra.update(n_base_inputs=data.metadata["n_base_inputs"], baseline_channels=data.ny)
-    model = build_model(config.model, datamodule, trained_on=_trained_on(data), **extra)
+    model = build_model(config.model, datamodule, config.training, **extra)
     if baseline is not None:
         model.baseline = baseline
     if warm_start is not None:
@@ -472,7 +477,7 @@ def _score_and_report(
     folder = RunFolder(output_dir)
     evaluation = evaluate_model(
         trained.model, data.test, window, n_init=data.n_init, n_steps=settings.n_steps,
-        device=evaluation_device(config.trainer), progress=shows_progress(config.trainer),
+        device=config.trainer.evaluation_device(), progress=config.trainer.shows_progress,
         initial_state=settings.initial_state,
     )
     units = {"u": data.test[0].u_units, "y": data.test[0].y_units}
@@ -554,47 +559,14 @@ def _log_summary(
 ) -> None:
     """The run's settings and final scores as TensorBoard hparams."""
     hparams = {f"model/{k}": v for k, v in config.model.to_config().items() if _scalar(v)}
+    if config.model.is_network:
+        hparams.update({f"training/{k}": v for k, v in config.training.to_dict().items()
+                        if _scalar(v)})
     hparams.update({"data": data_name, "seed": config.settings.seed})
     final = {f"test_mean/{k}": v for k, v in document["mean"].items()}
     final["val_mse_scaled"] = val_mse
     logger.log_hyperparams(hparams, final)
     logger.finalize("success")
-
-
-def _reused_fit(
-    record: Mapping[str, Any],
-    data: DatasetSplits,
-    output_dir: Path,
-    trainer: TrainerSettings,
-    n_steps: int | None,
-    initial_state: str = "rest",
-) -> RunResult | None:
-    """The result of the finished fit ``record`` describes, its model loaded and scored again
-    (the same weights give the same predictions; nothing is trained or rewritten); None when
-    its model file cannot be loaded any more."""
-    try:
-        model = load_model(output_dir / record["model_file"])
-    except DataError as exc:
-        log.warning("the fit in %s cannot be reused (%s): it trains again", output_dir, exc)
-        return None
-    log.info(
-        "%s: reusing the finished fit there (same settings, data and start; %s). To train "
-        "it again, delete that file or run with loop.resume=false (paper.resume=false)",
-        output_dir, fit_record.FIT_RECORD,
-    )
-    window = model_window(model)
-    evaluation = evaluate_model(
-        model, data.test, window, n_init=data.n_init, n_steps=n_steps,
-        device=evaluation_device(trainer), progress=shows_progress(trainer),
-        initial_state=initial_state,
-    )
-    folder = RunFolder(output_dir)
-    document = folder.read_metrics()
-    rejected_refit = folder.read_rejected_refit_metrics() if record["rejected"] else None
-    return RunResult(
-        document, record["val_mse"], evaluation, model, window, record["improved"],
-        record["refit_validation"], rejected_refit,
-    )
 
 
 def _trained_on(data: DatasetSplits) -> dict[str, Any]:
@@ -654,7 +626,7 @@ def _score_rejected_refit(
         window,
         n_init=data.n_init,
         n_steps=n_steps,
-        device=evaluation_device(trainer),
+        device=trainer.evaluation_device(),
         initial_state=initial_state,
     )
     return metrics_document(

@@ -1,10 +1,13 @@
-"""Build a registered model for a DataModule and fit it (Lightning nets, scikit-learn SVM)."""
+"""Build a registered model for a DataModule and fit it (Lightning nets, scikit-learn SVM).
+
+A network trains in stages decided by its `TrainingSettings` (the ``training`` config): the
+one-step error, the free-run error alone, or a one-step stage fine-tuned on the free-run
+error; a warm-started refit keeps its start unless it beats it on validation."""
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
-import inspect
 import logging
 import os
 import signal
@@ -31,12 +34,12 @@ from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.data.segments import simulation_data
 from hysteresis_lab.errors import ConfigError, DivergedError
 from hysteresis_lab.interrupts import RunInterrupted, raise_if_stopped, signals_deferred
+from hysteresis_lab.lightning_trainer import TrainerSettings, build_trainer
 from hysteresis_lab.models.augment import SETTING as BASELINE_SETTING
 from hysteresis_lab.models.interface import SystemModel
-from hysteresis_lab.models.settings import Stage
+from hysteresis_lab.models.settings import TRAINING_SETTINGS, Stage, TrainingSettings
 from hysteresis_lab.models.spec import ModelSpec
 from hysteresis_lab.run_folder import RunFolder
-from hysteresis_lab.trainer import TrainerSettings, build_trainer
 
 log = logging.getLogger(__name__)
 
@@ -57,25 +60,23 @@ class TrainResult:
     rejected_state: dict[str, torch.Tensor] | None = None
 
 
-def model_layout(model: Mapping[str, Any] | ModelSpec) -> str:
-    """The regressor layout ("flat" or "sequence") of a model config or spec."""
-    return ModelSpec.from_config(model).layout
-
-
 def build_model(
-    model: Mapping[str, Any] | ModelSpec, datamodule: WindowDataModule, **extra: Any
+    model: ModelSpec | Mapping[str, Any], datamodule: WindowDataModule,
+    training: TrainingSettings | None = None, **extra: Any,
 ) -> SystemModel:
-    """Instantiate the registered model of a ``model`` config (or `ModelSpec`) for the
-    DataModule's data.
+    """Instantiate the registered model of a `ModelSpec` (a ``model`` config, in scripts and
+    tests) for the DataModule's data; a network with the ``training`` settings (default: its
+    own, `ModelSpec.training_settings`).
 
     ``extra`` passes values the pipeline derives (e.g. the effects' ``feature_context``);
     those the model does not take (``n_base_inputs`` for the SVM) are left out.
     """
-    spec = ModelSpec.from_config(model)
+    spec = model if isinstance(model, ModelSpec) else ModelSpec.from_config(model)
     name, cls, params = spec.name, spec.cls, dict(spec.settings)
     params.pop(BASELINE_SETTING, None)  # the pipeline gives the model its baseline's channels
-    extra = {k: v for k, v in extra.items() if k in _init_parameters(cls)}
-    accepted = _init_parameters(cls) - DERIVED_PARAMETERS
+    keys = cls.settings_keys()
+    extra = {k: v for k, v in extra.items() if k in keys}
+    accepted = keys - DERIVED_PARAMETERS - set(TRAINING_SETTINGS)
     unknown = sorted(set(params) - accepted)
     if unknown:
         raise ConfigError(
@@ -83,6 +84,8 @@ def build_model(
             f"Fix: remove the override or correct its spelling (e.g. "
             f"model.{sorted(accepted)[0]}=...)."
         )
+    if cls.is_network:
+        params.update((training or spec.training_settings()).to_dict())
     window = datamodule.window
     return cls(
         nu=datamodule.nu,
@@ -119,11 +122,11 @@ def fit(
     fit of the same model and settings); without it, or without that file, the stage starts
     afresh and the checkpoints an earlier fit left in its folder are deleted first.
     """
-    if isinstance(model, L.LightningModule):
+    if model.is_network:
         _check_max_epochs(settings)
     start = (
         {k: v.detach().clone() for k, v in model.state_dict().items()}
-        if keep_start_unless_beaten and isinstance(model, L.LightningModule)
+        if keep_start_unless_beaten and model.is_network
         else None
     )
     result = _fit(model, datamodule, settings, output_dir, logger, callbacks, one_step, resume)
@@ -168,7 +171,7 @@ def _selection_loss(
     one-step MSE."""
     steps = model.simulation_horizon
     if steps == 0:
-        return _validation_mse(_scaled_predictor(model), datamodule)
+        return _validation_mse(model.predict_scaled, datamodule)
     model.simulation_mode = True
     try:
         trainer = build_trainer(settings, logger=False, enable_checkpointing=False)
@@ -180,9 +183,9 @@ def _selection_loss(
 
 def stage_lr(model: L.LightningModule, stage: Stage) -> float:
     """The learning rate of a training ``stage`` of ``model``: its `TrainingSettings` decide
-    (`TrainingSettings.stage_lr`); a warm-started refit (``_new_entries`` set by
+    (`TrainingSettings.stage_lr`); a warm start that added entries (`new_entries`, set by
     ``warm_start_from``) counts as a refit."""
-    refit = bool(getattr(model, "_new_entries", None))
+    refit = bool(model.new_entries)
     return model.training_settings.stage_lr(stage, refit=refit)
 
 
@@ -199,7 +202,7 @@ def _fit(
     """`fit` without the comparison with the starting weights."""
     datamodule.setup()
     start = time.perf_counter()
-    if not isinstance(model, L.LightningModule):
+    if not model.is_network:
         x, target = datamodule.scale_windows(datamodule.train_windows)
         model.fit(x, target)
         val_mse = _validation_mse(model.predict_scaled, datamodule)
@@ -249,22 +252,12 @@ def _fit(
 
 
 def _initialise_from_data(model: L.LightningModule, datamodule: WindowDataModule) -> None:
-    """Starting values read off the training data, for models that take them: all training
-    recordings (``initialise_from_recordings``, e.g. SUBNET's linear start or the linear
-    model's ARX fit) or the longest one's first channels (``initialise_from_data``, e.g. the
-    grey-box's mode); not for a warm-started refit (``_new_entries`` set, even empty: the
-    warm start's weights stay)."""
-    if getattr(model, "_new_entries", None) is not None:
-        return
-    from_recordings = getattr(model, "initialise_from_recordings", None)
-    if from_recordings is not None:
-        from_recordings(datamodule.splits.train)
-        return
-    initialise = getattr(model, "initialise_from_data", None)
-    if initialise is None:
-        return
-    longest = max(datamodule.splits.train, key=lambda rec: rec.n_samples)
-    initialise(longest.u[:, 0], longest.y[:, 0], longest.fs)
+    """Starting values read off the training recordings
+    (`ModelContract.initialise_from_recordings`: e.g. SUBNET's linear start, the linear
+    model's ARX fit, the grey-box's mode); not for a warm-started refit (`warm_started`, even
+    with nothing new: the warm start's weights stay)."""
+    if not model.warm_started:
+        model.initialise_from_recordings(datamodule.splits.train)
 
 
 def _fit_one_step(
@@ -307,11 +300,6 @@ def _clipping_in_module(model: L.LightningModule, settings: TrainerSettings) -> 
     value = settings.gradient_clip_val
     model.gradient_clipping = (float(value), algorithm) if value else None
     return dataclasses.replace(settings, gradient_clip_val=None, extra=extra)
-
-
-def is_network(model: Mapping[str, Any] | ModelSpec) -> bool:
-    """Does the model of a config or spec train with Lightning (and the ``trainer`` config)?"""
-    return ModelSpec.from_config(model).is_network
 
 
 def check_trainer_settings(settings: TrainerSettings) -> None:
@@ -455,16 +443,6 @@ class _StayStopped(L.Callback):
             trainer.should_stop = True
 
 
-def _scaled_predictor(model: L.LightningModule) -> Callable[[np.ndarray], np.ndarray]:
-    """Scaled regressors -> scaled next outputs, as NumPy, for a network."""
-
-    def predict(x: np.ndarray) -> np.ndarray:
-        with torch.inference_mode():
-            return model(torch.from_numpy(x).to(model.device)).cpu().numpy()
-
-    return predict
-
-
 def _validation_mse(
     predict: Callable[[np.ndarray], np.ndarray], datamodule: WindowDataModule
 ) -> float:
@@ -510,7 +488,7 @@ def _fit_free_run(
 
     Runs ``epochs`` epochs from the current weights at ``model.stage_lr`` and keeps the
     checkpoint with the best validation free-run loss (model selection on the free run;
-    ``model.patience`` epochs without a better one stop it early). ``keep_start``: the
+    ``training.patience`` epochs without a better one stop it early). ``keep_start``: the
     starting weights are a candidate too (a fitted network, or a model started from the
     data): when no epoch beat them on that loss, they stay and ``starting_checkpoint`` and
     False are returned. ``finite_start``: an initial model whose free run is not finite is
@@ -551,7 +529,7 @@ def _fit_free_run(
         if not np.isfinite(starting_loss) and finite_start:
             raise DivergedError(
                 "the initial model's free run is not finite on the validation segments (an "
-                "unstable initial model). Fix: a shorter model.horizon, or check the data "
+                "unstable initial model). Fix: a shorter training.horizon, or check the data "
                 "scaling (data.scaling) and the model's initial settings."
             )
         try:
@@ -577,7 +555,7 @@ def _fit_free_run(
         "free-run training: validation free-run MSE %.4e -> %.4e (scaled) over %s",
         starting_loss,
         val_free_run,
-        "whole recordings" if getattr(model, "whole_recordings", False) else f"{steps} steps",
+        "whole recordings" if model.whole_recordings else f"{steps} steps",
     )
     return best, True, val_free_run
 
@@ -586,16 +564,3 @@ def _fit_free_run(
 DERIVED_PARAMETERS = {"self", "nu", "ny", "na", "nb", "nk", "scaler", "feature_context",
                       "n_base_inputs", "trained_on", "baseline_channels"}
 
-
-def _init_parameters(cls: type) -> set[str]:
-    """Keyword parameters of ``cls.__init__``, following ``**kwargs`` up the class hierarchy."""
-    names: set[str] = set()
-    for klass in cls.__mro__:
-        init = klass.__dict__.get("__init__")
-        if init is None:
-            continue
-        params = inspect.signature(init).parameters.values()
-        names |= {p.name for p in params if p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)}
-        if not any(p.kind == p.VAR_KEYWORD for p in params):
-            break
-    return names

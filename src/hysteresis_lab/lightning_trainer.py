@@ -26,7 +26,7 @@ class TrainerSettings:
     Each field's default is Lightning's own, so a setting the config leaves out behaves as
     Lightning decides; ``extra`` carries any other ``Trainer`` argument a config adds
     (``+trainer.num_sanity_val_steps=0``), passed on unchecked (Lightning refuses unknown
-    ones, see `hysteresis_lab.training.check_trainer_settings`). ``configured``: the fields
+    ones, see `hysteresis_lab.fitting.check_trainer_settings`). ``configured``: the fields
     the config set (all of them for settings made in code), so that `to_config` gives back
     the config itself, which fit records fingerprint (`hysteresis_lab.fit_record`).
     """
@@ -77,6 +77,21 @@ class TrainerSettings:
         known = {k: v for k, v in changes.items() if k in names}
         configured = frozenset(self.configured or ()) | frozenset(known)
         return dataclasses.replace(self, **known, extra=extra, configured=configured)
+
+    def evaluation_device(self) -> str:
+        """The device free-run simulation uses: the GPU when training may use one and it
+        exists."""
+        import torch
+
+        if str(self.accelerator) in {"auto", "gpu", "cuda"} and torch.cuda.is_available():
+            return "cuda"
+        return "cpu"
+
+    @property
+    def shows_progress(self) -> bool:
+        """Whether a run shows progress bars (training's and scoring's): unless these
+        settings turn Lightning's off."""
+        return self.enable_progress_bar is not False
 
     def trainer_arguments(self) -> dict[str, Any]:
         """The keyword arguments of ``lightning.Trainer``."""
