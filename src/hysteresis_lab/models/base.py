@@ -45,6 +45,7 @@ from hysteresis_lab.effects.registry import get_effect
 from hysteresis_lab.errors import ConfigError, DivergedError
 from hysteresis_lab.kernels.interface import input_lags
 from hysteresis_lab.models.augment import context_from_dict
+from hysteresis_lab.models.export import export_narx
 from hysteresis_lab.models.interface import ModelContract, NetworkModel
 from hysteresis_lab.models.settings import (
     MODEL_SETTINGS,
@@ -163,10 +164,8 @@ class NarxModule(L.LightningModule, ModelContract, NetworkModel):
             return self(torch.from_numpy(x).to(self.device)).cpu().numpy()
 
     def export_onnx(self, path: Path | str, opset: int = 17) -> Path:
-        """ONNX in physical units (`hysteresis_lab.models.export.export_onnx`)."""
-        from hysteresis_lab.models.export import export_onnx
-
-        return export_onnx(self, path, opset)
+        """Its one-step prediction as ONNX in physical units (`export.export_narx`)."""
+        return export_narx(self, path, opset)
 
     @property
     def training_settings(self) -> TrainingSettings:

@@ -1,4 +1,9 @@
-"""Export a trained network with its normalisation to ONNX (physical units in and out)."""
+"""Export a trained network with its normalisation to ONNX (physical units in and out).
+
+Each model class says what it writes (`ModelContract.export_onnx`): a NARX network its one-step
+file (`export_narx`), a state-space model that and its simulation step (`export_state_space_step`),
+a physical chain its simulation step (`export_chain_step`). This module imports no model class.
+"""
 
 from __future__ import annotations
 
@@ -11,9 +16,7 @@ import torch
 from torch import nn
 
 from hysteresis_lab.errors import ConfigError
-from hysteresis_lab.models.base import NarxModule
-from hysteresis_lab.models.physical_chain import PhysicalChainModule
-from hysteresis_lab.models.state_space import StateSpaceModule
+from hysteresis_lab.models.interface import ModelContract
 
 log = logging.getLogger(__name__)
 
@@ -21,7 +24,7 @@ log = logging.getLogger(__name__)
 class PhysicalModel(nn.Module):
     """``(u_past [V] (B, nb, nu), y_past [µm] (B, na, ny)) -> y [µm] (B, ny)``."""
 
-    def __init__(self, model: NarxModule) -> None:
+    def __init__(self, model: nn.Module) -> None:
         super().__init__()
         self.model = model
 
@@ -33,7 +36,7 @@ class PhysicalStep(nn.Module):
     """A state-space model's step: ``(state (B, nx), u [V] (B, nu)) -> (y [µm] (B, ny),
     next state (B, nx))``; ``y`` is the output of ``state``, the input drives the next one."""
 
-    def __init__(self, model: StateSpaceModule) -> None:
+    def __init__(self, model: nn.Module) -> None:
         super().__init__()
         self.model = model
 
@@ -47,7 +50,7 @@ class ChainStep(nn.Module):
     """A physical chain's step (`PhysicalChainModule.step_physical`): ``(state (B, nx),
     u [V] (B, n_base_inputs)) -> (y [µm] (B, ny), next state (B, nx))``, float64."""
 
-    def __init__(self, model: PhysicalChainModule) -> None:
+    def __init__(self, model: nn.Module) -> None:
         super().__init__()
         self.model = model
 
@@ -55,24 +58,29 @@ class ChainStep(nn.Module):
         return self.model.step_physical(state, u)
 
 
-def export_onnx(model: object, path: Path | str, opset: int = 17) -> Path:
-    """Write ``model`` as ONNX with a dynamic batch axis; returns the path.
+def export_onnx(model: ModelContract, path: Path | str, opset: int = 17) -> Path:
+    """Write ``model`` as ONNX with a dynamic batch axis; returns the path of the file that
+    simulates or predicts with it.
 
-    The file maps past inputs and outputs to the next output (one-step prediction). A
+    A NARX network gets the one-step file (past inputs and outputs to the next output). A
     state-space model (`StateSpaceModule`) also gets ``<stem>_step.onnx``, its simulation
     step: the one-step file's encoder gives the initial state (``encode``), the step file
     runs it forward from the input alone. A physical chain (the grey-box, the linear model)
     is an output-error model, whose one-step prediction is its free run: it gets only
-    ``<stem>_step.onnx`` (`export_chain_step`), and that path is returned.
+    ``<stem>_step.onnx`` (`export_chain_step`), and that path is returned. A model outside
+    these (the SVM) is refused with a fix.
     """
-    path = Path(path)
-    if isinstance(model, PhysicalChainModule):
-        return export_chain_step(model, path.with_name(f"{path.stem}_step.onnx"), opset)
-    if not isinstance(model, NarxModule):
+    if not isinstance(model, ModelContract):
         raise ConfigError(
             f"{type(model).__name__} cannot be exported to ONNX here; only the networks can. "
             "Fix: share the SVM's model.skops file (load it with hysteresis_lab.models.io)."
         )
+    return model.export_onnx(path, opset)
+
+
+def export_narx(model: nn.Module, path: Path | str, opset: int = 17) -> Path:
+    """Write a NARX network's one-step prediction as ONNX (`PhysicalModel`); returns the path."""
+    path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     wrapper = PhysicalModel(model.cpu().eval())
     window = model.window
@@ -85,12 +93,11 @@ def export_onnx(model: object, path: Path | str, opset: int = 17) -> Path:
         opset_version=opset, dynamo=False,
     )
     log.info("exported %s to %s", type(model).__name__, path)
-    if isinstance(model, StateSpaceModule):
-        _export_step(model, path.with_name(f"{path.stem}_step.onnx"), opset)
     return path
 
 
-def _export_step(model: StateSpaceModule, path: Path, opset: int) -> None:
+def export_state_space_step(model: nn.Module, path: Path, opset: int = 17) -> Path:
+    """Write a state-space model's simulation step (`PhysicalStep`) as ONNX; returns the path."""
     state = model.encode(torch.zeros(2, model.n_features))
     torch.onnx.export(
         PhysicalStep(model), (state.detach(), torch.zeros(2, model.nu)), str(path),
@@ -99,9 +106,10 @@ def _export_step(model: StateSpaceModule, path: Path, opset: int) -> None:
         opset_version=opset, dynamo=False,
     )
     log.info("exported the simulation step of %s to %s", type(model).__name__, path)
+    return path
 
 
-def export_chain_step(model: PhysicalChainModule, path: Path | str, opset: int = 17) -> Path:
+def export_chain_step(model: nn.Module, path: Path | str, opset: int = 17) -> Path:
     """Write a physical chain's simulation step as ONNX; returns the path.
 
     Inputs ``state`` (B, nx) and ``u`` (B, n_base_inputs, the measured inputs in their

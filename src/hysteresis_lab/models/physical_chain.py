@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -33,6 +34,7 @@ from hysteresis_lab.effects.base import Effect, physical_order
 from hysteresis_lab.effects.registry import available_effects, get_effect
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.base import NarxModule
+from hysteresis_lab.models.export import export_chain_step
 
 log = logging.getLogger(__name__)
 
@@ -154,6 +156,12 @@ class PhysicalChainModule(NarxModule):
     def state_names(self) -> list[str]:  # pragma: no cover
         """The flat step state's columns, in order (``block.part``)."""
         raise NotImplementedError
+
+    def export_onnx(self, path: Path | str, opset: int = 17) -> Path:
+        """Only ``<stem>_step.onnx``, its simulation step (an output-error model's one-step
+        prediction is its free run); returns that path."""
+        path = Path(path)
+        return export_chain_step(self, path.with_name(f"{path.stem}_step.onnx"), opset)
 
     def _physical_input(self, u_scaled: torch.Tensor) -> torch.Tensor:
         """Scaled inputs (B, T, nu) -> the measured inputs over their scales (B, T,

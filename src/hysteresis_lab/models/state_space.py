@@ -16,6 +16,7 @@ offer a compiled free run (`compiled_free_run`). Declared effects enter as ordin
 from __future__ import annotations
 
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -23,6 +24,7 @@ import torch
 
 from hysteresis_lab.data.windows import WindowSpec, assemble
 from hysteresis_lab.models.base import NarxModule
+from hysteresis_lab.models.export import export_narx, export_state_space_step
 from hysteresis_lab.models.settings import refuse_output_effects
 
 
@@ -31,6 +33,13 @@ class StateSpaceModule(NarxModule):
 
     layout = "flat"
     simulation_trained = True
+
+    def export_onnx(self, path: Path | str, opset: int = 17) -> Path:
+        """The one-step file (its encoder gives the initial state) and ``<stem>_step.onnx``,
+        the simulation step; returns the one-step file's path."""
+        path = export_narx(self, path, opset)
+        export_state_space_step(self, path.with_name(f"{path.stem}_step.onnx"), opset)
+        return path
 
     # ------------------------------------------------------------------ the model
     def encode(self, regressor: torch.Tensor) -> torch.Tensor:  # pragma: no cover

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import logging
 import time
+from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
@@ -207,6 +208,13 @@ class SVMModel(ModelContract, EstimatorModel):
             weights[row : row + n_sv, j] = est.dual_coef_[0]
             row += n_sv
         return comps, weights, bias
+
+    def export_onnx(self, path: Path | str, opset: int = 17) -> Path:
+        """Refused: an SVM is shared as its ``model.skops`` file."""
+        raise ConfigError(
+            f"{type(self).__name__} cannot be exported to ONNX here; only the networks can. "
+            "Fix: share the SVM's model.skops file (load it with hysteresis_lab.models.io)."
+        )
 
     def free_run_kernel(self, u_scaled: np.ndarray, window: WindowSpec) -> FreeRunKernel:
         """Free-run step with the model folded to one kernel evaluation per step (NumPy
