@@ -50,8 +50,8 @@ REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "docs" / "results"
 
 #: the study's NARX networks: their defaults plus free-run fine-tuning after the one-step stage
-NETWORK_DEFAULTS = ["model.objective=simulation", "model.horizon=200",
-                    "model.simulation_epochs=5"]
+NETWORK_DEFAULTS = ["training.objective=simulation", "training.horizon=200",
+                    "training.simulation_epochs=5"]
 #: the "augmented" row: SUBNET with the free run of the named row's model as an extra input
 #: (`model.baseline`); data set -> that row (trained first when its run folder has no model)
 AUGMENTED = "augmented"
@@ -63,16 +63,16 @@ AUGMENTED_BASELINE: dict[str, str] = {"default": "greybox", "fsm": "greybox", "p
 RECOMMENDED: dict[str, dict[str, list[str]]] = {
     "default": {
         "subnet": ["model.effects=[hysteresis]", "data.window.na=20", "data.window.nb=20",
-                   "model.horizon=200", "model.lr=1e-4", "data.batch_size=32",
+                   "training.horizon=200", "training.lr=1e-4", "data.batch_size=32",
                    "trainer.max_epochs=40"],
         "greybox": ["model.effects=[creep]"],
         AUGMENTED: ["model=subnet", "model.baseline=<root>/greybox_default", "data.window.na=20",
-                    "data.window.nb=20", "model.horizon=200", "model.lr=1e-4",
+                    "data.window.nb=20", "training.horizon=200", "training.lr=1e-4",
                     "data.batch_size=32", "trainer.max_epochs=40"],
     },
     "fsm": {
         "subnet": ["model.nx=28", "data.window.na=50", "data.window.nb=50",
-                   "model.horizon=300", "model.lr=1e-3", "data.batch_size=64",
+                   "training.horizon=300", "training.lr=1e-3", "data.batch_size=64",
                    "trainer.max_epochs=40"],
         # 28 poles (the published BLA's order) per output and input, a Bouc–Wen cell per input
         "linear": ["model.order=28", "model.effects=[hysteresis]", "trainer.max_epochs=18"],
@@ -81,10 +81,10 @@ RECOMMENDED: dict[str, dict[str, list[str]]] = {
         # training realisation chooses 32 (docs/results/fsm_augmented.md, fsm_holdout.md)
         AUGMENTED: ["model=subnet", "model.baseline=<root>/greybox_fsm", "model.nx=28",
                     "model.neurons=32", "data.window.na=50", "data.window.nb=50",
-                    "model.horizon=300", "model.lr=3e-3", "data.batch_size=64",
+                    "training.horizon=300", "training.lr=3e-3", "data.batch_size=64",
                     "trainer.max_epochs=200"],
         # 14 shared modes (the published BLA's 28 states), a Bouc–Wen cell per input
-        "greybox": ["model.n_modes=14", "model.lr=5e-4", "model.recording_repeats=2",
+        "greybox": ["model.n_modes=14", "training.lr=5e-4", "model.recording_repeats=2",
                     "trainer.max_epochs=10"],
         # the study's recurrent and convolutional networks train far slower than the FFNN on
         # these long records: each stage (one-step, then free-run) stops after 7 min, so a
@@ -93,40 +93,40 @@ RECOMMENDED: dict[str, dict[str, list[str]]] = {
         "cnn": [*NETWORK_DEFAULTS, "+trainer.max_time=00:00:07:00"],
     },
     "p885": {
-        "subnet": ["model.horizon=200", "model.lr=1e-3", "data.batch_size=16",
+        "subnet": ["training.horizon=200", "training.lr=1e-3", "data.batch_size=16",
                    "trainer.max_epochs=300"],
-        AUGMENTED: ["model=subnet", "model.baseline=<root>/greybox_p885", "model.horizon=200",
-                    "model.lr=1e-3", "data.batch_size=16", "trainer.max_epochs=300"],
+        AUGMENTED: ["model=subnet", "model.baseline=<root>/greybox_p885", "training.horizon=200",
+                    "training.lr=1e-3", "data.batch_size=16", "trainer.max_epochs=300"],
         "greybox": [],
     },
     "bouc_wen": {
-        "subnet": ["model.horizon=100", "model.lr=3e-3", "data.batch_size=32",
+        "subnet": ["training.horizon=100", "training.lr=3e-3", "data.batch_size=32",
                    "trainer.max_epochs=250"],
         "greybox": [],
     },
     "emps": {
-        "subnet": ["model.horizon=300", "model.lr=1e-3", "data.batch_size=16",
+        "subnet": ["training.horizon=300", "training.lr=1e-3", "data.batch_size=16",
                    "trainer.max_epochs=100"],
         "greybox": [],
         # a force moves the cart: its position integrates (stable dynamics alone drift off)
         "linear": ["model.integrator=true"],
-        AUGMENTED: ["model=subnet", "model.baseline=<root>/linear_emps", "model.horizon=300",
-                    "model.lr=1e-3", "data.batch_size=16", "trainer.max_epochs=100"],
+        AUGMENTED: ["model=subnet", "model.baseline=<root>/linear_emps", "training.horizon=300",
+                    "training.lr=1e-3", "data.batch_size=16", "trainer.max_epochs=100"],
     },
     "cascaded_tanks": {
         "subnet": ["model.nx=3", "model.neurons=16", "model.hidden_layers=1",
                    "model.encoder_neurons=16", "model.encoder_layers=1",
-                   "model.weight_decay=1e-3", "model.horizon=300", "model.lr=3e-3",
+                   "training.weight_decay=1e-3", "training.horizon=300", "training.lr=3e-3",
                    "data.batch_size=2", "trainer.max_epochs=600"],
         "greybox": [],
         # the tanks' physics on the linear model: the lower tank's outflow law on its own
         # level (the output stage) and the upper tank's rim (overflow on the output stage)
         "linear": ["model.effects=[nonlinear_feedback,overflow]", "model.feedback_on=output_stage",
-                   "model.lr=0.01", "trainer.max_epochs=300"],
+                   "training.lr=0.01", "trainer.max_epochs=300"],
         AUGMENTED: ["model=subnet", "model.baseline=<root>/linear_cascaded_tanks", "model.nx=3",
                     "model.neurons=16", "model.hidden_layers=1", "model.encoder_neurons=16",
-                    "model.encoder_layers=1", "model.weight_decay=1e-3", "model.horizon=300",
-                    "model.lr=3e-3", "data.batch_size=2", "trainer.max_epochs=600"],
+                    "model.encoder_layers=1", "training.weight_decay=1e-3", "training.horizon=300",
+                    "training.lr=3e-3", "data.batch_size=2", "trainer.max_epochs=600"],
     },
 }
 #: pairs a model cannot take, with the reason (shown in the table)

@@ -40,11 +40,12 @@ REPO = Path(__file__).resolve().parents[1]
 OUT = REPO / "docs" / "results" / "fsm_holdout.md"
 QUIET = ["logger=none", "trainer.enable_progress_bar=false", "plots=false"]
 #: the accuracy table's FSM grey-box row (`benchmarks/accuracy.py`)
-GREYBOX = ["model=greybox", "model.n_modes=14", "model.lr=5e-4", "model.recording_repeats=2",
+GREYBOX = ["model=greybox", "model.n_modes=14", "training.lr=5e-4", "model.recording_repeats=2",
            "trainer.max_epochs=10"]
 #: the augmented SUBNET's settings, and the candidates' one difference
 SUBNET = ["model=subnet", "model.nx=28", "data.window.na=50", "data.window.nb=50",
-          "model.horizon=300", "model.lr=3e-3", "data.batch_size=64", "trainer.max_epochs=200"]
+          "training.horizon=300", "training.lr=3e-3", "data.batch_size=64",
+          "trainer.max_epochs=200"]
 CANDIDATES = {"64 neurons": ["model.neurons=64"], "32 neurons": ["model.neurons=32"]}
 
 log = logging.getLogger("fsm_holdout")

@@ -13,7 +13,7 @@ this measures, on the run's own data:
 * the round-0 model on test inputs clipped at the true level (a perfect block, the round-0
   dynamics unchanged) and the dynamics' gain beside the simulator's, in and beyond the
   multisine's 0-500 Hz band (a clipped sine's corners reach far beyond it);
-* refits from the round-0 model as the loop runs them (whole refit, ``model.refit_lr`` =
+* refits from the round-0 model as the loop runs them (whole refit, ``training.refit_lr`` =
   ``training.lr``), the block's weight and level free, fixed at the simulator's clip (weight 1,
   level ``limit_v``), one of them fixed, and a block-only refit;
 * with ``--order3``: the loop again with ``model.order=3`` (the simulator's own order: the

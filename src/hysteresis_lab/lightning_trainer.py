@@ -15,7 +15,7 @@ from lightning.pytorch.callbacks import TQDMProgressBar
 from lightning.pytorch.callbacks.progress.tqdm_progress import Tqdm, convert_inf
 from omegaconf import DictConfig, OmegaConf
 
-#: batches between progress-bar refreshes (one per batch costs a small network ~10 % of its time)
+#: batches between progress-bar refreshes (a refresh per batch would slow a small network down)
 PROGRESS_BAR_REFRESH_BATCHES = 20
 
 

@@ -461,7 +461,7 @@ class NarxModule(L.LightningModule, ModelContract, NetworkModel):
                 optimizer.step()
             self._keep_old_entries()
             # The epoch's batch-size-weighted mean, logged once in `on_train_epoch_end`: a
-            # `self.log` per step costs Lightning ~0.4 ms, a fifth of a small network's step.
+            # `self.log` per step costs Lightning about as much as a small network's own step.
             size = part[0].shape[0]
             block_sum += value * size
             block_rows += size

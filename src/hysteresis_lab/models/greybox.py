@@ -87,7 +87,7 @@ MIMO_BOUC_WEN_ALPHA = 0.05
 #: ``alpha`` is log-parametrised: it cannot start at zero; Adam's steps on its logarithm grow
 #: it by a factor per step, so it still reaches an O(0.1) share within a short refit)
 GROWN_CELL_SHARE = 1e-3
-#: the MIMO modes' frequencies learn at this share of ``model.lr`` (`configure_optimizers`)
+#: the MIMO modes' frequencies learn at this share of ``training.lr`` (`configure_optimizers`)
 MODE_FREQUENCY_LR_FACTOR = 0.02
 
 
@@ -166,7 +166,7 @@ class GreyBox(PhysicalChainModule):
             problems.append(f"effects {unknown} (its blocks: {list(self.carried_effects)}; "
                             "model=subnet or model=ffnn take any catalogue effect as an input)")
         if objective != "simulation":
-            problems.append(f"model.objective='{objective}' (it is fitted on the simulation "
+            problems.append(f"training.objective='{objective}' (it is fitted on the simulation "
                             "error only)")
         most_modes = MAX_MIMO_MODES if self.mimo else 3
         if not (isinstance(n_modes, int) and 0 <= n_modes <= most_modes):

@@ -187,7 +187,7 @@ class LinearModel(PhysicalChainModule):
                             "initial state (an integrator never settles at a held input, so "
                             "that state cannot be learned: set model.integrator=false)")
         if objective != "simulation":
-            problems.append(f"model.objective='{objective}' (it is fitted on the simulation "
+            problems.append(f"training.objective='{objective}' (it is fitted on the simulation "
                             "error only)")
         if problems:
             raise ConfigError(
