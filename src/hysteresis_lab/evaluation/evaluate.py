@@ -11,8 +11,9 @@ from typing import Any
 import numpy as np
 
 from hysteresis_lab.data.recording import Recording
+from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.data.windows import WindowSpec
-from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.errors import ConfigError, DataError
 from hysteresis_lab.evaluation.metrics import score
 from hysteresis_lab.evaluation.predict import check_n_step, free_run, n_step, one_step
 
@@ -48,6 +49,28 @@ def check_initial_state(initial_state: str, n_init: int, window: WindowSpec) -> 
             f"({window.first_target} samples). Fix: e.g. data.n_init="
             f"{window.first_target + 100}, or evaluation.initial_state=rest."
         )
+
+
+def check_scorable(data: DatasetSplits, n_steps: int | None, window: WindowSpec) -> None:
+    """Fail before training, not after it, when ``data``'s test recordings cannot be scored
+    (none, or each too short for the model's ``window``) or ``n_steps`` is no horizon."""
+    if not data.test:
+        raise DataError(
+            "has no test recordings to evaluate on.",
+            source=f"data set '{data.name}'",
+            fix="give some with data.test=[a.csv,b.csv], or train only with evaluate=false",
+        )
+    check_n_step(n_steps)
+    start = scoring_start(window, data.n_init)
+    for rec in data.test:
+        if rec.n_samples <= start:
+            raise DataError(
+                f"has {rec.n_samples} samples, but scoring starts at sample {start + 1} (the "
+                f"model's window na={window.na}, nb={window.nb}, nk={window.nk}, "
+                f"n_init={data.n_init}): nothing would be left to score.",
+                source=f"test recording '{rec.metadata.get('path', rec.name)}'",
+                fix="use a longer test recording, or smaller data.window.na / nb (or n_init)",
+            )
 
 
 def estimate_output_offset(
