@@ -31,8 +31,8 @@ from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.effects.registry import check_effects
-from hysteresis_lab.errors import ConfigError, DataError
-from hysteresis_lab.evaluation.evaluate import Evaluation, check_scorable, evaluate_model
+from hysteresis_lab.errors import DataError
+from hysteresis_lab.evaluation.evaluate import Evaluation, Scoring
 from hysteresis_lab.evaluation.plots import loops_figure, residuals_figure, save_figure
 from hysteresis_lab.evaluation.report import metrics_document
 from hysteresis_lab.fitting import (
@@ -118,10 +118,17 @@ class RunConfig:
     settings: RunSettings = RunSettings()
     #: None: the model's own (`ModelSpec.training_settings`)
     training: TrainingSettings = None  # type: ignore[assignment]
+    #: how the run scores its model: the ``n_step`` and ``evaluation`` settings, simulated on
+    #: the trainer's device, with its progress bars
+    scoring: Scoring = dataclasses.field(init=False)
 
     def __post_init__(self) -> None:
         if self.training is None:
             object.__setattr__(self, "training", self.model.training_settings())
+        settings, trainer = self.settings, self.trainer
+        object.__setattr__(self, "scoring", Scoring(
+            settings.n_steps, settings.initial_state, trainer.evaluation_device(),
+            trainer.shows_progress))
 
     @classmethod
     def build(
@@ -198,7 +205,9 @@ def run_model(
     reused = _reuse_finished_fit(config, keys.record, data.inputs)
     if reused is not None:
         return reused
-    resume = _resume_interrupted_fit(config, keys.resume)
+    # a network fit may go on from an interrupted one; the others fit in one step
+    resume = config.model.is_network and RunFolder(config.output_dir).claim_fit(
+        keys.resume, config.settings.resume)
     # this fit overwrites the folder's files: an older record must not vouch for them
     fit_record.forget(config.output_dir)
     try:
@@ -222,7 +231,7 @@ def prepare_data(config: RunConfig, splits: DatasetSplits | None = None) -> Mode
     warn_weak_excitation(measured, window)
     data = ModelData.of(measured, model.effects, baseline, model.to_config())
     if config.settings.evaluate:
-        check_scorable(data.inputs, config.settings.n_steps, window)
+        config.scoring.check(data.inputs, window)
     return data
 
 
@@ -317,25 +326,6 @@ def _stage_trainer(
     return train_stage
 
 
-def _resume_interrupted_fit(config: RunConfig, key: str) -> bool:
-    """Whether the fit goes on from the last checkpoints of an interrupted one in the output
-    folder (same fingerprint ``key``); marks this fit unfinished there until it is."""
-    if not config.model.is_network:  # nothing to resume: it fits in one step
-        return False
-    folder = RunFolder(config.output_dir)
-    interrupted = folder.read_fit_in_progress()
-    resume = config.settings.resume and interrupted == key
-    if interrupted is not None and interrupted != key and config.settings.resume:
-        raise ConfigError(
-            f"{config.output_dir} holds a training interrupted with other settings (model, "
-            "data, trainer, seed or start differ). Fix: rerun it with its own settings to "
-            f"resume it, use another folder (hydra.run.dir=...), or delete "
-            f"{folder.fit_in_progress} to start over there."
-        )
-    folder.start_fit(key)
-    return resume
-
-
 #: trainer settings that change what a fit shows, not what it computes: an interrupted fit
 #: resumes with other values of them
 DISPLAY_SETTINGS = ("enable_progress_bar", "enable_model_summary", "log_every_n_steps")
@@ -419,20 +409,8 @@ def _reuse_finished_fit(
     rejected_refit = folder.read_rejected_refit_metrics() if record["rejected"] else None
     window = model_window(model)
     return RunResult(
-        document, record["val_mse"], _evaluate(config, model, data, window), model, window,
-        record["improved"], record["refit_validation"], rejected_refit,
-    )
-
-
-def _evaluate(
-    config: RunConfig, model: Any, data: DatasetSplits, window: WindowSpec
-) -> Evaluation:
-    """``model`` scored on ``data``'s test recordings as the run's settings say."""
-    trainer, settings = config.trainer, config.settings
-    return evaluate_model(
-        model, data.test, window, n_init=data.n_init, n_steps=settings.n_steps,
-        device=trainer.evaluation_device(), progress=trainer.shows_progress,
-        initial_state=settings.initial_state,
+        document, record["val_mse"], config.scoring.evaluate(model, data, window), model,
+        window,        record["improved"], record["refit_validation"], rejected_refit,
     )
 
 
@@ -475,7 +453,7 @@ def _score_and_report(
     record and the TensorBoard summary."""
     settings, output_dir = config.settings, config.output_dir
     folder = RunFolder(output_dir)
-    evaluation = _evaluate(config, trained.model, data, window)
+    evaluation = config.scoring.evaluate(trained.model, data, window)
     units = {"u": data.test[0].u_units, "y": data.test[0].y_units}
     rejected_refit = _keep_rejected_refit(config, data, trained, window, units)
     document = metrics_document(
@@ -525,9 +503,7 @@ def _keep_rejected_refit(
     # the refit's own weights for the scoring and the save; the kept start's afterwards
     with _weights(trained.model, trained.rejected_state) as rejected:
         rejected_refit = _score_rejected_refit(
-            rejected, trained, data, window, config.trainer, config.settings.n_steps, units,
-            config.model_name, config.settings.initial_state,
-        )
+            rejected, trained, data, window, config.scoring, units, config.model_name)
         log.info("saved %s", save_model(rejected, folder.rejected_refit_stem))
     folder.write_rejected_refit_metrics(rejected_refit)
     return rejected_refit
@@ -570,23 +546,15 @@ def _score_rejected_refit(
     trained: TrainResult,
     data: DatasetSplits,
     window: WindowSpec,
-    trainer: TrainerSettings,
-    n_steps: int | None,
+    scoring: Scoring,
     units: dict[str, str],
     model_name: str,
-    initial_state: str = "rest",
 ) -> dict[str, Any]:
     """Test metrics of a refit that lost to its start on validation (``model``, holding the
-    refit's weights), so that a report can show what it would have done."""
-    evaluation = evaluate_model(
-        model.eval(),
-        data.test,
-        window,
-        n_init=data.n_init,
-        n_steps=n_steps,
-        device=trainer.evaluation_device(),
-        initial_state=initial_state,
-    )
+    refit's weights, scored without a progress bar), so that a report can show what it
+    would have done."""
+    quiet = dataclasses.replace(scoring, progress=False)
+    evaluation = quiet.evaluate(model.eval(), data, window)
     return metrics_document(
         model_name,
         units,
