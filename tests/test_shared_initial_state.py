@@ -8,7 +8,7 @@ import torch
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.fitting import build_model
-from hysteresis_lab.workflows.pipeline import _trained_on
+from hysteresis_lab.models.augment import trained_on as _trained_on
 from narx import datamodule_for, narx_data
 
 

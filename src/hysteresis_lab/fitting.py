@@ -7,7 +7,6 @@ error; a warm-started refit keeps its start unless it beats it on validation."""
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import logging
 import os
 import signal
@@ -278,28 +277,14 @@ def _fit_one_step(
     if logger is not None:
         all_callbacks.append(LearningRateMonitor(logging_interval="epoch"))
     trainer = build_trainer(
-        _clipping_in_module(model, settings),
-        all_callbacks,
-        logger=logger if logger is not None else False,
-        default_root_dir=str(output_dir),
+        settings, all_callbacks, module=model,
+        logger=logger if logger is not None else False, default_root_dir=str(output_dir),
     )
     with _resuming(last):
         trainer.fit(model, datamodule=datamodule, ckpt_path=last)
     best, val_mse = _restore_best(model, checkpoint)
     log.info("best validation MSE %.4e (scaled); checkpoint %s", val_mse, best)
     return best, val_mse
-
-
-def _clipping_in_module(model: L.LightningModule, settings: TrainerSettings) -> TrainerSettings:
-    """Under manual optimisation (`NarxModule`) the module clips the gradients and the
-    Trainer must not: hand ``gradient_clip_val`` (and ``gradient_clip_algorithm``) over."""
-    if model.automatic_optimization:
-        return settings
-    extra = dict(settings.extra)
-    algorithm = extra.pop("gradient_clip_algorithm", None)
-    value = settings.gradient_clip_val
-    model.gradient_clipping = (float(value), algorithm) if value else None
-    return dataclasses.replace(settings, gradient_clip_val=None, extra=extra)
 
 
 def check_trainer_settings(settings: TrainerSettings) -> None:
@@ -519,10 +504,8 @@ def _fit_free_run(
         )
         if stage_logger:
             all_callbacks.append(LearningRateMonitor(logging_interval="epoch"))
-        trainer = build_trainer(
-            _clipping_in_module(model, stage_settings), all_callbacks, logger=stage_logger,
-            default_root_dir=str(output_dir),
-        )
+        trainer = build_trainer(stage_settings, all_callbacks, module=model,
+                                logger=stage_logger, default_root_dir=str(output_dir))
         starting_loss = float(
             trainer.validate(model, datamodule=segments, verbose=False)[0]["val_loss"]
         )

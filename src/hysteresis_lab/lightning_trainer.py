@@ -131,14 +131,29 @@ def _field_names() -> set[str]:
 def build_trainer(
     settings: TrainerSettings,
     callbacks: Sequence[L.Callback] = (),
+    module: L.LightningModule | None = None,
     **overrides: Any,
 ) -> L.Trainer:
-    """A Lightning ``Trainer`` from ``settings``; ``overrides`` (one stage's logger,
-    checkpointing, root folder) win over them. Its progress bar, when enabled, refreshes
-    every `PROGRESS_BAR_REFRESH_BATCHES` batches and shows the epochs only
-    (`EpochProgressBar`)."""
+    """A Lightning ``Trainer`` from ``settings`` (for ``module``: see `_clipping_in_module`);
+    ``overrides`` (one stage's logger, checkpointing, root folder) win over them. Its
+    progress bar, when enabled, refreshes every `PROGRESS_BAR_REFRESH_BATCHES` batches and
+    shows the epochs only (`EpochProgressBar`)."""
+    if module is not None:
+        settings = _clipping_in_module(module, settings)
     arguments = {**settings.trainer_arguments(), **overrides}
     all_callbacks = list(callbacks)
     if arguments.get("enable_progress_bar") is not False:
         all_callbacks.append(EpochProgressBar(refresh_rate=PROGRESS_BAR_REFRESH_BATCHES))
     return L.Trainer(**arguments, callbacks=all_callbacks)
+
+
+def _clipping_in_module(module: L.LightningModule, settings: TrainerSettings) -> TrainerSettings:
+    """Under manual optimisation (`NarxModule`) the module clips the gradients and the
+    Trainer must not: hand ``gradient_clip_val`` (and ``gradient_clip_algorithm``) over."""
+    if module.automatic_optimization:
+        return settings
+    extra = dict(settings.extra)
+    algorithm = extra.pop("gradient_clip_algorithm", None)
+    value = settings.gradient_clip_val
+    module.gradient_clipping = (float(value), algorithm) if value else None
+    return dataclasses.replace(settings, gradient_clip_val=None, extra=extra)

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
+from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.evaluation.report import write_json
 
 
@@ -120,6 +121,22 @@ class RunFolder:
     def start_fit(self, fingerprint: str) -> None:
         """Mark a fit with ``fingerprint`` unfinished (until `finish_fit`)."""
         write_json({"fingerprint": fingerprint}, self.fit_in_progress)
+
+    def claim_fit(self, fingerprint: str, resume: bool) -> bool:
+        """Mark the fit with ``fingerprint`` unfinished here (until `finish_fit`); whether it
+        goes on from the last checkpoints of an interrupted fit with the same fingerprint
+        (``resume``). An interrupted fit with another fingerprint is refused when
+        ``resume``, else started over."""
+        interrupted = self.read_fit_in_progress()
+        if resume and interrupted is not None and interrupted != fingerprint:
+            raise ConfigError(
+                f"{self.path} holds a training interrupted with other settings (model, "
+                "data, trainer, seed or start differ). Fix: rerun it with its own settings to "
+                f"resume it, use another folder (hydra.run.dir=...), or delete "
+                f"{self.fit_in_progress} to start over there."
+            )
+        self.start_fit(fingerprint)
+        return resume and interrupted == fingerprint
 
     def finish_fit(self) -> None:
         """The fit finished: nothing to resume, so its ``last.ckpt`` files and mark go."""

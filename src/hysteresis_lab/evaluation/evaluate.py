@@ -11,8 +11,9 @@ from typing import Any
 import numpy as np
 
 from hysteresis_lab.data.recording import Recording
+from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.data.windows import WindowSpec
-from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.errors import ConfigError, DataError
 from hysteresis_lab.evaluation.metrics import score
 from hysteresis_lab.evaluation.predict import check_n_step, free_run, n_step, one_step
 
@@ -47,6 +48,48 @@ def check_initial_state(initial_state: str, n_init: int, window: WindowSpec) -> 
             f"test recording, and data.n_init={n_init} leaves none beyond the model's window "
             f"({window.first_target} samples). Fix: e.g. data.n_init="
             f"{window.first_target + 100}, or evaluation.initial_state=rest."
+        )
+
+
+@dataclass(frozen=True)
+class Scoring:
+    """How a run scores a model on test recordings (`evaluate_model`): an ``n_steps``
+    horizon (None: no n-step scores), how each free run starts (``initial_state``, one of
+    `INITIAL_STATES`), the ``device`` it simulates on and whether a progress bar shows."""
+
+    n_steps: int | None = None
+    initial_state: str = "rest"
+    device: str | None = None
+    progress: bool = False
+
+    def check(self, data: DatasetSplits, window: WindowSpec) -> None:
+        """Fail before training, not after it, when ``data``'s test recordings cannot be
+        scored (none, or each too short for the model's ``window``) or ``n_steps`` is no
+        horizon."""
+        if not data.test:
+            raise DataError(
+                "has no test recordings to evaluate on.",
+                source=f"data set '{data.name}'",
+                fix="give some with data.test=[a.csv,b.csv], or train only with evaluate=false",
+            )
+        check_n_step(self.n_steps)
+        start = scoring_start(window, data.n_init)
+        for rec in data.test:
+            if rec.n_samples <= start:
+                raise DataError(
+                    f"has {rec.n_samples} samples, but scoring starts at sample {start + 1} "
+                    f"(the model's window na={window.na}, nb={window.nb}, nk={window.nk}, "
+                    f"n_init={data.n_init}): nothing would be left to score.",
+                    source=f"test recording '{rec.metadata.get('path', rec.name)}'",
+                    fix="use a longer test recording, or smaller data.window.na / nb (or "
+                    "n_init)",
+                )
+
+    def evaluate(self, model: Any, data: DatasetSplits, window: WindowSpec) -> Evaluation:
+        """``model`` scored on ``data``'s test recordings."""
+        return evaluate_model(
+            model, data.test, window, n_init=data.n_init, n_steps=self.n_steps,
+            device=self.device, progress=self.progress, initial_state=self.initial_state,
         )
 
 

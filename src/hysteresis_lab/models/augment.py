@@ -161,6 +161,69 @@ def augment_splits(
     ), ctx
 
 
+@dataclass(frozen=True)
+class ModelData:
+    """A data set as a model reads it: ``measured`` (as recorded), ``inputs`` (the same with
+    the model's extra input channels, what it trains and is scored on), the effects'
+    operator ``context`` fixed from the training recordings, the ``effects`` whose operators
+    are inputs, and the ``baseline`` whose free run is an input (None: none)."""
+
+    measured: DatasetSplits
+    inputs: DatasetSplits
+    context: FeatureContext
+    effects: tuple[str, ...] = ()
+    baseline: Baseline | None = None
+
+    @classmethod
+    def of(
+        cls, measured: DatasetSplits, effects: Sequence[str], baseline: Baseline | None = None,
+        settings: dict[str, Any] | None = None,
+    ) -> ModelData:
+        """``measured`` for a model declaring ``effects`` (and reading ``baseline``); with
+        the model's config ``settings``, a warning for each effect the training data cannot
+        show (`warn_unshown`)."""
+        context = feature_context(measured.train)
+        if settings is not None:
+            warn_unshown(effects, context, settings)
+        return cls(measured, measured, context, baseline=baseline).with_effects(effects)
+
+    def with_effects(self, effects: Sequence[str]) -> ModelData:
+        """The same measured data for a model declaring ``effects`` (a growth stage)."""
+        inputs, _ = augment_splits(self.measured, effects, self.context)
+        if self.baseline is not None:
+            inputs = self.baseline.append_to_splits(inputs, self.measured)
+        return dataclasses.replace(self, inputs=inputs, effects=tuple(effects))
+
+    def derived_settings(self) -> dict[str, Any]:
+        """The model parameters that come from this data (`trained_on`, and for extra
+        input channels the effects' ``feature_context``, ``n_base_inputs`` and the
+        ``baseline_channels``, one per output)."""
+        inputs = self.inputs
+        derived: dict[str, Any] = {"trained_on": trained_on(inputs)}
+        if self.effects:
+            derived.update(feature_context=context_to_dict(self.context),
+                           n_base_inputs=inputs.metadata["n_base_inputs"])
+        if self.baseline is not None:  # its free run: the last channels, one per output
+            derived.update(n_base_inputs=inputs.metadata["n_base_inputs"],
+                           baseline_channels=inputs.ny)
+        return derived
+
+
+def trained_on(data: DatasetSplits) -> dict[str, Any]:
+    """What a model keeps of its training data to refuse data it cannot score: the sampling
+    rate (its lags span a fixed number of samples) and the physical units (its scaler works
+    in them); and whether every recording starts from one shared unknown state, with the
+    longest training recording's length for the burn-in to it, and whether the output
+    integrates (only where the data set says so, so other models keep the settings they
+    had)."""
+    shared = {"shared_initial_state": True,
+              "burn_in_samples": max(r.n_samples for r in data.train)} \
+        if data.shared_initial_state else {}
+    integrates = {"output_integrates": True} if data.output_integrates else {}
+    return {"fs": data.fs, **{f"{k}_units": v for k, v in data.units.items()}, **shared,
+            **integrates}
+
+
 def for_model(model: Any, recordings: Sequence[Recording]) -> list[Recording]:
     """Recordings with the extra input channels that a loaded ``model`` reads: its effects'
     operators, then its baseline's free run (`Baseline`)."""

@@ -26,16 +26,14 @@ from omegaconf import DictConfig, OmegaConf
 
 from hysteresis_lab import fit_record
 from hysteresis_lab.data.checks import warn_weak_excitation
-from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.data.factory import build_datamodule, build_splits
 from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.effects.registry import check_effects
-from hysteresis_lab.errors import ConfigError, DataError
-from hysteresis_lab.evaluation.evaluate import Evaluation, evaluate_model, scoring_start
+from hysteresis_lab.errors import DataError
+from hysteresis_lab.evaluation.evaluate import Evaluation, Scoring
 from hysteresis_lab.evaluation.plots import loops_figure, residuals_figure, save_figure
-from hysteresis_lab.evaluation.predict import check_n_step
 from hysteresis_lab.evaluation.report import metrics_document
 from hysteresis_lab.fitting import (
     TrainResult,
@@ -44,7 +42,7 @@ from hysteresis_lab.fitting import (
     fit,
 )
 from hysteresis_lab.lightning_trainer import TrainerSettings
-from hysteresis_lab.models.augment import Baseline, augment_splits, context_to_dict, warn_unshown
+from hysteresis_lab.models.augment import Baseline, ModelData, feature_context
 from hysteresis_lab.models.interface import SystemModel
 from hysteresis_lab.models.io import baseline_of, load_model, model_window, save_model
 from hysteresis_lab.models.settings import TrainingSettings
@@ -120,10 +118,17 @@ class RunConfig:
     settings: RunSettings = RunSettings()
     #: None: the model's own (`ModelSpec.training_settings`)
     training: TrainingSettings = None  # type: ignore[assignment]
+    #: how the run scores its model: the ``n_step`` and ``evaluation`` settings, simulated on
+    #: the trainer's device, with its progress bars
+    scoring: Scoring = dataclasses.field(init=False)
 
     def __post_init__(self) -> None:
         if self.training is None:
             object.__setattr__(self, "training", self.model.training_settings())
+        settings, trainer = self.settings, self.trainer
+        object.__setattr__(self, "scoring", Scoring(
+            settings.n_steps, settings.initial_state, trainer.evaluation_device(),
+            trainer.shows_progress))
 
     @classmethod
     def build(
@@ -195,17 +200,18 @@ def run_model(
         check_trainer_settings(config.trainer)
     config.output_dir.mkdir(parents=True, exist_ok=True)
     L.seed_everything(config.settings.seed, workers=True, verbose=False)
-    splits, data, context, baseline = _run_data(config, splits)
-    record_key, fit_key = _fit_keys(config, splits, warm_start, baseline)
-    reused = _reuse_finished_fit(config, record_key, data)
+    data = prepare_data(config, splits)
+    keys = FitKeys.of(config, data, warm_start)
+    reused = _reuse_finished_fit(config, keys.record, data.inputs)
     if reused is not None:
         return reused
-    resume = _resume_interrupted_fit(config, fit_key)
+    # a network fit may go on from an interrupted one; the others fit in one step
+    resume = config.model.is_network and RunFolder(config.output_dir).claim_fit(
+        keys.resume, config.settings.resume)
     # this fit overwrites the folder's files: an older record must not vouch for them
     fit_record.forget(config.output_dir)
     try:
-        result = _train_and_score(config, splits, data, context, warm_start, baseline,
-                                  callbacks, record_key, resume)
+        result = _train_and_score(config, data, warm_start, callbacks, keys.record, resume)
     except Exception:  # an error, not an interruption: a rerun starts afresh
         RunFolder(config.output_dir).finish_fit()
         raise
@@ -213,46 +219,91 @@ def run_model(
     return result
 
 
+def prepare_data(config: RunConfig, splits: DatasetSplits | None = None) -> ModelData:
+    """The run's data, in one step: the data set (``splits``, else loaded from the data
+    config) checked for what it can show, with the extra input channels the model reads
+    (its effects' operators, its baseline's free run); checked for scoring when it will be
+    scored."""
+    model, window = config.model, config.data.window
+    baseline = baseline_of(model)
+    check_effects(model.effects)
+    measured = splits or build_splits(config.data)
+    warn_weak_excitation(measured, window)
+    data = ModelData.of(measured, model.effects, baseline, model.to_config())
+    if config.settings.evaluate:
+        config.scoring.check(data.inputs, window)
+    return data
+
+
 def _train_and_score(
     config: RunConfig,
-    splits: DatasetSplits,
-    data: DatasetSplits,
-    context: Any,
+    data: ModelData,
     warm_start: Any | None,
-    baseline: Baseline | None,
     callbacks: list[Any] | None,
     record_key: str | None,
     resume: bool,
 ) -> RunResult:
-    """Build and fit the model (going on from an interrupted fit: ``resume``; a declared
-    physical model grows from ``splits`` through its stages, `hysteresis_lab.workflows.grow`,
-    each from the start), save it, then score it and write the run folder's documents
-    (`RunSettings.evaluate`). A grown model does not resume: its stages train afresh."""
-    settings = config.settings
+    """Fit the model (`_train`), save it, then score it and write the run folder's
+    documents (`RunSettings.evaluate`)."""
     logger = _tensorboard_logger(config)
-    if warm_start is None and len(growth_stages(config.model)) > 1:
-        trained = grow(config.model, config.training, config.output_dir,
-                       _stage_trainer(config, splits, baseline, callbacks))
-        window = model_window(trained.model)
-    else:
-        datamodule, model = _build(config, data, context, config.model.effects, warm_start,
-                                   baseline)
-        trained = fit(
-            model, datamodule, config.trainer, config.output_dir, logger=logger,
-            callbacks=callbacks, keep_start_unless_beaten=warm_start is not None,
-            min_gain=settings.min_refit_gain, resume=resume,
-        )
-        window = datamodule.window
+    trained, window = _train(config, data, warm_start, callbacks, logger, resume)
     model_path = save_model(trained.model, RunFolder(config.output_dir).model_stem)
     log.info("saved %s", model_path)
-    if not settings.evaluate:
-        return _unscored_result(config, data, trained, window)
-    return _score_and_report(config, data, trained, window, model_path, logger, record_key)
+    if not config.settings.evaluate:
+        return _unscored_result(config, data.inputs, trained, window)
+    return _score_and_report(config, data.inputs, trained, window, model_path, logger,
+                             record_key)
+
+
+def _train(
+    config: RunConfig,
+    data: ModelData,
+    warm_start: Any | None,
+    callbacks: list[Any] | None,
+    logger: TensorBoardLogger | None,
+    resume: bool,
+) -> tuple[TrainResult, WindowSpec]:
+    """The fitted model and its window: a declared physical model grows through its stages
+    (`hysteresis_lab.workflows.grow`), each from the start, and does not resume; any other
+    fits once (going on from an interrupted fit: ``resume``)."""
+    if warm_start is None and len(growth_stages(config.model)) > 1:
+        trained = grow(config.model, config.training, config.output_dir,
+                       _stage_trainer(config, data, callbacks))
+        return trained, model_window(trained.model)
+    return _fit(config, data, warm_start, logger, callbacks, resume)
+
+
+def _fit(
+    config: RunConfig,
+    data: ModelData,
+    warm_start: Any | None,
+    logger: TensorBoardLogger | None,
+    callbacks: list[Any] | None,
+    resume: bool = False,
+) -> tuple[TrainResult, WindowSpec]:
+    """Build the DataModule of ``data``'s inputs and the untrained model (started from
+    ``warm_start`` when given; with the baseline whose free run it reads, saved with it),
+    and fit it in the output folder; the start is kept unless the fit beats it."""
+    datamodule = build_datamodule(
+        config.data, config.model.layout, seed=config.settings.seed, splits=data.inputs
+    )
+    model = build_model(config.model, datamodule, config.training, **data.derived_settings())
+    if data.baseline is not None:
+        model.baseline = data.baseline
+    if warm_start is not None:
+        model.warm_start_from(warm_start)
+        if config.settings.refit == "new_inputs":
+            model.train_new_inputs_only()
+    trained = fit(
+        model, datamodule, config.trainer, config.output_dir, logger=logger,
+        callbacks=callbacks, keep_start_unless_beaten=warm_start is not None,
+        min_gain=config.settings.min_refit_gain, resume=resume,
+    )
+    return trained, datamodule.window
 
 
 def _stage_trainer(
-    config: RunConfig, splits: DatasetSplits, baseline: Baseline | None,
-    callbacks: list[Any] | None,
+    config: RunConfig, data: ModelData, callbacks: list[Any] | None
 ) -> TrainStage:
     """Trains one growth stage (`hysteresis_lab.workflows.grow`) of ``config``'s model: its
     settings, in its folder, warm-started from the model it grows from (None: from the
@@ -264,89 +315,50 @@ def _stage_trainer(
             config, model=config.model.with_settings(settings), training=training,
             output_dir=folder, settings=dataclasses.replace(config.settings, refit=refit))
         folder.mkdir(parents=True, exist_ok=True)
-        data, context = augment_splits(splits, stage.model.effects)
-        if baseline is not None:
-            data = baseline.append_to_splits(data, splits)
-        datamodule, model = _build(stage, data, context, stage.model.effects, previous,
-                                   baseline)
         # every stage's curves under the run's TensorBoard folder, one run each
         logger = None if not config.settings.use_tensorboard else TensorBoardLogger(
             save_dir=str(config.output_dir / RunFolder.TENSORBOARD),
             name=str(folder.relative_to(config.output_dir)), version="",
             default_hp_metric=False)
-        return fit(model, datamodule, config.trainer, folder,
-                   logger=logger, callbacks=callbacks,
-                   keep_start_unless_beaten=previous is not None,
-                   min_gain=config.settings.min_refit_gain)
+        return _fit(stage, data.with_effects(stage.model.effects), previous, logger,
+                    callbacks)[0]
 
     return train_stage
 
 
-def _resume_interrupted_fit(config: RunConfig, key: str) -> bool:
-    """Whether the fit goes on from the last checkpoints of an interrupted one in the output
-    folder (same fingerprint ``key``); marks this fit unfinished there until it is."""
-    if not config.model.is_network:  # nothing to resume: it fits in one step
-        return False
-    folder = RunFolder(config.output_dir)
-    interrupted = folder.read_fit_in_progress()
-    resume = config.settings.resume and interrupted == key
-    if interrupted is not None and interrupted != key and config.settings.resume:
-        raise ConfigError(
-            f"{config.output_dir} holds a training interrupted with other settings (model, "
-            "data, trainer, seed or start differ). Fix: rerun it with its own settings to "
-            f"resume it, use another folder (hydra.run.dir=...), or delete "
-            f"{folder.fit_in_progress} to start over there."
-        )
-    folder.start_fit(key)
-    return resume
+#: trainer settings that change what a fit shows, not what it computes: an interrupted fit
+#: resumes with other values of them
+DISPLAY_SETTINGS = ("enable_progress_bar", "enable_model_summary", "log_every_n_steps")
 
 
-def _run_data(
-    config: RunConfig, splits: DatasetSplits | None
-) -> tuple[DatasetSplits, DatasetSplits, Any, Baseline | None]:
-    """The data set (``splits``, else built from the data config), the same with the effects'
-    operator channels (and the free run of the model's ``baseline``, returned too) added,
-    and the effects' feature context; checked for scoring when it will be."""
-    effects = config.model.effects
-    baseline = baseline_of(config.model)
-    check_effects(effects)
-    splits = splits or build_splits(config.data)
-    warn_weak_excitation(splits, config.data.window)
-    data, context = augment_splits(splits, effects)
-    warn_unshown(effects, context, config.model.to_config())
-    if baseline is not None:
-        data = baseline.append_to_splits(data, splits)
-    if config.settings.evaluate:
-        _check_evaluation_settings(data, config.settings.n_steps, config.data.window)
-    return splits, data, context, baseline
+@dataclass(frozen=True)
+class FitKeys:
+    """The fingerprints of a run's fit (`fit_record.fingerprint`): ``record``, what a
+    finished fit records, when the run may reuse one (else None); ``resume``, what an
+    interrupted fit of it resumes under (display settings of the trainer aside)."""
+
+    record: str | None
+    resume: str
+
+    @classmethod
+    def of(cls, config: RunConfig, data: ModelData, warm_start: Any | None) -> FitKeys:
+        """The keys of ``config``'s fit on ``data`` from ``warm_start``."""
+        settings = config.settings
+        whole = _fingerprinted(config, warm_start, data.baseline)
+        resumed = _fingerprinted(config, warm_start, data.baseline, ignore=DISPLAY_SETTINGS)
+        reusable = settings.reuse and settings.evaluate
+        record = fit_record.fingerprint(whole, data.measured, warm_start) if reusable else None
+        return cls(record, fit_record.fingerprint(resumed, data.measured, warm_start))
 
 
 def _fit_record_key(
     config: RunConfig, splits: DatasetSplits, warm_start: Any | None,
     baseline: Baseline | None = None,
 ) -> str | None:
-    """The fingerprint a finished fit of this run records, when the run may reuse one."""
-    return _fit_keys(config, splits, warm_start, baseline)[0]
-
-
-def _fit_keys(
-    config: RunConfig, splits: DatasetSplits, warm_start: Any | None,
-    baseline: Baseline | None = None,
-) -> tuple[str | None, str]:
-    """The fingerprint a finished fit of this run records, when the run may reuse one
-    (else None), and the one an interrupted fit of it resumes under (display settings of
-    the trainer aside)."""
-    settings = config.settings
-    whole = _fingerprinted(config, warm_start, baseline)
-    resumed = _fingerprinted(config, warm_start, baseline, ignore=DISPLAY_SETTINGS)
-    record = (fit_record.fingerprint(whole, splits, warm_start)
-              if settings.reuse and settings.evaluate else None)
-    return record, fit_record.fingerprint(resumed, splits, warm_start)
-
-
-#: trainer settings that change what a fit shows, not what it computes: an interrupted fit
-#: resumes with other values of them
-DISPLAY_SETTINGS = ("enable_progress_bar", "enable_model_summary", "log_every_n_steps")
+    """The fingerprint a finished fit of this run on ``splits`` records, when the run may
+    reuse one."""
+    data = ModelData(splits, splits, feature_context(splits.train), baseline=baseline)
+    return FitKeys.of(config, data, warm_start).record
 
 
 def _fingerprinted(
@@ -378,7 +390,7 @@ def _reuse_finished_fit(
     again (the same weights give the same predictions; nothing is trained or rewritten);
     None when there is none, its model file cannot be loaded any more, or the run may not
     reuse one (no ``key``)."""
-    output_dir, trainer = config.output_dir, config.trainer
+    output_dir = config.output_dir
     record = None if key is None else fit_record.finished_fit(output_dir, key)
     if record is None:
         return None
@@ -396,44 +408,10 @@ def _reuse_finished_fit(
     document = folder.read_metrics()
     rejected_refit = folder.read_rejected_refit_metrics() if record["rejected"] else None
     window = model_window(model)
-    evaluation = evaluate_model(
-        model, data.test, window, n_init=data.n_init, n_steps=config.settings.n_steps,
-        device=trainer.evaluation_device(), progress=trainer.shows_progress,
-        initial_state=config.settings.initial_state,
-    )
     return RunResult(
-        document, record["val_mse"], evaluation, model, window, record["improved"],
-        record["refit_validation"], rejected_refit,
+        document, record["val_mse"], config.scoring.evaluate(model, data, window), model,
+        window,        record["improved"], record["refit_validation"], rejected_refit,
     )
-
-
-def _build(
-    config: RunConfig,
-    data: DatasetSplits,
-    context: Any,
-    effects: list[str],
-    warm_start: Any | None,
-    baseline: Baseline | None = None,
-) -> tuple[WindowDataModule, SystemModel]:
-    """The DataModule and the untrained model (started from ``warm_start`` when given; with
-    the ``baseline`` whose free run it reads, saved with it)."""
-    extra: dict[str, Any] = {"trained_on": _trained_on(data)}
-    if effects:
-        extra.update(feature_context=context_to_dict(context),
-                     n_base_inputs=data.metadata["n_base_inputs"])
-    if baseline is not None:  # its free run: the last channels, one per output
-        extra.update(n_base_inputs=data.metadata["n_base_inputs"], baseline_channels=data.ny)
-    datamodule = build_datamodule(
-        config.data, config.model.layout, seed=config.settings.seed, splits=data
-    )
-    model = build_model(config.model, datamodule, config.training, **extra)
-    if baseline is not None:
-        model.baseline = baseline
-    if warm_start is not None:
-        model.warm_start_from(warm_start)
-        if config.settings.refit == "new_inputs":
-            model.train_new_inputs_only()
-    return datamodule, model
 
 
 def _tensorboard_logger(config: RunConfig) -> TensorBoardLogger | None:
@@ -475,11 +453,7 @@ def _score_and_report(
     record and the TensorBoard summary."""
     settings, output_dir = config.settings, config.output_dir
     folder = RunFolder(output_dir)
-    evaluation = evaluate_model(
-        trained.model, data.test, window, n_init=data.n_init, n_steps=settings.n_steps,
-        device=config.trainer.evaluation_device(), progress=config.trainer.shows_progress,
-        initial_state=settings.initial_state,
-    )
+    evaluation = config.scoring.evaluate(trained.model, data, window)
     units = {"u": data.test[0].u_units, "y": data.test[0].y_units}
     rejected_refit = _keep_rejected_refit(config, data, trained, window, units)
     document = metrics_document(
@@ -529,9 +503,7 @@ def _keep_rejected_refit(
     # the refit's own weights for the scoring and the save; the kept start's afterwards
     with _weights(trained.model, trained.rejected_state) as rejected:
         rejected_refit = _score_rejected_refit(
-            rejected, trained, data, window, config.trainer, config.settings.n_steps, units,
-            config.model_name, config.settings.initial_state,
-        )
+            rejected, trained, data, window, config.scoring, units, config.model_name)
         log.info("saved %s", save_model(rejected, folder.rejected_refit_stem))
     folder.write_rejected_refit_metrics(rejected_refit)
     return rejected_refit
@@ -569,66 +541,20 @@ def _log_summary(
     logger.finalize("success")
 
 
-def _trained_on(data: DatasetSplits) -> dict[str, Any]:
-    """What a model keeps of its training data to refuse data it cannot score: the sampling
-    rate (its lags span a fixed number of samples) and the physical units (its scaler works
-    in them); and whether every recording starts from one shared unknown state, with the
-    longest training recording's length for the burn-in to it, and whether the output
-    integrates (only where the data set says so, so other models keep the settings they
-    had)."""
-    shared = {"shared_initial_state": True,
-              "burn_in_samples": max(r.n_samples for r in data.train)} \
-        if data.shared_initial_state else {}
-    integrates = {"output_integrates": True} if data.output_integrates else {}
-    return {"fs": data.fs, **{f"{k}_units": v for k, v in data.units.items()}, **shared,
-            **integrates}
-
-
-def _check_evaluation_settings(
-    data: DatasetSplits, n_steps: int | None, window: WindowSpec
-) -> None:
-    """Fail before training, not after it, when the evaluation cannot run."""
-    if not data.test:
-        raise DataError(
-            "has no test recordings to evaluate on.",
-            source=f"data set '{data.name}'",
-            fix="give some with data.test=[a.csv,b.csv], or train only with evaluate=false",
-        )
-    check_n_step(n_steps)
-    start = scoring_start(window, data.n_init)
-    for rec in data.test:
-        if rec.n_samples <= start:
-            raise DataError(
-                f"has {rec.n_samples} samples, but scoring starts at sample {start + 1} (the "
-                f"model's window na={window.na}, nb={window.nb}, nk={window.nk}, "
-                f"n_init={data.n_init}): nothing would be left to score.",
-                source=f"test recording '{rec.metadata.get('path', rec.name)}'",
-                fix="use a longer test recording, or smaller data.window.na / nb (or n_init)",
-            )
-
-
 def _score_rejected_refit(
     model: torch.nn.Module,
     trained: TrainResult,
     data: DatasetSplits,
     window: WindowSpec,
-    trainer: TrainerSettings,
-    n_steps: int | None,
+    scoring: Scoring,
     units: dict[str, str],
     model_name: str,
-    initial_state: str = "rest",
 ) -> dict[str, Any]:
     """Test metrics of a refit that lost to its start on validation (``model``, holding the
-    refit's weights), so that a report can show what it would have done."""
-    evaluation = evaluate_model(
-        model.eval(),
-        data.test,
-        window,
-        n_init=data.n_init,
-        n_steps=n_steps,
-        device=trainer.evaluation_device(),
-        initial_state=initial_state,
-    )
+    refit's weights, scored without a progress bar), so that a report can show what it
+    would have done."""
+    quiet = dataclasses.replace(scoring, progress=False)
+    evaluation = quiet.evaluate(model.eval(), data, window)
     return metrics_document(
         model_name,
         units,
