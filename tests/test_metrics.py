@@ -36,3 +36,19 @@ def test_score_skips_initial_samples_and_checks_shapes():
     with pytest.raises(DataError, match="nothing left"):
         score(rec, predicted, n_skip=5)
 
+
+
+def _document(initial_state: str) -> dict:
+    scores = {"r2_one_step": 0.9, "rmse_one_step": 0.1, "r2_free_run": 0.8, "rmse_free_run": 0.2}
+    return {"tests": {"sine_1Hz": scores}, "mean": scores, "std": scores,
+            "units": {"y": "um"}, "initial_state": initial_state}
+
+
+def test_table2_names_how_the_free_runs_started():
+    from hysteresis_lab.evaluation.report import table2_markdown
+
+    rest = table2_markdown({"ffnn": _document("rest"), "svm": _document("rest")})
+    assert "### Free-run simulation (from rest)" in rest
+    assert "### One-step-ahead prediction\n" in rest
+    mixed = table2_markdown({"ffnn": _document("rest"), "greybox": _document("estimate")})
+    assert "ffnn: from rest; greybox: initial state estimated" in mixed

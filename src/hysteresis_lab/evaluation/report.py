@@ -56,7 +56,8 @@ def table2_markdown(
     unit = next(iter(results.values()))["units"].get("y", "")
     lines: list[str] = []
     for mode in MODES:
-        lines += [f"### {MODE_TITLES[mode]}", ""]
+        lines += [f"### {MODE_TITLES[mode]}{_start_label(results) if mode == 'free_run' else ''}",
+                  ""]
         header = (["test"] + [f"{names[m]} R²" for m in models]
                   + [f"{names[m]} RMSE [{unit}]" for m in models])
         lines.append("| " + " | ".join(header) + " |")
@@ -70,6 +71,18 @@ def table2_markdown(
             lines.append("| " + " | ".join(cells) + " |")
         lines.append("")
     return "\n".join(lines)
+
+
+def _start_label(results: Mapping[str, Mapping[str, Any]]) -> str:
+    """How the free runs started (``evaluation.initial_state``), for the free-run heading:
+    `` (from rest)`` or `` (initial state estimated from the first n_init samples)``; each
+    model's own where they differ."""
+    label = {"rest": "from rest",
+             "estimate": "initial state estimated from the first n_init samples"}
+    starts = {m: str(doc.get("initial_state", "rest")) for m, doc in results.items()}
+    if len(set(starts.values())) == 1:
+        return f" ({label.get(next(iter(starts.values())), next(iter(starts.values())))})"
+    return " (" + "; ".join(f"{m}: {label.get(v, v)}" for m, v in starts.items()) + ")"
 
 
 def write_table2(
