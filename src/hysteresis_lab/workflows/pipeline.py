@@ -53,7 +53,6 @@ from hysteresis_lab.workflows.grow import TrainStage, grow, growth_stages
 log = logging.getLogger(__name__)
 
 
-
 @dataclass
 class RunResult:
     """What one trained model produced: its metrics document and validation MSE."""
@@ -63,7 +62,7 @@ class RunResult:
     evaluation: Evaluation
     model: SystemModel
     window: WindowSpec
-    improved: bool = True  # False: a warm-started refit kept its start (see training.fit)
+    improved: bool = True  # False: a warm-started refit kept its start (see fitting.fit)
     #: a warm-started refit's validation loss: {"start": x, "refit": x}
     refit_validation: dict[str, float] | None = None
     #: the metrics document of a refit that lost to its start (what it would have done)
