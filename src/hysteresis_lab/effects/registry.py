@@ -7,6 +7,7 @@ the diagnosis and every model that does not declare it run as usual; naming it i
 from __future__ import annotations
 
 from collections.abc import Sequence
+from importlib.metadata import EntryPoint
 
 from hysteresis_lab.effects.base import Effect
 from hysteresis_lab.errors import ConfigError
@@ -15,9 +16,8 @@ from hysteresis_lab.plugins import broken_message, load_or_skip, points, warn_br
 GROUP = "hysteresis_lab.effects"
 
 
-def _instance(name: str) -> Effect | None:
-    """The effect registered as ``name``; None (one warning) where its plugin is broken."""
-    point = points(GROUP)[name]
+def _instance(point: EntryPoint) -> Effect | None:
+    """The effect ``point`` registers; None (one warning) where its plugin is broken."""
     cls = load_or_skip(point)
     if cls is None:
         return None
@@ -28,9 +28,16 @@ def _instance(name: str) -> Effect | None:
         return None
 
 
+def loaded_effects() -> dict[str, Effect]:
+    """Every registered effect that loads, by name in name order, each loaded once (a broken
+    plugin's are left out, with a warning)."""
+    found = {name: _instance(point) for name, point in sorted(points(GROUP).items())}
+    return {name: effect for name, effect in found.items() if effect is not None}
+
+
 def available_effects() -> list[str]:
     """Names of the effects that load (a broken plugin's are left out, with a warning)."""
-    return sorted(name for name in points(GROUP) if _instance(name) is not None)
+    return list(loaded_effects())
 
 
 def get_effect(name: str) -> Effect:

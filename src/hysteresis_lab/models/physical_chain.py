@@ -31,7 +31,7 @@ from torch import nn
 from hysteresis_lab.blocks.step import StepState, frozen
 from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.effects.base import Effect, physical_order
-from hysteresis_lab.effects.registry import available_effects, get_effect
+from hysteresis_lab.effects.registry import loaded_effects
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.base import NarxModule
 from hysteresis_lab.models.export import export_chain_step
@@ -53,8 +53,8 @@ class FromEffects:
         self.pick = pick
 
     def __get__(self, obj: Any, owner: type | None = None) -> tuple[str, ...]:
-        effects = [get_effect(name) for name in available_effects()]
-        return tuple(e.name for e in physical_order(effects) if self.pick(e))
+        effects = physical_order(list(loaded_effects().values()))
+        return tuple(e.name for e in effects if self.pick(e))
 
 
 class PhysicalChainModule(NarxModule):

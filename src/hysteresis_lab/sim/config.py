@@ -62,12 +62,11 @@ def plant_blocks() -> dict[str, Block]:
 def plugin_blocks() -> dict[str, Block]:
     """Plugin effects with a simulator face (`hysteresis_lab.effects.base.Block.simulate`),
     by their key; a broken plugin is left out (with the registry's warning)."""
-    from hysteresis_lab.effects.registry import available_effects, get_effect
+    from hysteresis_lab.effects.registry import loaded_effects
 
     built_in = plant_blocks()
     found = {}
-    for name in available_effects():
-        effect = get_effect(name)
+    for effect in loaded_effects().values():
         if effect.simulatable and effect.sim_key not in built_in:
             found[effect.sim_key] = effect
     return found
