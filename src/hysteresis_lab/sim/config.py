@@ -18,20 +18,13 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from hysteresis_lab.effects.backlash import Backlash as BacklashEffect
 from hysteresis_lab.effects.backlash import BacklashConfig as Backlash
 from hysteresis_lab.effects.base import Block
-from hysteresis_lab.effects.creep import Creep as CreepEffect
 from hysteresis_lab.effects.creep import CreepConfig as Creep
-from hysteresis_lab.effects.dead_zone import DeadZone as DeadZoneEffect
 from hysteresis_lab.effects.dead_zone import DeadZoneConfig as DeadZone
-from hysteresis_lab.effects.drift import Drift as DriftEffect
 from hysteresis_lab.effects.drift import DriftConfig as Drift
-from hysteresis_lab.effects.hysteresis import Hysteresis as HysteresisEffect
 from hysteresis_lab.effects.hysteresis import HysteresisConfig as Hysteresis
-from hysteresis_lab.effects.rate import RateDependence as RateDependenceEffect
 from hysteresis_lab.effects.rate import RateDependenceConfig as RateDependence
-from hysteresis_lab.effects.saturation import Saturation as SaturationEffect
 from hysteresis_lab.effects.saturation import SaturationConfig as Saturation
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.sim.blocks import plant_only_blocks
@@ -51,25 +44,16 @@ def _no_output_delay() -> Delay:
 
 
 def plant_blocks() -> dict[str, Block]:
-    """The positioner's blocks by their ``data.effects`` key: the plant-only blocks and the
-    built-in effects' simulator faces."""
-    blocks: list[Block] = [*plant_only_blocks(), SaturationEffect(), DeadZoneEffect(),
-                           BacklashEffect(), HysteresisEffect(), RateDependenceEffect(),
-                           CreepEffect(), DriftEffect()]
-    return {block.sim_key: block for block in blocks}
-
-
-def plugin_blocks() -> dict[str, Block]:
-    """Plugin effects with a simulator face (`hysteresis_lab.effects.base.Block.simulate`),
-    by their key; a broken plugin is left out (with the registry's warning)."""
+    """The positioner's blocks by their ``data.effects`` key: the plant-only blocks and every
+    registered effect with a simulator face, built-in or plugin (a broken plugin is left
+    out, with the registry's warning)."""
     from hysteresis_lab.effects.registry import loaded_effects
 
-    built_in = plant_blocks()
-    found = {}
+    blocks: dict[str, Block] = {block.sim_key: block for block in plant_only_blocks()}
     for effect in loaded_effects().values():
-        if effect.simulatable and effect.sim_key not in built_in:
-            found[effect.sim_key] = effect
-    return found
+        if effect.simulatable:
+            blocks.setdefault(effect.sim_key, effect)
+    return blocks
 
 
 @dataclass(eq=False)
@@ -94,7 +78,7 @@ class PositionerConfig:
     quantisation: Quantisation = field(default_factory=Quantisation)
 
     def __post_init__(self) -> None:
-        #: plugin effects' block parameters by key (`plugin_blocks`)
+        #: plugin effects' block parameters by key (their blocks in `plant_blocks`)
         self.plugins: dict[str, Any] = {}
 
     def __eq__(self, other: object) -> bool:
@@ -110,17 +94,17 @@ class PositionerConfig:
         if isinstance(values, DictConfig):
             values = OmegaConf.to_container(values, resolve=True)  # type: ignore[assignment]
         config = cls()
-        plugins: dict[str, Block] | None = None
+        known: dict[str, Block] | None = None
         for block_name, block_values in (values or {}).items():
             if block_name not in _names(config):
-                plugins = plugin_blocks() if plugins is None else plugins
-                if block_name not in plugins:
-                    valid = sorted(_names(config) | set(plugins))
+                known = plant_blocks() if known is None else known
+                if block_name not in known:
+                    valid = sorted(_names(config) | set(known))
                     raise ConfigError(
                         f"unknown effect block '{block_name}'. Valid: {valid}. "
                         f"Fix: correct the override (e.g. data.effects.creep.enabled=true)."
                     )
-                block = plugins[block_name].sim_config()  # type: ignore[misc]
+                block = known[block_name].sim_config()  # type: ignore[misc]
             else:
                 block = getattr(config, block_name)
             if not isinstance(block_values, Mapping):
@@ -160,16 +144,12 @@ class PositionerConfig:
     def chain(self) -> list[tuple[Block, Any]]:
         """The blocks in the simulator's signal order, each with its parameters."""
         known = plant_blocks()
-        if self.plugins:
-            known.update(plugin_blocks())
         chain = [(known[key], cfg) for key, cfg in self.blocks()]
         return sorted(chain, key=lambda item: item[0].sim_order())
 
     def validate(self) -> None:
         """Reject parameter values that make a block unphysical or unstable."""
         known = plant_blocks()
-        if self.plugins:
-            known.update(plugin_blocks())
         for key, cfg in self.blocks():
             block = known[key]
             problems = block.validate_any(cfg, key)
