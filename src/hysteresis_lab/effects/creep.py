@@ -38,6 +38,10 @@ class CreepConfig:
     time_constants_s: list[float] = field(default_factory=lambda: [0.1, 1.0, 10.0, 100.0])
     weight_per_decade: float = 0.015
 
+    def __post_init__(self) -> None:
+        # an override such as [1, 10] gives whole numbers; the filters take seconds as floats
+        self.time_constants_s = [float(t) for t in self.time_constants_s]
+
 
 class Creep(Effect):
     """Creep: slow first-order filter bank of the input (time constants 0.1 s ... 100 s).

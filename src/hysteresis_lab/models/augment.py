@@ -232,9 +232,8 @@ def for_model(model: Any, recordings: Sequence[Recording]) -> list[Recording]:
     if effects:
         ctx = context_from_dict(model.hparams["feature_context"])
         augmented = [augment(r, effects, ctx) for r in recordings]
-    baseline = getattr(model, "baseline", None)
-    if baseline is not None:
-        augmented = baseline.append_to(augmented, recordings)
+    if model.baseline is not None:  # `ModelContract.baseline`
+        augmented = model.baseline.append_to(augmented, recordings)
     return augmented
 
 

@@ -119,8 +119,6 @@ class PositionerConfig:
                     f"Valid: {sorted(_names(block))}."
                 )
             updates = dict(block_values)
-            if "time_constants_s" in updates:
-                updates["time_constants_s"] = [float(t) for t in updates["time_constants_s"]]
             if block_name in _names(config):
                 setattr(config, block_name, dataclasses.replace(block, **updates))
             else:
