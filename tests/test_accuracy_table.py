@@ -69,3 +69,25 @@ def test_the_augmented_row_names_its_model_and_baseline_and_is_explained(tmp_pat
             "model.baseline=<root>/linear_cascaded_tanks model.nx=3`") in md
     assert "model=augmented" not in md
     assert "*augmented*: SUBNET augmenting the data set's physical model" in md
+
+
+def test_every_row_says_how_its_free_run_started(tmp_path):
+    """metrics.json's ``initial_state`` reaches the table: in the free-run heading where the
+    section's rows share it, beside each model where they differ."""
+    tests = {"tanks_test": (0.26, 0.05)}
+    rest = _metrics(tmp_path / "rest" / "metrics.json", tests, "V")
+    estimated = _metrics(tmp_path / "estimated" / "metrics.json", tests, "V")
+    estimated.write_text(json.dumps({**json.loads(estimated.read_text()),
+                                     "initial_state": "estimate"}))
+    stamp = {"commit": "abc1234", "date": "2026-01-01"}
+    run = {"command": "x", **stamp}
+    write_results([cell_from_metrics("linear", "cascaded_tanks", rest, [], **stamp)], run,
+                  tmp_path / "r")
+    md = (tmp_path / "r" / "accuracy.md").read_text()
+    assert "free run from rest [V]" in md
+    write_results([cell_from_metrics("greybox", "cascaded_tanks", estimated, [], **stamp)], run,
+                  tmp_path / "r")
+    md = (tmp_path / "r" / "accuracy.md").read_text()
+    assert "| free run [V] |" in md
+    assert "| greybox (from an estimated start) | tanks_test |" in md
+    assert "| linear (from rest) | tanks_test |" in md

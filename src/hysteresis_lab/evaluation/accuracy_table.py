@@ -117,6 +117,7 @@ def cell_from_metrics(
         "units": metrics.get("units", {}).get("y", ""),
         "rows": scored_rows(data, metrics),
         "train_seconds": float(metrics.get("train_seconds", math.nan)),
+        "initial_state": str(metrics.get("initial_state", "rest")),
         "overrides": list(overrides),
         "run_dir": str(metrics_path.parent),
         **extra,
@@ -185,7 +186,8 @@ def render_markdown(
         lines += [f"## {title(data)}", ""]
         if info["metric"]:
             lines += [f"Reference metric: {info['metric']}.", ""]
-        header = ["model", "test", f"free run [{units}]", f"one step [{units}]"]
+        header = ["model", "test", f"free run{_start_heading(mine)} [{units}]",
+                  f"one step [{units}]"]
         header += [f"{name} [{units}]" for name in names] + ["train time", "measured"]
         lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
         for cell in mine:
@@ -200,7 +202,8 @@ def render_markdown(
                         if applies else "–" for n in names]
                 first = i == 0
                 lines.append("| " + " | ".join([
-                    cell["model"] if first else "", row["test"], format_value(row["free_run"]),
+                    _row_label(cell, mine) if first else "", row["test"],
+                    format_value(row["free_run"]),
                     format_value(row["one_step"]), *refs,
                     format_duration(cell.get("train_seconds")) if first else "",
                     f"`{cell.get('commit', '?')}` {cell.get('date', '')}" if first else "",
@@ -213,6 +216,32 @@ def render_markdown(
                  if any(c["model"] == label for c in mine)]
         lines += [*notes, ""]
     return "\n".join(lines)
+
+
+#: how a cell's free runs started (metrics.json's ``initial_state``), as the table says it
+START_LABELS = {"rest": "from rest", "estimate": "from an estimated start"}
+
+
+def _starts(cells: Sequence[Mapping[str, Any]]) -> set[str]:
+    """The free-run starts of a section's measured cells (cells from before the mode was
+    recorded started from rest)."""
+    return {str(c.get("initial_state", "rest")) for c in cells if not c.get("skipped")}
+
+
+def _start_heading(cells: Sequence[Mapping[str, Any]]) -> str:
+    """`` from rest`` (or the one start every cell shares) for the free-run column; empty
+    where the cells differ (each row names its own, `_row_label`)."""
+    starts = _starts(cells)
+    return f" {START_LABELS.get(next(iter(starts)), next(iter(starts)))}" \
+        if len(starts) == 1 else ""
+
+
+def _row_label(cell: Mapping[str, Any], cells: Sequence[Mapping[str, Any]]) -> str:
+    """The model's name, with its free-run start where the section's cells differ."""
+    if len(_starts(cells)) <= 1:
+        return str(cell["model"])
+    start = str(cell.get("initial_state", "rest"))
+    return f"{cell['model']} ({START_LABELS.get(start, start)})"
 
 
 def _settings_line(cell: Mapping[str, Any], data: str) -> str:

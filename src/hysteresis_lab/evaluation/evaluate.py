@@ -14,6 +14,7 @@ from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.errors import ConfigError, DataError
+from hysteresis_lab.evaluation.initial_state import free_runs_from_estimated_starts
 from hysteresis_lab.evaluation.metrics import score
 from hysteresis_lab.evaluation.predict import check_n_step, free_run, n_step, one_step
 
@@ -29,8 +30,8 @@ class Evaluation:
 
 
 #: how a free run starts on each test recording (``evaluation.initial_state``): from rest as
-#: the model was trained, or with its output offset estimated from the recording's first
-#: ``n_init`` samples (a sensor zeroed elsewhere on another day; those samples are not scored)
+#: the model was trained, or from the state and output offset the recording's first
+#: ``n_init`` samples show (`hysteresis_lab.evaluation.initial_state`; not scored)
 INITIAL_STATES = ("rest", "estimate")
 
 
@@ -93,14 +94,6 @@ class Scoring:
         )
 
 
-def estimate_output_offset(
-    recording: Recording, prediction: np.ndarray, first: int, n_skip: int
-) -> np.ndarray:
-    """The output offset (ny,) that takes the free run ``prediction`` to the measured output
-    over samples ``first .. n_skip - 1`` (least squares: the mean difference)."""
-    return np.mean(recording.y[first:n_skip] - prediction[first:n_skip], axis=0)
-
-
 def scoring_start(window: WindowSpec, n_init: int = 0) -> int:
     """The first scored sample of a recording: every mode takes the samples before it (the
     model's window, at least ``n_init``) from the measurement as initial conditions."""
@@ -121,9 +114,9 @@ def evaluate_model(
 
     Scores start at `scoring_start` (the initial conditions every mode takes from the
     measurement are not scored). ``progress``: a progress bar over the modes (all
-    recordings run together in each). ``initial_state``: ``"estimate"`` shifts each free run
-    by the output offset its recording's first ``n_init`` samples show
-    (`estimate_output_offset`); ``"rest"`` leaves it as simulated.
+    recordings run together in each). ``initial_state``: ``"estimate"`` starts each free run
+    from what its recording's first ``n_init`` samples show (`hysteresis_lab.evaluation.
+    initial_state`); ``"rest"`` leaves it as simulated.
     """
     check_n_step(n_steps)  # before the other modes' work, not after it
     check_initial_state(initial_state, n_init, window)
@@ -136,9 +129,8 @@ def evaluate_model(
     modes = _run_modes(runs, len(recordings), progress)
     n_skip = scoring_start(window, n_init)
     if initial_state == "estimate":
-        modes["free_run"] = [
-            preds + estimate_output_offset(rec, preds, window.first_target, n_skip)
-            for rec, preds in zip(recordings, modes["free_run"], strict=True)]
+        modes["free_run"] = free_runs_from_estimated_starts(
+            model, recordings, modes["free_run"], window, n_skip, device)
     result = Evaluation()
     for position, rec in enumerate(recordings):
         result.predictions[rec.name] = {mode: preds[position] for mode, preds in modes.items()}

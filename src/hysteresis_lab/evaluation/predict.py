@@ -120,6 +120,21 @@ def free_run(
     return _simulate(model, recordings, window, starts, device, fast)
 
 
+def restarted_free_runs(
+    model: SystemModel,
+    recordings: Sequence[Recording],
+    window: WindowSpec,
+    start: int,
+    device: str | torch.device | None = None,
+) -> list[np.ndarray]:
+    """Free runs that read their state afresh from the measured outputs before sample
+    ``start`` (> ``window.first_target``) and simulate from there; before ``start`` each is
+    the free run from the recording's first samples."""
+    _check(model, recordings, window)
+    starts = [[0, start - window.first_target] for _ in recordings]
+    return _simulate(model, recordings, window, starts, device)
+
+
 def check_n_step(n: int | None) -> None:
     """Raise `DataError` unless ``n`` is a valid n-step horizon (None: no n-step scores)."""
     whole = isinstance(n, int | float) and not isinstance(n, bool) and float(n).is_integer()

@@ -205,6 +205,16 @@ class ModelContract:
         `simulates_recordings` is True. Default: not offered."""
         raise NotImplementedError(f"{type(self).__name__} does not simulate recordings itself")
 
+    def free_run_from_estimated_start(
+        self, u_scaled: np.ndarray, y_scaled: np.ndarray, first: int, n_skip: int
+    ) -> np.ndarray | None:
+        """For ``evaluation.initial_state=estimate``: the free run (scaled, (T, ny)) of one
+        recording of scaled inputs (T, nu) and outputs (T, ny) from the state and output
+        offset its samples ``first .. n_skip - 1`` show (a physical model's own state), or
+        None: the evaluation shifts the free run by the offset alone (a NARX model or SUBNET
+        already reads its first lags, or its encoder's, from the recording). Default: None."""
+        return None
+
     @property
     def simulates_recordings(self) -> bool:
         """True where the class runs its own free run (`simulate_recordings`) instead of the

@@ -42,6 +42,9 @@ log = logging.getLogger(__name__)
 MAX_STEP_BACKS = 10
 #: the burn-in to the learned shared initial state (samples) when the data do not say
 BURN_IN_DEFAULT = 1000
+#: levels tried along each input before `PhysicalChainModule.free_run_from_estimated_start`'s
+#: least squares refines the best
+HOLD_GRID_POINTS = 21
 
 
 class FromEffects:
@@ -184,6 +187,56 @@ class PhysicalChainModule(NarxModule):
             held = self.start_input.to(v).expand(v.shape[0], n_burn, -1)
             x = self.chain(torch.cat([held, v], dim=1))[:, n_burn:]
         return (x + self._output_offset()).to(u_scaled.dtype)
+
+    def _after_hold(self, v: torch.Tensor, level: torch.Tensor, n_hold: int) -> torch.Tensor:
+        """The chain's outputs over its inputs ``v`` (1, T, n_base_inputs), after ``level``
+        (n_base_inputs,) held from rest for ``n_hold`` samples (the state a system left
+        alone at that input settles in), before the offset."""
+        held = level.to(v).expand(1, n_hold, -1)
+        return self.chain(torch.cat([held, v], dim=1))[:, n_hold:]
+
+    def free_run_from_estimated_start(
+        self, u_scaled: np.ndarray, y_scaled: np.ndarray, first: int, n_skip: int
+    ) -> np.ndarray:
+        """The free run (T, ny) of one recording (scaled inputs (T, nu), outputs (T, ny))
+        from the start its samples ``first .. n_skip - 1`` show: the input level held
+        before the recording (as long as the recording lasts, so that what it can show
+        has settled) and the output offset, fitted by least squares on those samples (the
+        offset in closed form). Starting from rest, the offset alone, is the fit's first
+        candidate, so the estimate never fits those samples worse than it."""
+        from scipy.optimize import least_squares
+
+        v = self._physical_input(torch.as_tensor(u_scaled[None], dtype=torch.float64,
+                                                 device=self.u_scale.device))
+        measured = torch.as_tensor(y_scaled, dtype=torch.float64, device=v.device)
+        n_hold = max(BURN_IN_DEFAULT, v.shape[1])
+        head = v[:, :n_skip]
+
+        def start_error(level: np.ndarray) -> np.ndarray:
+            with torch.inference_mode():
+                x = self._after_hold(head, torch.as_tensor(level, dtype=torch.float64), n_hold)
+            error = (measured[first:n_skip] - x[0, first:n_skip]).cpu().numpy()
+            return (error - error.mean(axis=0)).ravel()
+
+        def cost(level: np.ndarray) -> float:
+            return float(np.sum(start_error(level) ** 2))
+
+        low, high = v[0].amin(dim=0).cpu().numpy(), v[0].amax(dim=0).cpu().numpy()
+        reach = (high - low) + np.maximum(np.abs(low), np.abs(high)) + 1e-9  # levels near it
+        lower, upper = low - reach, high + reach
+        # a hysteretic chain's error is flat or kinked in the level near rest: a grid along
+        # each input first (the others at the record's first input), then least squares
+        first_input = np.clip(v[0, 0].cpu().numpy(), lower, upper)
+        grid = [np.where(np.arange(len(first_input)) == i, value, first_input)
+                for i in range(len(first_input))
+                for value in np.linspace(lower[i], upper[i], HOLD_GRID_POINTS)]
+        start = min(grid, key=cost)
+        fitted = least_squares(start_error, start, bounds=(lower, upper), x_scale=reach).x
+        level = min([np.zeros_like(first_input), start, fitted], key=cost)  # rest: offset only
+        with torch.inference_mode():
+            x = self._after_hold(v, torch.as_tensor(level, dtype=torch.float64), n_hold)[0]
+        offset = (measured[first:n_skip] - x[first:n_skip]).mean(dim=0)
+        return (x + offset).cpu().numpy()
 
     def initial_state(self) -> torch.Tensor:
         """The step's state (nx,) where every recording starts: zeros (rest), or with a
