@@ -338,9 +338,9 @@ def _fit_one_step(
     resume: bool = False,
 ) -> tuple[Path | None, float]:
     """The study's training on the one-step error; the best checkpoint's path and loss."""
-    model.stage_lr = stage_lr(model, "one_step")
     last, checkpoint, all_callbacks = _stage_callbacks(output_dir / RunFolder.CHECKPOINTS,
                                                        resume, callbacks)
+    model.stage_lr = stage_lr(model, "one_step")
     if logger is not None:
         all_callbacks.append(LearningRateMonitor(logging_interval="epoch"))
     trainer = build_trainer(
@@ -572,9 +572,9 @@ def _fit_free_run(
     ``last.ckpt`` when there is one (see `fit`). Returns the checkpoint, whether training
     improved on the start, and the validation free-run MSE (scaled) of the weights kept.
     """
+    last, checkpoint, all_callbacks = _stage_callbacks(output_dir / folder, resume, callbacks)
     model.stage_lr = stage_lr(model, lr_stage)
     segments = simulation_data(datamodule, model, steps)
-    last, checkpoint, all_callbacks = _stage_callbacks(output_dir / folder, resume, callbacks)
     patience = model.training_settings.patience
     if patience:
         early_stopping = EarlyStopping(monitor="val_loss", mode="min", patience=patience)

@@ -114,69 +114,76 @@ def train_model(
     """The run's fitted model and its window: a declared physical model grows through its
     stages (`grow`), each from the start, and does not resume; any other fits once
     (`hysteresis_lab.fitting.fit_run`, going on from an interrupted fit: ``resume``)."""
-    if warm_start is None and len(growth_stages(config.model)) > 1:
-        trained = grow(config, data, callbacks)
-        return trained, model_window(trained.model)
-    return fit_run(config, data, warm_start, logger, callbacks, resume)
+    if warm_start is not None or len(growth_stages(config.model)) == 1:
+        return fit_run(config, data, warm_start, logger, callbacks, resume)
+    trained = grow(config, data, callbacks)
+    return trained, model_window(trained.model)
 
 
 def grow(config: RunConfig, data: ModelData, callbacks: list[Any] | None = None) -> TrainResult:
-    """Train ``config``'s model through its `growth_stages` (each stage with the run's
-    ``training`` settings, a refit at each of its `refit_rates`), every stage in its folder
-    under the run folder; the last stage's result (with the best refit rate) is returned,
-    its start's rejected weights dropped (a declared block kept at no effect is the declared
-    model, not a rejected refit)."""
-    spec = config.model
-    stages = growth_stages(spec)
+    """Train ``config``'s model through its `growth_stages` (`_grow_stage`), every stage in
+    its folder under the run folder; the last stage's result (with the best refit rate) is
+    returned, its start's rejected weights dropped (a declared block kept at no effect is
+    the declared model, not a rejected refit)."""
+    stages = growth_stages(config.model)
     previous: TrainResult | None = None
     for number, stage in enumerate(stages):
         folder = config.output_dir / STAGES_FOLDER / f"{number}_{stage.label}"
-        if previous is None:
-            log.info("growing %s: stage %d of %d, %s", spec.name, number + 1, len(stages),
-                     stage.label)
-            previous = _fit_stage(config, data, stage.settings, config.training, folder, None,
-                                  "full", callbacks)
-            continue
-        previous = _refit_stage(config, data, stage, folder, previous, callbacks,
-                                f"stage {number + 1} of {len(stages)}")
+        previous = _grow_stage(config, data, stage, folder, previous, callbacks,
+                               f"stage {number + 1} of {len(stages)}")
     assert previous is not None
     previous.rejected_state = None
     return previous
 
 
-def _refit_stage(
-    config: RunConfig, data: ModelData, stage: Stage, folder: Path, previous: TrainResult,
-    callbacks: list[Any] | None, position: str,
+def _grow_stage(
+    config: RunConfig, data: ModelData, stage: Stage, folder: Path,
+    previous: TrainResult | None, callbacks: list[Any] | None, position: str,
 ) -> TrainResult:
-    """The model grown by ``stage`` (at ``position`` among the stages) from ``previous``'s,
-    refitted at each refit rate (one folder each); the one that keeps the lowest validation
-    loss goes on (a refit that diverged is no candidate)."""
-    spec, training = config.model, config.training
-    rates = refit_rates(training)
-    mode = refit_mode(stage.added, spec.cls)
+    """One growth stage (at ``position``): the first trained from the data; a later one
+    refitted from the model it grows from (``previous``) at each of its `_stage_fits`, the
+    refit that keeps the lowest validation loss going on (one that diverged is no
+    candidate)."""
+    name = config.model.name
     candidates = []
-    for rate in rates:
-        log.info("growing %s: %s, + %s (refit %s at learning rate %.3g)", spec.name, position,
-                 stage.label, mode, rate)
+    for training, stage_folder, mode, label in _stage_fits(config, stage, folder, previous):
+        log.info("growing %s: %s, %s", name, position, label)
         try:
-            candidates.append(_fit_stage(config, data, stage.settings,
-                                         training.with_changes(refit_lr=rate),
-                                         folder / f"refit_lr_{rate:.3g}", previous.model, mode,
-                                         callbacks))
+            candidates.append(_fit_stage(config, data, stage.settings, training, stage_folder,
+                                         previous and previous.model, mode, callbacks))
         except DivergedError as exc:
+            if previous is None:
+                raise
             log.warning("growing %s: the refit with %s at learning rate %.3g diverged: "
-                        "not a candidate (%s)", spec.name, stage.label, rate, exc)
+                        "not a candidate (%s)", name, stage.label, training.refit_lr, exc)
+    if previous is None:
+        return candidates[0]
     if not candidates:
         raise DivergedError(
-            f"every refit that grew {stage.label} on the fitted {spec.name} model diverged "
-            f"(learning rates {rates}). Fix: a smaller training.refit_lr, or model.grow=false "
-            "(every declared block trained at once)."
+            f"every refit that grew {stage.label} on the fitted {name} model diverged "
+            f"(learning rates {refit_rates(config.training)}). Fix: a smaller "
+            "training.refit_lr, or model.grow=false (every declared block trained at once)."
         )
     chosen = min(candidates, key=kept_loss)
-    log.info("growing %s: + %s %s (validation loss %.4e)", spec.name, stage.label,
+    log.info("growing %s: + %s %s (validation loss %.4e)", name, stage.label,
              "refitted" if chosen.improved else "kept at no effect: no refit beat the "
              "model it grew from", kept_loss(chosen))
     return chosen
+
+
+def _stage_fits(
+    config: RunConfig, stage: Stage, folder: Path, previous: TrainResult | None
+) -> list[tuple[TrainingSettings, Path, str, str]]:
+    """The fits of one growth stage: its training settings, folder, refit mode (see
+    `refit_mode`) and label. The first stage fits once, in ``folder``; a later one refits
+    at each of the `refit_rates`, in ``folder/refit_lr_<rate>``."""
+    training = config.training
+    if previous is None:
+        return [(training, folder, "full", stage.label)]
+    rates = refit_rates(training)
+    mode = refit_mode(stage.added, config.model.cls)
+    return [(training.with_changes(refit_lr=rate), folder / f"refit_lr_{rate:.3g}", mode,
+             f"+ {stage.label} (refit {mode} at learning rate {rate:.3g})") for rate in rates]
 
 
 def _fit_stage(
@@ -193,5 +200,5 @@ def _fit_stage(
     logger = None if not config.settings.use_tensorboard else TensorBoardLogger(
         save_dir=str(config.output_dir / RunFolder.TENSORBOARD),
         name=str(folder.relative_to(config.output_dir)), version="", default_hp_metric=False)
-    return fit_run(stage, data.with_effects(stage.model.effects), previous, logger,
-                   callbacks)[0]
+    stage_data = data.with_effects(stage.model.effects)
+    return fit_run(stage, stage_data, previous, logger, callbacks)[0]

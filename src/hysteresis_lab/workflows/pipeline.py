@@ -26,14 +26,13 @@ from hysteresis_lab.data.checks import warn_weak_excitation
 from hysteresis_lab.data.factory import build_splits
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.effects.registry import check_effects
-from hysteresis_lab.errors import DataError
 from hysteresis_lab.fitting import check_trainer_settings
 from hysteresis_lab.models.augment import Baseline, ModelData, feature_context
-from hysteresis_lab.models.io import baseline_of, load_model, model_window
+from hysteresis_lab.models.io import baseline_of
 from hysteresis_lab.run_config import RunConfig, RunResult, RunSettings, plain_dict
 from hysteresis_lab.run_folder import RunFolder
 from hysteresis_lab.workflows.grow import train_model
-from hysteresis_lab.workflows.run_report import report_run
+from hysteresis_lab.workflows.run_report import report_run, reuse_finished_fit
 
 __all__ = ["RunConfig", "RunResult", "RunSettings", "plain_dict", "prepare_data", "run_model",
            "train_from_config"]
@@ -72,7 +71,7 @@ def run_model(
     L.seed_everything(config.settings.seed, workers=True, verbose=False)
     data = prepare_data(config, splits)
     keys = FitKeys.of(config, data, warm_start)
-    reused = _reuse_finished_fit(config, keys.record, data.inputs)
+    reused = reuse_finished_fit(config, keys.record, data.inputs)
     if reused is not None:
         return reused
     return _train_and_report(config, data, warm_start, callbacks, keys)
@@ -174,37 +173,6 @@ def _fingerprinted(
     if baseline is not None:  # only then: the records of runs without one stay valid
         fingerprinted["baseline"] = baseline.digest
     return fingerprinted
-
-
-def _reuse_finished_fit(
-    config: RunConfig, key: str | None, data: DatasetSplits
-) -> RunResult | None:
-    """The finished fit recorded under ``key`` in the run folder, its model loaded and scored
-    again (the same weights give the same predictions; nothing is trained or rewritten);
-    None when there is none, its model file cannot be loaded any more, or the run may not
-    reuse one (no ``key``)."""
-    output_dir = config.output_dir
-    record = None if key is None else fit_record.finished_fit(output_dir, key)
-    if record is None:
-        return None
-    try:
-        model = load_model(output_dir / record["model_file"])
-    except DataError as exc:
-        log.warning("the fit in %s cannot be reused (%s): it trains again", output_dir, exc)
-        return None
-    log.info(
-        "%s: reusing the finished fit there (same settings, data and start; %s). To train "
-        "it again, delete that file or run with loop.resume=false (paper.resume=false)",
-        output_dir, fit_record.FIT_RECORD,
-    )
-    folder = RunFolder(output_dir)
-    document = folder.read_metrics()
-    rejected_refit = folder.read_rejected_refit_metrics() if record["rejected"] else None
-    window = model_window(model)
-    return RunResult(
-        document, record["val_mse"], config.scoring.evaluate(model, data, window), model,
-        window, record["improved"], record["refit_validation"], rejected_refit,
-    )
 
 
 def _tensorboard_logger(config: RunConfig) -> TensorBoardLogger | None:

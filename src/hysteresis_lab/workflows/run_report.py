@@ -1,6 +1,8 @@
-"""A trained run's model saved, scored and written in one step: ``model.*``, ``metrics.json``,
-the figures, a losing refit's own model and scores beside the kept one, the fit record
-(`hysteresis_lab.fit_record`) and the TensorBoard summary (the run folder: `RunFolder`)."""
+"""A run's results in its run folder (`RunFolder`): a trained model saved, scored and written
+in one step (`report_run`: ``model.*``, ``metrics.json``, the figures, a losing refit's own
+model and scores beside the kept one, the fit record and the TensorBoard summary), or a
+finished fit recorded there (`hysteresis_lab.fit_record`) loaded and scored again
+(`reuse_finished_fit`)."""
 
 from __future__ import annotations
 
@@ -17,11 +19,12 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from hysteresis_lab import fit_record
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.data.windows import WindowSpec
+from hysteresis_lab.errors import DataError
 from hysteresis_lab.evaluation.evaluate import Evaluation, Scoring
 from hysteresis_lab.evaluation.plots import loops_figure, residuals_figure, save_figure
 from hysteresis_lab.evaluation.report import metrics_document
 from hysteresis_lab.fitting import TrainResult
-from hysteresis_lab.models.io import save_model
+from hysteresis_lab.models.io import load_model, model_window, save_model
 from hysteresis_lab.run_config import RunConfig, RunResult
 from hysteresis_lab.run_folder import RunFolder
 
@@ -39,27 +42,46 @@ def report_run(
     """Save the trained model in the run folder; score it on ``data``'s test recordings and
     write its documents (`RunSettings.evaluate`; else its validation loss and cost only);
     with ``record_key``, record the finished fit for a later reuse."""
-    model_path = save_model(trained.model, RunFolder(config.output_dir).model_stem)
+    folder = RunFolder(config.output_dir)
+    model_path = save_model(trained.model, folder.model_stem)
     log.info("saved %s", model_path)
-    if not config.settings.evaluate:
-        return _unscored_result(config, data, trained, window)
+    if not config.settings.evaluate:  # a sweep trial: its validation loss and cost only
+        document = {"model": config.model_name, "data": data.name,
+                    "val_mse_scaled": trained.val_mse, "train_seconds": trained.train_seconds}
+        folder.write_metrics(document)
+        return RunResult(document, trained.val_mse, Evaluation(), trained.model, window,
+                         trained.improved, trained.refit_validation)
     return _score_and_write(config, data, trained, window, model_path, logger, record_key)
 
 
-def _unscored_result(
-    config: RunConfig, data: DatasetSplits, trained: TrainResult, window: WindowSpec
-) -> RunResult:
-    """A run with ``evaluate=False`` (a sweep trial): its validation loss and cost only."""
-    document = {
-        "model": config.model_name,
-        "data": data.name,
-        "val_mse_scaled": trained.val_mse,
-        "train_seconds": trained.train_seconds,
-    }
-    RunFolder(config.output_dir).write_metrics(document)
+def reuse_finished_fit(
+    config: RunConfig, key: str | None, data: DatasetSplits
+) -> RunResult | None:
+    """The finished fit recorded under ``key`` in the run folder, its model loaded and scored
+    again (the same weights give the same predictions; nothing is trained or rewritten);
+    None when there is none, its model file cannot be loaded any more, or the run may not
+    reuse one (no ``key``)."""
+    output_dir = config.output_dir
+    record = None if key is None else fit_record.finished_fit(output_dir, key)
+    if record is None:
+        return None
+    try:
+        model = load_model(output_dir / record["model_file"])
+    except DataError as exc:
+        log.warning("the fit in %s cannot be reused (%s): it trains again", output_dir, exc)
+        return None
+    log.info(
+        "%s: reusing the finished fit there (same settings, data and start; %s). To train "
+        "it again, delete that file or run with loop.resume=false (paper.resume=false)",
+        output_dir, fit_record.FIT_RECORD,
+    )
+    folder = RunFolder(output_dir)
+    document = folder.read_metrics()
+    rejected_refit = folder.read_rejected_refit_metrics() if record["rejected"] else None
+    window = model_window(model)
     return RunResult(
-        document, trained.val_mse, Evaluation(), trained.model, window, trained.improved,
-        trained.refit_validation,
+        document, record["val_mse"], config.scoring.evaluate(model, data, window), model,
+        window, record["improved"], record["refit_validation"], rejected_refit,
     )
 
 
