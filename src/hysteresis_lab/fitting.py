@@ -180,7 +180,7 @@ def _keep_start_unless_beaten(
     model = result.model
     trained = {k: v.detach().clone() for k, v in model.state_dict().items()}
     losses = {}
-    for name, weights in (("refit", trained), ("start", start)):  # the start's weights stay
+    for name, weights in (("refit", trained), ("start", start)):  # the start's stay loaded
         model.load_state_dict(weights)
         losses[name] = _selection_loss(model, datamodule, settings)
     trained_loss, start_loss = losses["refit"], losses["start"]
@@ -258,7 +258,7 @@ def _fit_network(
     start: float,
 ) -> TrainResult:
     """A network's stages, from its starting values read off the data: the free-run error
-    alone, or the one-step error fine-tuned on the free run (`_fit_one_step_first`)."""
+    alone, or the one-step error fine-tuned on the free run (`_fit_one_step_and_fine_tune`)."""
     _initialise_from_data(model, datamodule)
     steps = model.simulation_horizon
     fine_tune_epochs = model.training_settings.simulation_epochs
@@ -274,7 +274,7 @@ def _fit_network(
         )
         detail = f" (validation free-run MSE {val_mse:.4e}, scaled)"
     else:
-        best, val_mse = _fit_one_step_first(model, datamodule, settings, output_dir, logger,
+        best, val_mse = _fit_one_step_and_fine_tune(model, datamodule, settings, output_dir, logger,
                                             callbacks, one_step, resume, fine_tune_epochs)
         detail = ""
     model.stage_lr = None
@@ -283,7 +283,7 @@ def _fit_network(
     return TrainResult(model.eval(), val_mse, seconds, best)
 
 
-def _fit_one_step_first(
+def _fit_one_step_and_fine_tune(
     model: L.LightningModule,
     datamodule: WindowDataModule,
     settings: TrainerSettings,
