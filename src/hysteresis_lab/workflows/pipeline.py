@@ -12,7 +12,6 @@ final metrics as hparams).
 
 from __future__ import annotations
 
-import logging
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,8 +35,6 @@ from hysteresis_lab.workflows.run_report import report_run, reuse_finished_fit
 
 __all__ = ["RunConfig", "RunResult", "RunSettings", "plain_dict", "prepare_data", "run_model",
            "train_from_config"]
-
-log = logging.getLogger(__name__)
 
 
 def train_from_config(
