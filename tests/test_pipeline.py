@@ -40,7 +40,7 @@ def test_a_run_scores_writes_its_folder_and_is_reused_with_the_same_settings(tmp
     assert (tmp_path / "run" / fit_record.FIT_RECORD).is_file() and folder.fit_record.is_file()
     # the same run built again from its objects: its finished fit is found and scored again
     saved = (tmp_path / "run" / "model.ckpt").stat().st_mtime_ns
-    caplog.set_level("INFO", logger="hysteresis_lab.workflows.pipeline")
+    caplog.set_level("INFO", logger="hysteresis_lab.workflows.run_report")
     again = run_model(RunConfig(config.model, DataSpec.from_config(DATA), config.trainer,
                                 tmp_path / "run", settings, config.training), splits=splits)
     assert again.document == result.document and again.val_mse == result.val_mse

@@ -17,7 +17,7 @@ from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.scaling import PAPER_U_SCALE, PAPER_Y_SCALE, Scaler, ScalingSettings
 from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.data.splits import DatasetSplits
-from hysteresis_lab.data.windows import WindowSpec
+from hysteresis_lab.data.windows import WindowSpec, make_windows
 from hysteresis_lab.errors import ConfigError, DataError
 
 
@@ -113,6 +113,17 @@ def test_sequence_layout_batches_and_explicit_validation_recordings():
     assert x.shape == (16, 10, 3) and target.shape == (16, 1)
     (test_loader,) = dm.test_dataloader()
     assert len(test_loader.dataset) == 70
+
+
+def test_validation_mse_scores_a_predictor_on_the_scaled_validation_windows():
+    splits = DatasetSplits("d", train=[make_recording(400, "tr")], val=[make_recording(90, "va")],
+                           test=[make_recording(80, "te")])
+    dm = WindowDataModule(splits, WindowSpec(), layout="flat", scaling="standard")
+    x, target = dm.scale_windows(make_windows(splits.val, dm.window))  # what it scores on
+    assert dm.validation_mse(lambda x: np.zeros((len(x), 1))) == pytest.approx(
+        float(np.mean(target**2)))
+    assert dm.validation_mse(lambda x: np.asarray(target)) == 0.0
+    assert len(x) == len(dm.val_windows) == 80  # set up by the call
 
 
 def test_bad_datamodule_settings():

@@ -14,6 +14,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import os
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -46,8 +47,11 @@ def fingerprint(settings: Mapping[str, Any], splits: DatasetSplits, start: Any |
 
 def write_record(directory: Path, key: str, result: Mapping[str, Any]) -> None:
     """Mark the fit in ``directory`` finished: its fingerprint and ``result`` (JSON-able; its
-    ``files``, the names of the fit's files in ``directory``, must all be there to reuse it)."""
-    (directory / FIT_RECORD).write_text(json.dumps({"fingerprint": key, **result}, indent=1))
+    ``files``, the names of the fit's files in ``directory``, must all be there to reuse it).
+    The record appears whole or not at all (a process killed while writing leaves none)."""
+    partial = directory / f"{FIT_RECORD}.partial"
+    partial.write_text(json.dumps({"fingerprint": key, **result}, indent=1))
+    os.replace(partial, directory / FIT_RECORD)
 
 
 def finished_fit(directory: Path, key: str) -> dict[str, Any] | None:

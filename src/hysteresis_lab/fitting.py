@@ -12,7 +12,7 @@ import os
 import signal
 import time
 import warnings
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -30,14 +30,18 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from lightning.pytorch.utilities.exceptions import MisconfigurationException, SIGTERMException
 
 from hysteresis_lab.data.datamodules import WindowDataModule
+from hysteresis_lab.data.factory import build_datamodule
 from hysteresis_lab.data.segments import simulation_data
+from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.errors import ConfigError, DivergedError
 from hysteresis_lab.interrupts import RunInterrupted, raise_if_stopped, signals_deferred
 from hysteresis_lab.lightning_trainer import TrainerSettings, build_trainer
 from hysteresis_lab.models.augment import SETTING as BASELINE_SETTING
+from hysteresis_lab.models.augment import ModelData
 from hysteresis_lab.models.interface import SystemModel
 from hysteresis_lab.models.settings import TRAINING_SETTINGS, Stage, TrainingSettings
 from hysteresis_lab.models.spec import ModelSpec
+from hysteresis_lab.run_config import RunConfig
 from hysteresis_lab.run_folder import RunFolder
 
 log = logging.getLogger(__name__)
@@ -57,6 +61,36 @@ class TrainResult:
     refit_validation: dict[str, float] | None = None
     #: the refit's own weights when it lost to its start (kept for reporting what it did)
     rejected_state: dict[str, torch.Tensor] | None = None
+
+
+def fit_run(
+    config: RunConfig,
+    data: ModelData,
+    warm_start: Any | None = None,
+    logger: TensorBoardLogger | None = None,
+    callbacks: list[Any] | None = None,
+    resume: bool = False,
+) -> tuple[TrainResult, WindowSpec]:
+    """Fit ``config``'s model on ``data``'s inputs in its output folder, and its window: the
+    DataModule and the untrained model (started from ``warm_start`` when given; with the
+    baseline whose free run it reads, saved with it), then `fit`; the start is kept unless
+    the fit beats it, and ``resume`` goes on from an interrupted fit."""
+    datamodule = build_datamodule(
+        config.data, config.model.layout, seed=config.settings.seed, splits=data.inputs
+    )
+    model = build_model(config.model, datamodule, config.training, **data.derived_settings())
+    if data.baseline is not None:
+        model.baseline = data.baseline
+    if warm_start is not None:
+        model.warm_start_from(warm_start)
+        if config.settings.refit == "new_inputs":
+            model.train_new_inputs_only()
+    trained = fit(
+        model, datamodule, config.trainer, config.output_dir, logger=logger,
+        callbacks=callbacks, keep_start_unless_beaten=warm_start is not None,
+        min_gain=config.settings.min_refit_gain, resume=resume,
+    )
+    return trained, datamodule.window
 
 
 def build_model(
@@ -145,9 +179,11 @@ def _keep_start_unless_beaten(
     more than the share ``min_gain``; records the verdict and both losses in ``result``."""
     model = result.model
     trained = {k: v.detach().clone() for k, v in model.state_dict().items()}
-    trained_loss = _selection_loss(model, datamodule, settings)
-    model.load_state_dict(start)
-    start_loss = _selection_loss(model, datamodule, settings)
+    losses = {}
+    for name, weights in (("refit", trained), ("start", start)):  # the start's stay loaded
+        model.load_state_dict(weights)
+        losses[name] = _selection_loss(model, datamodule, settings)
+    trained_loss, start_loss = losses["refit"], losses["start"]
     result.refit_validation = {"start": start_loss, "refit": trained_loss}
     result.improved = trained_loss < (1.0 - min_gain) * start_loss
     if result.improved:
@@ -170,11 +206,11 @@ def _selection_loss(
     one-step MSE."""
     steps = model.simulation_horizon
     if steps == 0:
-        return _validation_mse(model.predict_scaled, datamodule)
+        return datamodule.validation_mse(model.predict_scaled)
     model.simulation_mode = True
     try:
-        trainer = build_trainer(settings, logger=False, enable_checkpointing=False)
         segments = simulation_data(datamodule, model, steps)
+        trainer = build_trainer(settings, logger=False, enable_checkpointing=False)
         return float(trainer.validate(model, datamodule=segments, verbose=False)[0]["val_loss"])
     finally:
         model.simulation_mode = False
@@ -204,50 +240,83 @@ def _fit(
     if not model.is_network:
         x, target = datamodule.scale_windows(datamodule.train_windows)
         model.fit(x, target)
-        val_mse = _validation_mse(model.predict_scaled, datamodule)
+        val_mse = datamodule.validation_mse(model.predict_scaled)
         return TrainResult(model, val_mse, time.perf_counter() - start)
+    return _fit_network(model, datamodule, settings, output_dir, logger, callbacks, one_step,
+                        resume, start)
 
+
+def _fit_network(
+    model: L.LightningModule,
+    datamodule: WindowDataModule,
+    settings: TrainerSettings,
+    output_dir: Path,
+    logger: TensorBoardLogger | None,
+    callbacks: list[Any] | None,
+    one_step: bool,
+    resume: bool,
+    start: float,
+) -> TrainResult:
+    """A network's stages, from its starting values read off the data: the free-run error
+    alone, or the one-step error fine-tuned on the free run (`_fit_one_step_and_fine_tune`)."""
+    _initialise_from_data(model, datamodule)
     steps = model.simulation_horizon
     fine_tune_epochs = model.training_settings.simulation_epochs
-    stages = (model, datamodule, settings, output_dir, logger)
-    _initialise_from_data(model, datamodule)
     if steps > 0 and fine_tune_epochs is not None and model.simulation_trained:
         log.info("%s trains on the free-run error alone: simulation_epochs=%s (a one-step stage "
                  "first) does not apply to it", type(model).__name__, fine_tune_epochs)
         fine_tune_epochs = None
     if steps > 0 and fine_tune_epochs is None:  # the free-run error is the only objective
-        model.stage_lr = stage_lr(model, "simulation")
         best, _, val_mse = _fit_free_run(
-            *stages, steps, int(settings.max_epochs), callbacks, RunFolder.CHECKPOINTS,
+            model, datamodule, settings, output_dir, logger, "simulation", steps,
+            int(settings.max_epochs), callbacks, RunFolder.CHECKPOINTS,
             starting_checkpoint=None, keep_start=True, finite_start=True, resume=resume,
         )
-        model.stage_lr = None
-        seconds = time.perf_counter() - start
-        log.info("trained in %.1f s (validation free-run MSE %.4e, scaled)", seconds, val_mse)
-        return TrainResult(model.eval(), val_mse, seconds, best)
-    if not one_step and steps > 0:
-        model.stage_lr = stage_lr(model, "fine_tune")
-        best, improved, val_mse = _fit_free_run(
-            *stages, steps, int(fine_tune_epochs), None, RunFolder.FREE_RUN_CHECKPOINTS,
-            starting_checkpoint=None, keep_start=True, resume=resume,
-        )
-        if not improved:  # the new inputs were not learned: refit from the warm start
-            log.info("refitting the warm-started network on the one-step error first")
-            one_step = True
-            resume = False  # the free-run folder holds that first stage's checkpoints
-    if one_step or steps == 0:
-        model.stage_lr = stage_lr(model, "one_step")
-        best, val_mse = _fit_one_step(*stages, callbacks, resume)
-        if steps > 0:
-            model.stage_lr = stage_lr(model, "fine_tune")
-            best, _, val_mse = _fit_free_run(
-                *stages, steps, int(fine_tune_epochs), None, RunFolder.FREE_RUN_CHECKPOINTS,
-                starting_checkpoint=best, keep_start=True, resume=resume,
-            )
+        detail = f" (validation free-run MSE {val_mse:.4e}, scaled)"
+    else:
+        best, val_mse = _fit_one_step_and_fine_tune(model, datamodule, settings, output_dir, logger,
+                                            callbacks, one_step, resume, fine_tune_epochs)
+        detail = ""
     model.stage_lr = None
     seconds = time.perf_counter() - start
-    log.info("trained in %.1f s", seconds)
+    log.info("trained in %.1f s%s", seconds, detail)
     return TrainResult(model.eval(), val_mse, seconds, best)
+
+
+def _fit_one_step_and_fine_tune(
+    model: L.LightningModule,
+    datamodule: WindowDataModule,
+    settings: TrainerSettings,
+    output_dir: Path,
+    logger: TensorBoardLogger | None,
+    callbacks: list[Any] | None,
+    one_step: bool,
+    resume: bool,
+    fine_tune_epochs: int | None,
+) -> tuple[Path | None, float]:
+    """The one-step stage, then (with a free-run horizon) free-run fine-tuning from its best
+    checkpoint; ``one_step=False`` fine-tunes the (warm-started) weights directly and falls
+    back to both stages when that does not beat them. The kept checkpoint and its loss."""
+    steps = model.simulation_horizon
+    stages = (model, datamodule, settings, output_dir, logger, "fine_tune", steps)
+    if not one_step and steps > 0:
+        best, improved, val_mse = _fit_free_run(
+            *stages, int(fine_tune_epochs), None, RunFolder.FREE_RUN_CHECKPOINTS,
+            starting_checkpoint=None, keep_start=True, resume=resume,
+        )
+        if improved:
+            return best, val_mse
+        # the new inputs were not learned: refit from the warm start
+        log.info("refitting the warm-started network on the one-step error first")
+        resume = False  # the free-run folder holds that first stage's checkpoints
+    best, val_mse = _fit_one_step(model, datamodule, settings, output_dir, logger, callbacks,
+                                  resume)
+    if steps > 0:
+        best, _, val_mse = _fit_free_run(
+            *stages, int(fine_tune_epochs), None, RunFolder.FREE_RUN_CHECKPOINTS,
+            starting_checkpoint=best, keep_start=True, resume=resume,
+        )
+    return best, val_mse
 
 
 def _initialise_from_data(model: L.LightningModule, datamodule: WindowDataModule) -> None:
@@ -269,22 +338,51 @@ def _fit_one_step(
     resume: bool = False,
 ) -> tuple[Path | None, float]:
     """The study's training on the one-step error; the best checkpoint's path and loss."""
-    directory = output_dir / RunFolder.CHECKPOINTS
-    last = _stage_start(directory, resume)
-    checkpoint = _best_checkpoint(directory)
-    all_callbacks: list[Any] = [checkpoint, _LastEpoch(directory), _StopWhenAsked(),
-                                *(callbacks or [])]
+    last, checkpoint, all_callbacks = _stage_callbacks(output_dir / RunFolder.CHECKPOINTS,
+                                                       resume, callbacks)
+    model.stage_lr = stage_lr(model, "one_step")
     if logger is not None:
         all_callbacks.append(LearningRateMonitor(logging_interval="epoch"))
     trainer = build_trainer(
         settings, all_callbacks, module=model,
         logger=logger if logger is not None else False, default_root_dir=str(output_dir),
     )
-    with _resuming(last):
-        trainer.fit(model, datamodule=datamodule, ckpt_path=last)
-    best, val_mse = _restore_best(model, checkpoint)
+    best, val_mse = _train_keeping_best(trainer, model, datamodule, last, checkpoint)
     log.info("best validation MSE %.4e (scaled); checkpoint %s", val_mse, best)
     return best, val_mse
+
+
+def _stage_callbacks(
+    directory: Path, resume: bool, callbacks: list[Any] | None
+) -> tuple[Path | None, ModelCheckpoint, list[Any]]:
+    """A stage's start (`_stage_start`) and checkpoints in ``directory``: the ``last.ckpt``
+    it resumes from (or None), its best checkpoint's callback, and every callback it runs
+    (the best checkpoint, the last epoch's, a stop when asked, then ``callbacks``)."""
+    last = _stage_start(directory, resume)
+    checkpoint = _best_checkpoint(directory)
+    return last, checkpoint, [checkpoint, _LastEpoch(directory), _StopWhenAsked(),
+                              *(callbacks or [])]
+
+
+def _train_keeping_best(
+    trainer: L.Trainer,
+    model: L.LightningModule,
+    data: L.LightningDataModule,
+    last: Path | None,
+    checkpoint: ModelCheckpoint,
+    diverged_ok: bool = False,
+) -> tuple[Path | None, float]:
+    """Train ``model`` on ``data`` (going on from the ``last`` checkpoint when given) and load
+    its best checkpoint's weights (`_restore_best`); ``diverged_ok``: a `DivergedError` ends
+    the training with a warning (the best epoch before it is kept)."""
+    try:
+        with _resuming(last):
+            trainer.fit(model, datamodule=data, ckpt_path=last)
+    except DivergedError as exc:
+        if not diverged_ok:
+            raise
+        log.warning("free-run fine-tuning diverged (%s)", exc)
+    return _restore_best(model, checkpoint)
 
 
 def check_trainer_settings(settings: TrainerSettings) -> None:
@@ -428,15 +526,6 @@ class _StayStopped(L.Callback):
             trainer.should_stop = True
 
 
-def _validation_mse(
-    predict: Callable[[np.ndarray], np.ndarray], datamodule: WindowDataModule
-) -> float:
-    """One-step MSE (scaled) of ``predict`` on the validation windows."""
-    datamodule.setup()
-    x, target = datamodule.scale_windows(datamodule.val_windows)
-    return float(np.mean((predict(x) - target) ** 2))
-
-
 def _restore_best(
     model: L.LightningModule, checkpoint: ModelCheckpoint
 ) -> tuple[Path | None, float]:
@@ -460,6 +549,7 @@ def _fit_free_run(
     settings: TrainerSettings,
     output_dir: Path,
     logger: TensorBoardLogger | None,
+    lr_stage: Stage,
     steps: int,
     epochs: int,
     callbacks: list[Any] | None,
@@ -471,7 +561,8 @@ def _fit_free_run(
 ) -> tuple[Path | None, bool, float]:
     """Simulation-error training: minimise the free-run MSE over ``steps``-sample segments.
 
-    Runs ``epochs`` epochs from the current weights at ``model.stage_lr`` and keeps the
+    Runs ``epochs`` epochs from the current weights at the learning rate of ``lr_stage``
+    (``"simulation"`` or ``"fine_tune"``, `stage_lr`) and keeps the
     checkpoint with the best validation free-run loss (model selection on the free run;
     ``training.patience`` epochs without a better one stop it early). ``keep_start``: the
     starting weights are a candidate too (a fitted network, or a model started from the
@@ -481,11 +572,9 @@ def _fit_free_run(
     ``last.ckpt`` when there is one (see `fit`). Returns the checkpoint, whether training
     improved on the start, and the validation free-run MSE (scaled) of the weights kept.
     """
+    last, checkpoint, all_callbacks = _stage_callbacks(output_dir / folder, resume, callbacks)
+    model.stage_lr = stage_lr(model, lr_stage)
     segments = simulation_data(datamodule, model, steps)
-    last = _stage_start(output_dir / folder, resume)
-    checkpoint = _best_checkpoint(output_dir / folder)
-    all_callbacks: list[Any] = [checkpoint, _LastEpoch(output_dir / folder), _StopWhenAsked(),
-                                *(callbacks or [])]
     patience = model.training_settings.patience
     if patience:
         early_stopping = EarlyStopping(monitor="val_loss", mode="min", patience=patience)
@@ -515,14 +604,8 @@ def _fit_free_run(
                 "unstable initial model). Fix: a shorter training.horizon, or check the data "
                 "scaling (data.scaling) and the model's initial settings."
             )
-        try:
-            with _resuming(last):
-                trainer.fit(model, datamodule=segments, ckpt_path=last)
-        except DivergedError as exc:
-            if finite_start:
-                raise
-            log.warning("free-run fine-tuning diverged (%s)", exc)
-        best, val_free_run = _restore_best(model, checkpoint)
+        best, val_free_run = _train_keeping_best(trainer, model, segments, last, checkpoint,
+                                                 diverged_ok=not finite_start)
     finally:
         model.simulation_mode = False
     if keep_start and not val_free_run < starting_loss:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from typing import Any
 
 import lightning as L
@@ -172,6 +173,12 @@ class WindowDataModule(L.LightningDataModule):
         target = (windows.target - s.y_offset) / s.y_scale
         x = assemble(u_past.astype(np.float32), y_past.astype(np.float32), self.layout)
         return x, target.astype(np.float32)
+
+    def validation_mse(self, predict: Callable[[np.ndarray], np.ndarray]) -> float:
+        """One-step MSE (scaled) of ``predict`` on the validation windows."""
+        self.setup()
+        x, target = self.scale_windows(self.val_windows)
+        return float(np.mean((predict(x) - target) ** 2))
 
     def _to_tensors(self, windows: Windows) -> TensorDataset:
         x, target = self.scale_windows(windows)

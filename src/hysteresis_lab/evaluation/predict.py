@@ -84,9 +84,9 @@ def one_step(
 ) -> list[np.ndarray]:
     """Predict each sample from measured past inputs and outputs (a model that does not read
     measured outputs, ``predicts_from_outputs = False``, predicts by its free run)."""
+    _check(model, recordings, window)
     if not model.predicts_from_outputs:
         return free_run(model, recordings, window)
-    _check(model, recordings, window)
     s = model.scaler
     outputs = []
     for rec in recordings:
@@ -230,9 +230,9 @@ def _run(
     kernel = model.free_run_kernel(u, window) if fast and _on_cpu(model, device) else None
     if kernel is not None and not (kernel.stateful and reset.any()):
         return _loop_kernel(_with_term(kernel, term), y_meas, reset, active, window)
-    if model.is_network:
-        return _loop_torch(model, u, y_meas, reset, active, window, device, term)
-    return _loop_kernel(_GenericKernel(model, u, window), y_meas, reset, active, window)
+    if not model.is_network:
+        return _loop_kernel(_GenericKernel(model, u, window), y_meas, reset, active, window)
+    return _loop_torch(model, u, y_meas, reset, active, window, device, term)
 
 
 class _PlusInputTerm:

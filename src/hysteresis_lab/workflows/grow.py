@@ -19,16 +19,23 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from lightning.pytorch.loggers import TensorBoardLogger
+
+from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.effects.base import MODEL_OUTPUT_BLOCKS
 from hysteresis_lab.effects.registry import get_effect
 from hysteresis_lab.errors import DivergedError
-from hysteresis_lab.fitting import TrainResult
+from hysteresis_lab.fitting import TrainResult, fit_run
+from hysteresis_lab.models.augment import ModelData
+from hysteresis_lab.models.io import model_window
 from hysteresis_lab.models.settings import TrainingSettings
 from hysteresis_lab.models.spec import ModelSpec
+from hysteresis_lab.run_config import RunConfig
+from hysteresis_lab.run_folder import RunFolder
 
 log = logging.getLogger(__name__)
 
@@ -96,52 +103,102 @@ def kept_loss(result: TrainResult) -> float:
     return float(losses["refit"] if result.improved else losses["start"])
 
 
-#: trains one stage: (model settings, training settings, its folder, the model it grows
-#: from or None, refit mode) -> the trained result
-TrainStage = Callable[[Mapping[str, Any], TrainingSettings, Path, Any | None, str], TrainResult]
+def train_model(
+    config: RunConfig,
+    data: ModelData,
+    warm_start: Any | None = None,
+    logger: TensorBoardLogger | None = None,
+    callbacks: list[Any] | None = None,
+    resume: bool = False,
+) -> tuple[TrainResult, WindowSpec]:
+    """The run's fitted model and its window: a declared physical model grows through its
+    stages (`grow`), each from the start, and does not resume; any other fits once
+    (`hysteresis_lab.fitting.fit_run`, going on from an interrupted fit: ``resume``)."""
+    if warm_start is not None or len(growth_stages(config.model)) == 1:
+        return fit_run(config, data, warm_start, logger, callbacks, resume)
+    trained = grow(config, data, callbacks)
+    return trained, model_window(trained.model)
 
 
-def grow(spec: ModelSpec, training: TrainingSettings, output_dir: Path,
-         train_stage: TrainStage) -> TrainResult:
-    """Train ``spec`` through its `growth_stages` with ``train_stage`` (each stage with the
-    ``training`` settings, a refit at its rate); the last stage's
-    result (with the best refit rate) is returned, its start's rejected weights dropped (a
-    declared block kept at no effect is the declared model, not a rejected refit)."""
-    stages = growth_stages(spec)
+def grow(config: RunConfig, data: ModelData, callbacks: list[Any] | None = None) -> TrainResult:
+    """Train ``config``'s model through its `growth_stages` (`_grow_stage`), every stage in
+    its folder under the run folder; the last stage's result (with the best refit rate) is
+    returned, its start's rejected weights dropped (a declared block kept at no effect is
+    the declared model, not a rejected refit)."""
+    stages = growth_stages(config.model)
     previous: TrainResult | None = None
     for number, stage in enumerate(stages):
-        last = number == len(stages) - 1
-        folder = output_dir / STAGES_FOLDER / f"{number}_{stage.label}"
-        if previous is None:
-            log.info("growing %s: stage %d of %d, %s", spec.name, number + 1, len(stages),
-                     stage.label)
-            previous = train_stage(stage.settings, training, folder, None, "full")
-            continue
-        rates = refit_rates(training)
-        mode = refit_mode(stage.added, spec.cls)
-        candidates = []
-        for rate in rates:
-            log.info("growing %s: stage %d of %d, + %s (refit %s at learning rate %.3g)",
-                     spec.name, number + 1, len(stages), stage.label, mode, rate)
-            try:
-                candidates.append(train_stage(stage.settings, training.with_changes(refit_lr=rate),
-                                              folder / f"refit_lr_{rate:.3g}", previous.model,
-                                              mode))
-            except DivergedError as exc:
-                log.warning("growing %s: the refit with %s at learning rate %.3g diverged: "
-                            "not a candidate (%s)", spec.name, stage.label, rate, exc)
-        if not candidates:
-            raise DivergedError(
-                f"every refit that grew {stage.label} on the fitted {spec.name} model diverged "
-                f"(learning rates {refit_rates(training)}). Fix: a smaller "
-                "training.refit_lr, or model.grow=false (every declared block trained at once)."
-            )
-        chosen = min(candidates, key=kept_loss)
-        log.info("growing %s: + %s %s (validation loss %.4e)", spec.name, stage.label,
-                 "refitted" if chosen.improved else "kept at no effect: no refit beat the "
-                 "model it grew from", kept_loss(chosen))
-        previous = chosen
-        if last:
-            previous.rejected_state = None
+        folder = config.output_dir / STAGES_FOLDER / f"{number}_{stage.label}"
+        previous = _grow_stage(config, data, stage, folder, previous, callbacks,
+                               f"stage {number + 1} of {len(stages)}")
     assert previous is not None
+    previous.rejected_state = None
     return previous
+
+
+def _grow_stage(
+    config: RunConfig, data: ModelData, stage: Stage, folder: Path,
+    previous: TrainResult | None, callbacks: list[Any] | None, position: str,
+) -> TrainResult:
+    """One growth stage (at ``position``): the first trained from the data; a later one
+    refitted from the model it grows from (``previous``) at each of its `_stage_fits`, the
+    refit that keeps the lowest validation loss going on (one that diverged is no
+    candidate)."""
+    name = config.model.name
+    candidates = []
+    for training, stage_folder, mode, label in _stage_fits(config, stage, folder, previous):
+        log.info("growing %s: %s, %s", name, position, label)
+        try:
+            candidates.append(_fit_stage(config, data, stage.settings, training, stage_folder,
+                                         previous and previous.model, mode, callbacks))
+        except DivergedError as exc:
+            if previous is None:
+                raise
+            log.warning("growing %s: the refit with %s at learning rate %.3g diverged: "
+                        "not a candidate (%s)", name, stage.label, training.refit_lr, exc)
+    if previous is None:
+        return candidates[0]
+    if not candidates:
+        raise DivergedError(
+            f"every refit that grew {stage.label} on the fitted {name} model diverged "
+            f"(learning rates {refit_rates(config.training)}). Fix: a smaller "
+            "training.refit_lr, or model.grow=false (every declared block trained at once)."
+        )
+    chosen = min(candidates, key=kept_loss)
+    log.info("growing %s: + %s %s (validation loss %.4e)", name, stage.label,
+             "refitted" if chosen.improved else "kept at no effect: no refit beat the "
+             "model it grew from", kept_loss(chosen))
+    return chosen
+
+
+def _stage_fits(
+    config: RunConfig, stage: Stage, folder: Path, previous: TrainResult | None
+) -> list[tuple[TrainingSettings, Path, str, str]]:
+    """The fits of one growth stage: its training settings, folder, refit mode (see
+    `refit_mode`) and label. The first stage fits once, in ``folder``; a later one refits
+    at each of the `refit_rates`, in ``folder/refit_lr_<rate>``."""
+    training = config.training
+    if previous is None:
+        return [(training, folder, "full", stage.label)]
+    rates = refit_rates(training)
+    mode = refit_mode(stage.added, config.model.cls)
+    return [(training.with_changes(refit_lr=rate), folder / f"refit_lr_{rate:.3g}", mode,
+             f"+ {stage.label} (refit {mode} at learning rate {rate:.3g})") for rate in rates]
+
+
+def _fit_stage(
+    config: RunConfig, data: ModelData, settings: Mapping[str, Any],
+    training: TrainingSettings, folder: Path, previous: Any | None, refit: str,
+    callbacks: list[Any] | None,
+) -> TrainResult:
+    """One growth stage of ``config``'s model fitted: its model settings and ``training``
+    settings, in its ``folder``, warm-started from the model it grows from (``previous``;
+    None: from the data) with the ``refit`` mode; the start is kept unless the refit beats
+    it. Its curves go under the run's TensorBoard folder, one run each."""
+    stage = config.for_stage(settings, training, folder, refit)
+    folder.mkdir(parents=True, exist_ok=True)
+    logger = None if not config.settings.use_tensorboard else TensorBoardLogger(
+        save_dir=str(config.output_dir / RunFolder.TENSORBOARD),
+        name=str(folder.relative_to(config.output_dir)), version="", default_hp_metric=False)
+    stage_data = data.with_effects(stage.model.effects)
+    return fit_run(stage, stage_data, previous, logger, callbacks)[0]

@@ -140,8 +140,9 @@ def _duration(seconds: float) -> str:
 
 
 class _QueueLogHandler(logging.Handler):
-    """Forwards a worker's milestones to the parent's progress display: the pipeline's lines
-    (saved, reused, the model's mean scores) and every warning or error of this package."""
+    """Forwards a worker's milestones to the parent's progress display: the run report's
+    lines (saved, reused, the model's mean scores) and every warning or error of this
+    package."""
 
     def __init__(self, key: str, queue: Any) -> None:
         super().__init__(logging.INFO)
@@ -149,7 +150,7 @@ class _QueueLogHandler(logging.Handler):
 
     def filter(self, record: logging.LogRecord) -> bool:
         return (record.levelno >= logging.WARNING
-                or record.name == "hysteresis_lab.workflows.pipeline")
+                or record.name == "hysteresis_lab.workflows.run_report")
 
     def emit(self, record: logging.LogRecord) -> None:
         level = "" if record.levelno < logging.WARNING else f"{record.levelname}: "
