@@ -1,4 +1,4 @@
-"""Declared effects grown (``model.grow=true``, the default) against thrown in at once
+"""Declared effects grown (``model.grow=true``) against thrown in at once
 (``model.grow=false``), on a few plants of the simulator's physics class.
 
 Each cell is one ``hysteresis-lab-train`` run with default settings; the figure is the mean

@@ -72,8 +72,8 @@ def test_a_grown_grey_box_cell_starts_where_it_changes_nothing():
 def test_a_declared_model_is_grown_from_its_fitted_linear_start(tmp_path):
     data, _ = _positioner()
     result = run_model(RunConfig.build(
-        {"name": "linear", "effects": ["hysteresis"]}, {"name": "default"}, TRAINER, tmp_path,
-        {"lr": 0.002}, use_tensorboard=False, plots=False), splits=data)
+        {"name": "linear", "effects": ["hysteresis"], "grow": True}, {"name": "default"},
+        TRAINER, tmp_path, {"lr": 0.002}, use_tensorboard=False, plots=False), splits=data)
     stages = sorted(p.name for p in (tmp_path / "grow").iterdir())
     assert stages == ["0_linear", "1_hysteresis"]
     rates = sorted(p.name for p in (tmp_path / "grow" / "1_hysteresis").iterdir())
@@ -87,6 +87,26 @@ def test_a_declared_model_is_grown_from_its_fitted_linear_start(tmp_path):
     assert losses is not None and losses["start"] == pytest.approx(linear_loss, rel=1e-3)
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert np.isfinite(metrics["mean"]["rmse_free_run"])
+
+
+def _best_loss(folder) -> float:
+    """The lowest validation loss of the checkpoints kept under ``folder``."""
+    return min(float(p.stem.split("val_loss=")[1]) for p in folder.rglob("best-*.ckpt"))
+
+
+def test_by_default_the_grown_and_the_at_once_fit_compete_on_validation(tmp_path):
+    """``model.grow=best`` (the default) grows the declared model and trains it at once too,
+    and keeps the one with the lower validation free-run loss."""
+    data, _ = _positioner()
+    run_model(RunConfig.build(
+        {"name": "linear", "effects": ["hysteresis"]}, {"name": "default"}, TRAINER, tmp_path,
+        {"lr": 0.002}, use_tensorboard=False, plots=False), splits=data)
+    grow = tmp_path / "grow"
+    assert sorted(p.name for p in grow.iterdir()) == ["0_linear", "1_hysteresis", "at_once"]
+    grown, at_once = _best_loss(grow / "1_hysteresis"), _best_loss(grow / "at_once")
+    assert grown != pytest.approx(at_once, rel=1e-3)  # two different fits to choose from
+    kept = json.loads((tmp_path / "metrics.json").read_text())["val_mse_scaled"]
+    assert kept == pytest.approx(min(grown, at_once), rel=1e-3)
 
 
 def test_a_step_that_leaves_the_stable_region_is_taken_back(tmp_path):
@@ -105,7 +125,7 @@ def test_a_step_that_leaves_the_stable_region_is_taken_back(tmp_path):
     assert np.isfinite(result.val_mse)
 
 
-@pytest.mark.parametrize("grow", [True, False])
+@pytest.mark.parametrize("grow", [True, False, "best"])
 def test_grow_is_a_model_setting_of_the_physical_models(grow, tmp_path):
     data, dm = _positioner()
     model = build_model({"name": "linear", "grow": grow}, dm, trained_on={"fs": 20_000.0})

@@ -73,13 +73,16 @@ class PhysicalChainModule(NarxModule):
     new_block_lr_factor = 10.0
     predicts_from_outputs = False
 
-    def __init__(self, *args: Any, grow: bool = True, **kwargs: Any) -> None:
-        """``grow``: declared effects are grown on the fitted linear model, one stage each
-        (`growth_stages`, `hysteresis_lab.workflows.grow`); false: trained all at once."""
+    def __init__(self, *args: Any, grow: bool | str = "best", **kwargs: Any) -> None:
+        """``grow``: how declared effects are fitted (`hysteresis_lab.workflows.grow`):
+        ``"best"`` grown on the fitted linear model one stage each (`growth_stages`) and
+        trained at once, the lower validation loss kept; true: grown; false: at once."""
         super().__init__(*args, **kwargs)
-        if not isinstance(grow, bool):
-            raise ConfigError(f"model.grow={grow!r} must be true or false. Fix: model.grow=true "
-                              "(grow the declared effects on the fitted linear model) or false.")
+        if not (grow == "best" or isinstance(grow, bool)):
+            raise ConfigError(f"model.grow={grow!r} must be best, true or false. Fix: "
+                              "model.grow=best (grow the declared effects on the fitted "
+                              "linear model and train them at once, keep the better), true "
+                              "(grow only) or false (train at once only).")
         #: the learned input the shared initial state settles at (None: from rest)
         self.start_input: nn.Parameter | None = None
         if (self.hparams.get("trained_on") or {}).get("shared_initial_state"):

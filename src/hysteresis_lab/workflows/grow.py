@@ -7,12 +7,16 @@ effect's block, in the order the physics puts them, from where it changes nothin
 warm model, and refits (`ModelContract.growth_stages`). Each refit runs at the loop's
 learning rates (`REFIT_LR_FACTORS` of ``training.lr``, or ``training.refit_lr``); the one with the
 lowest validation free-run loss goes on, and a refit that does not beat the model it grew
-from keeps that model (its block stays, at no effect). ``model.grow=false`` trains every
-declared block at once, from the start.
+from keeps that model (its block stays, at no effect).
 
-Every stage trains in ``<run>/grow/<k>_<label>/`` (a refit: one folder per learning rate);
-the last stage's chosen model is the run's model, saved and scored in the run folder as any
-other.
+``model.grow`` says which paths run: ``best`` (the default) grows the model and also trains
+every declared block at once from the start, and keeps the one with the lower validation
+free-run loss (which path started a model decides its accuracy on some plants, and neither
+path is the better one on every plant); ``true`` only grows; ``false`` only trains at once.
+
+Every stage trains in ``<run>/grow/<k>_<label>/`` (a refit: one folder per learning rate),
+the fit at once in ``<run>/grow/at_once/``; the chosen model is the run's model, saved and
+scored in the run folder as any other.
 """
 
 from __future__ import annotations
@@ -41,10 +45,14 @@ log = logging.getLogger(__name__)
 
 #: a refit runs at each of these multiples of ``training.lr`` (the loop's default too)
 REFIT_LR_FACTORS = (0.1, 1.0)
-#: the model setting that switches growing off (``model.grow=false``)
+#: the model setting that says which paths run (``model.grow``, see the module docstring)
 SETTING = "grow"
+#: its values: grow and train at once, the lower validation loss kept; grow; train at once
+GROW_MODES = ("best", True, False)
 #: the folder under the run folder where the stages before the last are written
 STAGES_FOLDER = "grow"
+#: the folder (under `STAGES_FOLDER`) of the fit at once that ``model.grow=best`` compares
+AT_ONCE_FOLDER = "at_once"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,7 +68,7 @@ class Stage:
 def growth_stages(spec: ModelSpec) -> list[Stage]:
     """The stages a declared model grows through (the class's ``growth_stages``); a single
     stage (trained as declared) when ``model.grow`` is false."""
-    if not spec.settings.get(SETTING, True):
+    if spec.settings.get(SETTING, True) is False:
         return [Stage("declared", dict(spec.settings), None)]
     return [Stage(label, settings, added) for label, settings, added
             in spec.cls.growth_stages(dict(spec.settings))]
@@ -117,7 +125,31 @@ def train_model(
     if warm_start is not None or len(growth_stages(config.model)) == 1:
         return fit_run(config, data, warm_start, logger, callbacks, resume)
     trained = grow(config, data, callbacks)
+    if config.model.settings.get(SETTING, "best") == "best":
+        trained = _better_of_grown_and_at_once(config, data, trained, callbacks)
     return trained, model_window(trained.model)
+
+
+def _better_of_grown_and_at_once(
+    config: RunConfig, data: ModelData, grown: TrainResult, callbacks: list[Any] | None
+) -> TrainResult:
+    """``grown``, or the declared model trained at once from the start where its validation
+    free-run loss is lower (``model.grow=best``); a fit at once that diverges is none."""
+    name = config.model.name
+    log.info("growing %s: the declared model trained at once too, to compare", name)
+    folder = config.output_dir / STAGES_FOLDER / AT_ONCE_FOLDER
+    try:
+        at_once = _fit_stage(config, data, config.model.settings, config.training, folder,
+                             None, "full", callbacks)
+    except DivergedError as exc:
+        log.warning("growing %s: the fit at once diverged; the grown model stays (%s)", name,
+                    exc)
+        return grown
+    better = at_once if float(at_once.val_mse) < kept_loss(grown) else grown
+    log.info("growing %s: validation free-run loss grown %.4e, at once %.4e: the %s model is "
+             "kept", name, kept_loss(grown), float(at_once.val_mse),
+             "grown" if better is grown else "at-once")
+    return better
 
 
 def grow(config: RunConfig, data: ModelData, callbacks: list[Any] | None = None) -> TrainResult:
