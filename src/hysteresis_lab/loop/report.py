@@ -142,9 +142,13 @@ def _rules_lines(settings: Mapping[str, Any] | None) -> list[str]:
     return [
         f"An effect is significant when its held-out score reaches loop.min_score="
         f"{settings['min_score']:g} at p <= loop.alpha={settings['alpha']:g} "
-        f"(loop.significance={settings['significance']}); a refit is kept when its free run "
-        "on the held-out validation data beats the last kept model's by more than the share "
-        f"loop.min_refit_gain={settings['min_refit_gain']:g} and stays stable.",
+        f"(loop.significance={settings['significance']}), every fold's held-out blocks voting; "
+        f"a refit is kept when its free run is stable on every one of loop.folds="
+        f"{settings.get('folds', '?')} folds, and its held-out loss beats the standing "
+        "model's pooled over the folds (by more than the share "
+        f"loop.min_refit_gain={settings['min_refit_gain']:g}) and on a majority of them. "
+        "The folds choose; what they chose is then refitted on the whole identification "
+        "record, and that model is the round's result (its test numbers below).",
     ]
 
 
@@ -189,8 +193,18 @@ def _fit_lines(r: Mapping[str, Any], unit: str) -> list[str]:
         lines = [f"- refit of round {decision['against_round']}'s model with "
                  f"'{decision['effect']}': effects {r['effects']}"]
     lines += _refit_rate_lines(r)
+    chosen, fitted = r.get("chosen_on"), r.get("fitted_on")
+    if chosen:
+        where = (f"the result refitted on the whole identification record "
+                 f"({', '.join(fitted['recordings'])}: {fitted['samples']} samples)"
+                 if fitted else "not refitted on the whole record (the folds dropped it)")
+        lines.append(f"- chosen on {chosen['folds']} folds (each trained on "
+                     f"{', '.join(map(str, chosen['samples']))} samples); {where}")
+    if r.get("final_refit"):
+        lines.append(f"- {r['final_refit']}")
     if decision is None or decision["kept"]:
-        lines += _held_out_lines("held-out validation", r.get("held_out"), unit)
+        lines += _held_out_lines("held out on the folds (each fold's model)", r.get("held_out"),
+                                 unit)
     if decision is None and r.get("note") and not r.get("diagnosis"):
         lines.append(f"- {r['note']}")  # a start that diverges
     return lines
@@ -237,15 +251,20 @@ def _decision_lines(r: Mapping[str, Any], unit: str) -> list[str]:
     lines = [f"**{'Kept' if decision['kept'] else 'Dropped'}**: {decision['reason']}.", ""]
     after = "not judged" if held["after"] is None else f"{held['after']:.4g}"
     change = "" if held["after"] is None else f" ({_change(held['before'], held['after'])})"
-    lines.append(f"- held-out validation loss (MSE / variance): round "
+    lines.append(f"- held-out loss pooled over the folds (MSE / variance): round "
                  f"{decision['against_round']} {held['before']:.4g}, refit {after}{change}")
     loss = r.get("refit_validation_loss")
     if loss:
         lines.append(f"- training validation loss (scaled): start {loss['start']:.4g}, "
                      f"refit {loss['refit']:.4g} ({_change(loss['start'], loss['refit'])})")
+    folds = decision.get("fold_losses")
+    if folds:
+        pairs = ", ".join(f"{b:.4g} -> {a:.4g}" for b, a in
+                          zip(folds["before"], folds["after"], strict=True))
+        lines.append(f"- per fold (before -> after): {pairs}")
     if not decision["kept"]:
-        lines += _held_out_lines("the dropped refit's held-out validation",
-                                 (r.get("rejected_refit") or {}).get("held_out"), unit)
+        lines += _held_out_lines("the dropped refit's held-out folds",
+                                 r.get("rejected_held_out"), unit)
     return lines
 
 
@@ -334,8 +353,8 @@ def _undecided_lines(report: Mapping[str, Any], r: Mapping[str, Any]) -> list[st
         )
     if lines:
         lines.append(
-            "- each held-out block is one vote of the significance test: more validation data "
-            "(recordings in data.val=[...], or a longer loop.holdout) give more votes"
+            "- each held-out block (of every fold) is one vote of the significance test: more "
+            "identification data (recordings in data.train=[...]) give more votes"
         )
     return lines
 
@@ -388,9 +407,12 @@ def _result_section(report: Mapping[str, Any], unit: str) -> list[str]:
 
 
 def _roles_lines(roles: Mapping[str, list[str]]) -> list[str]:
-    """Which recordings (``name[a:b]``: samples a to b) played which role."""
+    """Which recordings (``name[a:b]``: samples a to b) played which role: which data chose
+    and which fitted."""
     what = {
-        "train": "trained on",
+        "train": "fitted the result (the whole identification record)",
+        "folds": "chose (cross-validation folds: each held out in turn, its models trained "
+                 "on the rest)",
         "validation": "validation (judges every refit)",
         "diagnosis": "diagnosis (its residual chooses the effect)",
         "test": "test (the before/after numbers)",
