@@ -215,7 +215,8 @@ def before_after_table(report: Mapping[str, Any], number: int, unit: str) -> lis
     the refit (after, kept or not), and the change."""
     r = report["rounds"][number]
     if not r["decision"]["kept"] and "rejected_refit" not in r:
-        return ["The dropped refit's test scores were not kept."]
+        return ["The folds dropped this refit before it was fitted on the whole identification "
+                "record: it has no test scores."]
     before, after = before_after(report, number)
     against = r["decision"]["against_round"]
     kept = "" if r["decision"]["kept"] else ", not kept"
