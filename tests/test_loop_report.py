@@ -14,10 +14,10 @@ import pytest
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.evaluation.plots import save_figure
 from hysteresis_lab.evaluation.report import write_json
+from hysteresis_lab.loop.crossval import FoldsCheck, HeldOut, keep_refit
 from hysteresis_lab.loop.diagnosis.excitation import operator_excitation
 from hysteresis_lab.loop.diagnosis.ranking import diagnose
 from hysteresis_lab.loop.diagnosis.residuals import diagnostics_figure
-from hysteresis_lab.loop.crossval import FoldsCheck, HeldOut, keep_refit
 from hysteresis_lab.loop.driver import (
     LoopSettings,
     _Candidate,
