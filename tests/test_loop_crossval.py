@@ -136,3 +136,41 @@ def test_the_result_is_refitted_on_every_identification_sample(tmp_path):
     assert start["mean_rmse_free_run"] == pytest.approx(fit_on(splits, "whole"), rel=1e-9)
     fold = loop_data(splits, data_spec, 3).folds[0].fit
     assert start["mean_rmse_free_run"] != pytest.approx(fit_on(fold, "fold"), rel=1e-6)
+
+
+def test_two_confounded_effects_are_both_refitted_and_the_folds_keep_the_better(tmp_path):
+    """The clipped low-pass's residual names overflow and other significant effects within
+    the margin: each is refitted on every fold, the report lists each with its folds' numbers,
+    and the round keeps the one with the lowest pooled held-out loss."""
+    model = {"name": "linear", "order": 2, "effects": [], "lr": 0.01}
+    data_spec = DataSpec.from_config({"name": "lowpass", "scaling": {"mode": "standard"}})
+    settings = LoopSettings(max_rounds=1, folds=3, refit_lr_factors=(1.0,),
+                            confounded_margin=0.99, max_alternatives=2, alpha=0.2)
+    report = run_loop(model, data_spec, TRAINER, _splits(n_train=1500), tmp_path, settings,
+                      use_tensorboard=False)
+    start, refit = report["rounds"][:2]
+    assert len(start["alternatives"]) == 1
+    compared = refit["compared"]
+    assert [c["effect"] for c in compared] != [] and len(compared) == 2
+    assert {c["effect"] for c in compared} == {start["added"], *start["alternatives"]}
+    assert compared[0]["held_out_loss"] <= compared[1]["held_out_loss"]
+    assert refit["decision"]["effect"] == compared[0]["effect"]
+    for c in compared:  # each fitted on every fold, in its own folder
+        assert len(c["fold_losses"]) == 3 and all(np.isfinite(c["fold_losses"]))
+        assert list((tmp_path / "round_1" / c["effect"]).rglob("fold_2"))
+    page = (tmp_path / "loop_report.md").read_text()
+    assert "each refitted on the folds" in page
+
+
+def test_confounded_effects_are_those_within_the_margin_of_the_top_score():
+    from hysteresis_lab.loop.diagnosis.ranking import EffectScore
+    from hysteresis_lab.loop.driver import confounded
+
+    scores = [EffectScore("overflow", 0.95, 1e-6, True, ""),
+              EffectScore("saturation", 0.88, 1e-6, True, ""),
+              EffectScore("rate", 0.80, 1e-6, True, ""),
+              EffectScore("creep", 0.50, 1e-6, True, ""),
+              EffectScore("dead_zone", 0.90, 0.5, False, "")]
+    assert confounded(scores, scores[0], set(), 0.2, 3) == ["overflow", "saturation", "rate"]
+    assert confounded(scores, scores[0], {"saturation"}, 0.1, 3) == ["overflow"]
+    assert confounded(scores, scores[0], set(), 0.2, 2) == ["overflow", "saturation"]

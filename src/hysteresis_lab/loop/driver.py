@@ -104,6 +104,11 @@ class LoopSettings:
     #: folds of the identification record that choose the effect, its place and whether a
     #: refit stands (`hysteresis_lab.loop.data`); the result is refitted on all of it
     folds: int = 3
+    #: significant effects scoring within this share of the top score are confounded with
+    #: it: each is refitted and the folds keep the best (`confounded`)
+    confounded_margin: float = 0.2
+    #: at most this many effects refitted in one round (the top one included)
+    max_alternatives: int = 3
     #: the diagnosis drops each residual's start transient and also reads the input-side
     #: effects through the model's own dynamics (`hysteresis_lab.loop.diagnosis.ranking`): a
     #: recording that starts with a jump from rest rings, and filters of the input started
@@ -112,6 +117,12 @@ class LoopSettings:
     diagnosis_through_dynamics: bool = True
 
     def __post_init__(self) -> None:
+        if not 0.0 <= self.confounded_margin < 1.0 or self.max_alternatives < 1:
+            raise ConfigError(
+                f"loop.confounded_margin={self.confounded_margin} must lie in [0, 1) and "
+                f"loop.max_alternatives={self.max_alternatives} be at least 1. Fix: e.g. "
+                "loop.confounded_margin=0.2 loop.max_alternatives=3."
+            )
         if self.folds < 2:
             raise ConfigError(
                 f"loop.folds={self.folds} must be at least 2: each fold holds out a share of "
@@ -212,6 +223,8 @@ class _Candidate:
     rate: float | None
     folds: list[RunResult | None]
     check: FoldsCheck
+    model: ModelSpec | None = None  # the round's model (its effects) before the variant
+    effect: str | None = None  # the effect it adds (None: the start)
 
     def refit_loss(self) -> float:
         """The folds' mean training validation loss of the refit (inf: none)."""
@@ -231,8 +244,9 @@ class _LoopState:
     diagnosis: list[EffectScore] = dataclasses.field(default_factory=list)
     #: effects tried on the standing model
     tried: set[str] = dataclasses.field(default_factory=set)
-    #: the effect the next round adds
-    trying: str | None = None
+    #: the effects the next round refits, one at a time (the top one and those the evidence
+    #: does not tell apart from it); the folds keep at most one
+    trying: list[str] = dataclasses.field(default_factory=list)
     #: the standing model's free run on the diagnosis recordings (the report's figures)
     evidence: ResidualEvidence | None = None
 
@@ -343,24 +357,30 @@ def _fit_round_and_decide(
     whole identification record and diagnose its residual on the folds. Returns the round's
     report entry and False when the loop cannot go on (the start diverges)."""
     settings, trying = run.settings, state.trying
-    round_effects = state.effects + ([trying] if trying else [])
-    log.info("=== loop round %d: effects %s ===", number, round_effects or "none")
+    log.info("=== loop round %d: effects %s%s ===", number, state.effects or "none",
+             f" + one of {trying}" if trying else "")
     standing = state.kept[-1] if state.kept else None
     warm = (settings.warm_start and standing is not None
             and bool(standing.final.model.warm_starts))
-    model = run.model.with_settings({**run.model.settings, "effects": round_effects})
-    variants = _refit_variants(model, standing.final.model if warm else None, trying)
     rates: list[float] | list[None] = (
         _refit_rates(run.training, settings) if warm else [None])
-    refit = _refit_mode(settings.refit, trying, run.model.cls)
     round_dir = run.folder.round_dir(number)
-    candidates = [
-        _fit_on_folds(run, model, variant, rate,
-                      _candidate_dir(round_dir, variant, rate, variants, rates),
-                      standing if warm else None, refit)
-        for variant, rate in itertools.product(variants, rates)
-    ]
+    candidates, variants = [], [{}]
+    for effect in trying or [None]:
+        effects = state.effects + ([effect] if effect else [])
+        model = run.model.with_settings({**run.model.settings, "effects": effects})
+        variants = _refit_variants(model, standing.final.model if warm else None, effect)
+        refit = _refit_mode(settings.refit, effect, run.model.cls)
+        folder = round_dir / effect if len(trying) > 1 else round_dir
+        candidates += [
+            _fit_on_folds(run, model, variant, rate,
+                          _candidate_dir(folder, variant, rate, variants, rates),
+                          standing if warm else None, refit, effect)
+            for variant, rate in itertools.product(variants, rates)
+        ]
     best = min(candidates, key=lambda c: (c.check.loss, c.refit_loss()))
+    model, round_effects = best.model, best.model.effects
+    refit = _refit_mode(settings.refit, best.effect, run.model.cls)
     if standing is None:
         kept, reason = True, ""
     else:
@@ -380,18 +400,20 @@ def _fit_round_and_decide(
     if rates[0] is not None:
         entry["refit_lr"] = best.rate
         entry["refit_candidates"] = [_candidate_entry(c) for c in candidates]
-    if len(variants) > 1:
+    if len(variants) > 1 or best.variant:
         entry["refit_settings"] = dict(best.variant)
     if kept and standing is not None and final.refit_validation is not None:
         entry["refit_validation_loss"] = final.refit_validation
-    if trying is not None:
-        entry["decision"] = _decision(trying, kept, reason, best, state)
+    if trying:
+        entry["decision"] = _decision(best.effect, kept, reason, best, state)
+    if len(trying) > 1:
+        entry["compared"] = compared_effects(candidates)
     state.rounds.append(entry)
-    if trying is not None and not kept:
-        entry["rejected"] = trying
+    if trying and not kept:
+        entry["rejected"] = best.effect
         entry["rejected_held_out"] = best.check.to_dict()
-        entry["note"] = (f"the refit with '{trying}' did not pass the folds: '{trying}' "
-                         "dropped, the last model stands")
+        entry["note"] = (f"the refit with '{best.effect}' did not pass the folds: "
+                         f"'{best.effect}' dropped, the last model stands")
         return entry, True
     if best.check.diverging:
         entry["note"] = (
@@ -430,7 +452,7 @@ def _candidate_dir(round_dir: Path, variant: Mapping[str, Any], rate: float | No
 
 def _fit_on_folds(
     run: _LoopRun, model: ModelSpec, variant: Mapping[str, Any], rate: float | None,
-    folder: Path, standing: _Standing | None, refit: str,
+    folder: Path, standing: _Standing | None, refit: str, effect: str | None = None,
 ) -> _Candidate:
     """``model`` at place ``variant`` and refit rate ``rate`` fitted on every fold (from the
     fold's standing model when ``standing`` is given) and scored on its held-out stretches."""
@@ -452,7 +474,7 @@ def _fit_on_folds(
             continue
         results.append(result)
         checks.append(judge(result))
-    candidate = _Candidate(dict(variant), rate, results, FoldsCheck(checks))
+    candidate = _Candidate(dict(variant), rate, results, FoldsCheck(checks), model, effect)
     log.info("%s %s at rate %s: pooled held-out loss %.4g (folds %s)", model.effects,
              dict(variant), rate, candidate.check.loss,
              ", ".join(f"{x:.4g}" for x in candidate.check.fold_losses()))
@@ -504,8 +526,15 @@ def _choose_next_effect(run: _LoopRun, state: _LoopState, entry: dict[str, Any])
             "note", f"loop.max_rounds={run.settings.max_rounds} reached; next: {top.effect}"
         )
         return False
-    entry["added"] = state.trying = top.effect
-    state.tried.add(top.effect)
+    group = confounded(state.diagnosis, top, state.tried | set(uncarried),
+                       run.settings.confounded_margin, run.settings.max_alternatives)
+    entry["added"], state.trying = top.effect, group
+    if len(group) > 1:
+        entry["alternatives"] = group[1:]
+        log.info("'%s' is confounded with %s (scores within loop.confounded_margin=%g of "
+                 "its): each is refitted and the folds keep the best", top.effect, group[1:],
+                 run.settings.confounded_margin)
+    state.tried |= set(group)
     if get_effect(top.effect).block in MODEL_OUTPUT_BLOCKS:  # no input operators to compare
         log.info("'%s' added (it acts on the model's output)", top.effect)
         return True
@@ -586,6 +615,37 @@ def next_effect(
     candidates = [d for d in diagnosis if d.significant and d.effect not in tried]
     reported = [d.effect for d in candidates if not d.predictable]
     return next((d for d in candidates if d.predictable), None), reported
+
+
+def confounded(diagnosis: Sequence[EffectScore], top: EffectScore, tried: set[str],
+               margin: float, most: int) -> list[str]:
+    """``top`` and the significant, input-driven effects not yet tried whose score lies
+    within the share ``margin`` of its (best first, ``most`` in all): the evidence does not
+    tell them apart, so each is refitted and the folds choose."""
+    close = [d.effect for d in diagnosis
+             if d is not top and d.significant and d.predictable and d.effect not in tried
+             and d.score >= (1.0 - margin) * top.score]
+    return [top.effect, *close][:most]
+
+
+def compared_effects(candidates: Sequence[_Candidate]) -> list[dict[str, Any]]:
+    """Per effect refitted in a round: its best place and rate on the folds, the pooled and
+    per-fold held-out losses, and whether the folds tell it from the best one (lower on a
+    majority of them); best first."""
+    best: dict[str | None, _Candidate] = {}
+    for c in candidates:
+        if c.effect not in best or c.check.loss < best[c.effect].check.loss:
+            best[c.effect] = c
+    ranked = sorted(best.values(), key=lambda c: c.check.loss)
+    winner = ranked[0].check.fold_losses()
+    rows = []
+    for c in ranked:
+        losses = c.check.fold_losses()
+        wins = sum(w < x for w, x in zip(winner, losses, strict=True))
+        rows.append({"effect": c.effect, **c.variant, "refit_lr": c.rate,
+                     "held_out_loss": c.check.loss, "fold_losses": losses,
+                     "told_apart": c is ranked[0] or 2 * wins > len(losses)})
+    return rows
 
 
 def held_effects(model: ModelSpec, effects: Sequence[str]) -> list[str]:

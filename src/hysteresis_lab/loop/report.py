@@ -258,6 +258,7 @@ def _decision_lines(r: Mapping[str, Any], unit: str) -> list[str]:
     if loss:
         lines.append(f"- training validation loss (scaled): start {loss['start']:.4g}, "
                      f"refit {loss['refit']:.4g} ({_change(loss['start'], loss['refit'])})")
+    lines += _compared_lines(r.get("compared"))
     folds = decision.get("fold_losses")
     if folds:
         pairs = ", ".join(f"{b:.4g} -> {a:.4g}" for b, a in
@@ -266,6 +267,23 @@ def _decision_lines(r: Mapping[str, Any], unit: str) -> list[str]:
     if not decision["kept"]:
         lines += _held_out_lines("the dropped refit's held-out folds",
                                  r.get("rejected_held_out"), unit)
+    return lines
+
+
+def _compared_lines(compared: Sequence[Mapping[str, Any]] | None) -> list[str]:
+    """The confounded effects refitted in a round, each with its cross-validated numbers,
+    and those the folds cannot tell from the best."""
+    if not compared:
+        return []
+    lines = ["- effects the diagnosis could not tell apart, each refitted on the folds "
+             "(pooled held-out loss; per fold):"]
+    for row in compared:
+        folds = ", ".join(f"{x:.4g}" for x in row["fold_losses"])
+        lines.append(f"  - {row['effect']}: {row['held_out_loss']:.4g} ({folds})")
+    tied = [row["effect"] for row in compared[1:] if not row["told_apart"]]
+    if tied:
+        lines.append(f"  - the folds cannot tell {compared[0]['effect']} from "
+                     f"{', '.join(tied)}: it is not lower on a majority of them")
     return lines
 
 
@@ -311,6 +329,10 @@ def _added_lines(report: Mapping[str, Any], number: int) -> list[str]:
                      f"can predict: score {score['score']:.3f}, p {score['p_value']:.3g}"
                      f"{' (significant)' if score['significant'] else ''}")
         lines.append(f"  - {score['evidence']}")
+    if r.get("alternatives"):
+        lines.append(f"- refitted beside it, its scores too close to tell apart "
+                     f"(loop.confounded_margin): {', '.join(r['alternatives'])}; the folds "
+                     "keep the best")
     figure = r.get("figures", {}).get("added")
     if figure:
         lines += ["", f"![the residual and what '{r['added']}' reproduces of it]({figure})", ""]
