@@ -17,6 +17,7 @@ import argparse
 import datetime
 import json
 import logging
+import time
 from pathlib import Path
 from typing import Any
 
@@ -45,13 +46,15 @@ log = logging.getLogger("loop_measured")
 def run_one(name: str, folder: Path) -> dict:
     """Run the loop on data set ``name`` into ``folder`` (fresh); its report and wall time."""
     command = ["hysteresis-lab-loop", f"data={name}", *QUIET]
+    cpu = time.process_time()  # one thread (OMP_NUM_THREADS=1): what a shared CPU does not skew
     try:
         report, seconds = run_fresh_loop(command[1:], folder)
     except RuntimeError as exc:
         raise SystemExit(str(exc)) from None
     round_0 = RunFolder(LoopFolder(folder).round_dir(0)).read_metrics()
     return {"command": " ".join(command), "report": table_report(report),
-            "seconds": seconds, "round_0_train_s": round_0.get("train_seconds")}
+            "seconds": seconds, "cpu_seconds": time.process_time() - cpu,
+            "round_0_train_s": round_0.get("train_seconds")}
 
 
 def table_report(report: dict[str, Any]) -> dict[str, Any]:
@@ -100,7 +103,13 @@ def row(name: str, run: dict) -> str:
             f"{100 * (after - before) / before:+.1f} % | {'; '.join(steps) or 'nothing named'} | "
             f"[{', '.join(kept)}] | {target}"
             + (f" (named: {'yes' if named in _named(rounds) else 'no'})" if named else "")
-            + f" | {run['round_0_train_s']:.0f} s / {run['seconds']:.0f} s |")
+            + f" | {run['round_0_train_s']:.0f} s / {run['seconds']:.0f} s{_cpu(run, rounds)} |")
+
+
+def _cpu(run: dict, rounds: list[dict]) -> str:
+    """The command's CPU time and its mean per round (rows measured before it was: none)."""
+    cpu = run.get("cpu_seconds")
+    return "" if cpu is None else f" ({cpu:.0f} s CPU, {cpu / len(rounds):.0f} s a round)"
 
 
 def _named(rounds: list[dict]) -> set[str]:
@@ -150,14 +159,16 @@ def render(kept: dict[str, dict]) -> str:
         "",
         "Written by `python benchmarks/loop_measured.py --data <data sets>`, which reruns the "
         "given data sets and keeps the other rows (`loop_measured.json`); each row's commit "
-        "and date are listed below it. Shared 2-core CPU (OMP_NUM_THREADS=1). One command per "
+        "and date are listed below it. Shared 2-core CPU (OMP_NUM_THREADS=1; other jobs ran "
+        "beside it, so the wall time runs high: the command's CPU time, one thread, is its "
+        "cost). One command per "
         "data set, default settings: the start is `model=linear effects=[]` (on EMPS with "
         "the integrator its data set declares: its position integrates the force). The loop "
         "chooses on `loop.folds` folds of the identification record and reports the model "
         "refitted on all of it; the test recordings are never used for a choice.",
         "",
         "| data | start (round 0) free-run RMSE | result | change | rounds | result's effects "
-        "| target | round 0 train / whole command |",
+        "| target | round 0 train / whole command (wall; CPU) |",
         "|---|---|---|---|---|---|---|---|",
     ]
     lines += [row(name, run) for name, run in kept.items()]
