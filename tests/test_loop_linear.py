@@ -69,15 +69,20 @@ def test_overflow_is_scored_from_the_models_own_output():
 @pytest.mark.slow
 def test_the_loop_names_overflow_and_its_refit_cuts_the_free_run_error(tmp_path):
     """From model=linear effects=[] on a system whose output clips: the held-out residual
-    names overflow, the refit carries it as an output block after the dynamics, and the
-    test's free-run error falls."""
+    names overflow (beside the output-level feedback, which the folds tell apart), the refit
+    carries it as an output block after the dynamics, and the test's free-run error falls."""
     model = {"name": "linear", "order": 2, "effects": [], "lr": 0.01}
     data = DataSpec.from_config({"name": "clip", "scaling": {"mode": "standard"}})
     report = run_loop(model, data, TRAINER, clipped_splits(), tmp_path,
-                      LoopSettings(max_rounds=1, refit_lr_factors=(1.0,)), use_tensorboard=False)
+                      LoopSettings(max_rounds=1, refit_lr_factors=(1.0,), confounded_margin=0.25),
+                      use_tensorboard=False)
     first, refit = report["rounds"][:2]
     significant = [d["effect"] for d in first["diagnosis"] if d["significant"]]
-    assert significant[0] == "overflow" and first["added"] == "overflow"
+    # overflow and the output-level feedback both flatten the peaks (scores 0.29 and 0.38
+    # here: within a margin of 0.25): each is refitted, the folds keep overflow
+    assert "overflow" in significant[:2] and "overflow" in [first["added"],
+                                                          *first.get("alternatives", [])]
+    assert "overflow" in [c["effect"] for c in refit["compared"]]
     assert refit["effects"] == ["overflow"] and "rejected" not in refit
     assert refit["held_out"]["loss"] < first["held_out"]["loss"]
     assert refit["mean_rmse_free_run"] < 0.85 * first["mean_rmse_free_run"]
@@ -160,5 +165,5 @@ def test_when_every_refit_diverges_the_folds_drop_it_and_the_start_stands(tmp_pa
     report = _dead_zone_loop(tmp_path, (1e6,))
     refit = report["rounds"][1]
     assert refit["rejected"] == refit["decision"]["effect"]
-    assert "diverges on fold 0, fold 1, fold 2" in refit["decision"]["reason"]
+    assert "the refit's free run diverges on fold" in refit["decision"]["reason"]
     assert report["result"] == 0 and "stopped" not in report
