@@ -57,6 +57,21 @@ def run_one(name: str, folder: Path) -> dict:
             "round_0_train_s": round_0.get("train_seconds")}
 
 
+def collect_one(name: str, folder: Path) -> dict:
+    """The row of a loop that ran into ``folder`` with this script's command (a benchmark
+    stopped after some data sets keeps theirs): its report, and its wall time from the first
+    and last lines of its ``loop.log``; no CPU time."""
+    report = json.loads(LoopFolder(folder).report_json.read_text())
+    stamps = [datetime.datetime.strptime(line[1:24], "%Y-%m-%d %H:%M:%S,%f")
+              for line in (folder / "loop.log").read_text().splitlines()
+              if line.startswith("[20")]
+    round_0 = RunFolder(LoopFolder(folder).round_dir(0)).read_metrics()
+    return {"command": " ".join(["hysteresis-lab-loop", f"data={name}", *QUIET]),
+            "report": table_report(report),
+            "seconds": (stamps[-1] - stamps[0]).total_seconds(),
+            "round_0_train_s": round_0.get("train_seconds")}
+
+
 def table_report(report: dict[str, Any]) -> dict[str, Any]:
     """The parts of a ``loop_report.json`` the table shows: units, roles, the result and per
     round its error, effects, decision, held-out loss and the three best-scored effects."""
@@ -189,11 +204,21 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", nargs="+", default=["cascaded_tanks", "bouc_wen"])
     parser.add_argument("--runs", type=Path, default=REPO / "outputs" / "loop_measured")
+    parser.add_argument("--collect", metavar="COMMIT",
+                        help="run nothing: take the rows of --data from the loops that "
+                             "finished under --runs, measured at COMMIT")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
-    commit = commit_stamp(REPO)
+    commit = args.collect or commit_stamp(REPO)
     runs = {}
     for name in args.data:
+        if args.collect:
+            folder = args.runs / name
+            stamp = datetime.datetime.fromtimestamp(
+                LoopFolder(folder).report_json.stat().st_mtime, datetime.UTC)
+            runs[name] = {**collect_one(name, folder), "commit": commit,
+                          "date": f"{stamp:%Y-%m-%d %H:%M} UTC"}
+            continue
         log.info("running the loop on %s ...", name)
         runs[name] = {**run_one(name, args.runs / name), "commit": commit,
                       "date": f"{datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC"}

@@ -43,7 +43,7 @@ def advice_for(*overrides: str, score: EffectScore = UNJUDGED) -> tuple[list[dic
     """The loop's advice on the simulator's data composed with ``overrides``."""
     spec = DataSpec.from_config(hl.compose("data=default", *CLIPPING, *overrides).data)
     splits = build_splits(spec)
-    data = loop_data(splits, spec, 0.25)
+    data = loop_data(splits, spec, 3)
     context = feature_context(data.fit.train)
     return excitation_advice([score], data, spec, context, 0.05, 0.25), spec
 
@@ -110,7 +110,7 @@ def test_recorded_data_get_a_sentence_on_what_to_record():
              for f in (1.0, 10.0)]
     splits = DatasetSplits(name="csv", train=[train], val=[], test=tests)
     spec = DataSpec.from_config(hl.compose("data=csv", "data.train=run.csv").data)
-    data = loop_data(splits, spec, 0.25)
+    data = loop_data(splits, spec, 3)
     context = feature_context(data.fit.train)
     (advice,) = excitation_advice([UNJUDGED], data, spec, context, 0.05, 0.25)
     assert advice["override"] is None and list(advice["band_hz"]) == [1.0, 10.0]
@@ -124,7 +124,7 @@ def test_recorded_data_get_a_sentence_on_what_to_record():
     quiet = _recorded(sine(3.0, fs=2000.0, amplitude=0.5, n_periods=2), "quiet")
     spec = DataSpec.from_config(hl.compose("data=csv", "data.train=run.csv",
                                            "data.diagnose=[quiet]").data)
-    named = loop_data(dataclasses.replace(splits, test=[*tests, quiet]), spec, 0.25)
+    named = loop_data(dataclasses.replace(splits, test=[*tests, quiet]), spec, 3)
     (advice,) = excitation_advice([UNJUDGED], named, spec, feature_context(named.fit.train),
                                   0.05, 0.25)
     assert advice["val_hz"] and f"those at {advice['val_hz'][0]:g}" in advice["advice"]

@@ -78,8 +78,8 @@ def test_the_loop_names_overflow_and_its_refit_cuts_the_free_run_error(tmp_path)
                       use_tensorboard=False)
     first, refit = report["rounds"][:2]
     significant = [d["effect"] for d in first["diagnosis"] if d["significant"]]
-    # overflow and the output-level feedback both flatten the peaks (scores 0.29 and 0.38
-    # here: within a margin of 0.25): each is refitted, the folds keep overflow
+    # overflow and the output-level feedback both flatten the peaks, their scores too close
+    # to tell apart: each is refitted, and the folds keep overflow
     assert "overflow" in significant[:2] and "overflow" in [first["added"],
                                                           *first.get("alternatives", [])]
     assert "overflow" in [c["effect"] for c in refit["compared"]]
