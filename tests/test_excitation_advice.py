@@ -45,7 +45,7 @@ def advice_for(*overrides: str, score: EffectScore = UNJUDGED) -> tuple[list[dic
     splits = build_splits(spec)
     data = loop_data(splits, spec, 3)
     context = feature_context(data.fit.train)
-    return excitation_advice([score], data, spec, context, 0.05, 0.25), spec
+    return excitation_advice([score], data, spec, context, 0.05, 1 / 3), spec
 
 
 @pytest.fixture(scope="module")
