@@ -59,8 +59,8 @@ def excitation_advice(
 ) -> list[dict[str, Any]]:
     """Per effect not judged for lack of excitation: the numbers, the recordings to add and
     how (``override``: the simulator's overrides; ``advice``: one sentence). Logged.
-    ``holdout``: the share of each identification recording a fold holds out (1 /
-    ``loop.folds``)."""
+    ``holdout``: the share of an added identification recording the diagnosis reads (1: the
+    folds hold out every block of it once)."""
     fit = data.fit
     held = holdout if _holds_out(data) and not data_spec.diagnose else None
     make_sine = _sine_maker(fit.test[0].fs) if fit.test and fit.test[0].nu == 1 else None

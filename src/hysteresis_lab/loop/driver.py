@@ -434,8 +434,9 @@ def _fit_round_and_decide(
     state.diagnosis, state.evidence = _diagnose_round(
         run, final, best.check, held_effects(run.model, state.effects), round_dir, number)
     entry["diagnosis"] = [d.to_dict() for d in state.diagnosis]
+    # every sample of an added recording is held out by one fold: the diagnosis reads all
     advice = excitation_advice(state.diagnosis, run.data, run.data_spec, run.context,
-                               settings.min_score, 1.0 / len(run.data.folds))
+                               settings.min_score, 1.0)
     if advice:
         entry["under_excited"] = advice
     entry["figures"] = {"diagnostics": run.folder.relative(round_dir / DIAGNOSTICS_FIGURE)}
