@@ -86,6 +86,9 @@ def check_loop_notebook(run: Path) -> dict[str, Any]:
         held = decision["held_out_loss"]
         if decision["kept"]:
             assert held["after"] < held["before"]
+        if not decision["kept"] and "rejected_refit" not in entry:  # the folds dropped it
+            assert "no test scores" in subsection(section, "Before / after on the tests")
+            continue
         before = report["rounds"][decision["against_round"]] if decision["kept"] else entry
         after = entry if decision["kept"] else entry["rejected_refit"]
         rows = table_rows(subsection(section, "Before / after on the tests"))

@@ -43,9 +43,9 @@ def advice_for(*overrides: str, score: EffectScore = UNJUDGED) -> tuple[list[dic
     """The loop's advice on the simulator's data composed with ``overrides``."""
     spec = DataSpec.from_config(hl.compose("data=default", *CLIPPING, *overrides).data)
     splits = build_splits(spec)
-    data = loop_data(splits, spec, 0.25)
+    data = loop_data(splits, spec, 3)
     context = feature_context(data.fit.train)
-    return excitation_advice([score], data, spec, context, 0.05, 0.25), spec
+    return excitation_advice([score], data, spec, context, 0.05, 1.0), spec
 
 
 @pytest.fixture(scope="module")
@@ -64,8 +64,9 @@ def test_an_unjudged_effect_the_tests_drive_harder_gets_recordings_to_add(clippi
     assert min(added) < 1 and max(added) > 400  # the tests' whole band, 0.1-500 Hz
     assert advice["identification_after"] <= UNDER_EXCITED_RATIO
     assert advice["diagnosis_after"] <= UNDER_EXCITED_RATIO
+    # the simulator's validation multisine is identification data too: the folds hold out
+    # blocks of every recording, so the added sines go to training
     assert advice["override"][0].startswith("data.splits.train_sines=[")
-    assert advice["override"][1].startswith("data.splits.val_sines=[")
     assert "not judged for lack of excitation" in advice["advice"]
     assert " ".join(advice["override"]) in advice["advice"]
 
@@ -89,9 +90,8 @@ def test_a_significant_or_small_score_gets_no_advice():
 
 
 def test_a_diagnosis_named_in_data_diagnose_gets_the_validation_sines_too():
-    (advice,), _ = advice_for("data.diagnose=[multisine_validation]")
-    names = ",".join(f"val_sine_{f:g}Hz" for f in advice["val_hz"])
-    assert f"data.diagnose=[multisine_validation,{names}]" in advice["override"]
+    # (a validation recording is identification data, which the folds diagnose: only test
+    # recordings or files are named in data.diagnose)
     # a diagnosis on a test that clips as the others do needs training sines only
     (advice,), _ = advice_for("data.diagnose=[sine_500Hz]")
     assert advice["val_hz"] == [] and advice["diagnosis"] <= UNDER_EXCITED_RATIO
@@ -110,23 +110,23 @@ def test_recorded_data_get_a_sentence_on_what_to_record():
              for f in (1.0, 10.0)]
     splits = DatasetSplits(name="csv", train=[train], val=[], test=tests)
     spec = DataSpec.from_config(hl.compose("data=csv", "data.train=run.csv").data)
-    data = loop_data(splits, spec, 0.25)
+    data = loop_data(splits, spec, 3)
     context = feature_context(data.fit.train)
-    (advice,) = excitation_advice([UNJUDGED], data, spec, context, 0.05, 0.25)
+    (advice,) = excitation_advice([UNJUDGED], data, spec, context, 0.05, 1.0)
     assert advice["override"] is None and list(advice["band_hz"]) == [1.0, 10.0]
     assert advice["val_hz"] == [] and advice["train_hz"] == [0.71, 3.2, 14.0]
     # the held-out ends of the added recordings reach the clipping as the tests do
     assert advice["diagnosis_after"] <= UNDER_EXCITED_RATIO
     assert "Record inputs of ±1 V peak in 1-10 Hz" in advice["advice"]
-    assert "as extra data.train files (the loop validates and diagnoses on the last" in (
+    assert "as extra data.train files (the loop's folds hold out a block of each)" in (
         advice["advice"])
     # where data.diagnose names a recording that barely clips, some of them go there
     quiet = _recorded(sine(3.0, fs=2000.0, amplitude=0.5, n_periods=2), "quiet")
     spec = DataSpec.from_config(hl.compose("data=csv", "data.train=run.csv",
                                            "data.diagnose=[quiet]").data)
-    named = loop_data(dataclasses.replace(splits, test=[*tests, quiet]), spec, 0.25)
+    named = loop_data(dataclasses.replace(splits, test=[*tests, quiet]), spec, 3)
     (advice,) = excitation_advice([UNJUDGED], named, spec, feature_context(named.fit.train),
-                                  0.05, 0.25)
+                                  0.05, 1.0)
     assert advice["val_hz"] and f"those at {advice['val_hz'][0]:g}" in advice["advice"]
     assert "in data.diagnose (the recordings the diagnosis reads)" in advice["advice"]
 

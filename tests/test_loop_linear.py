@@ -14,21 +14,14 @@ from helpers import data_overrides, run_app, small_dataset
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.data.splits import DatasetSplits
-from hysteresis_lab.errors import ConfigError, DataError, DivergedError
+from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.lightning_trainer import TrainerSettings
 from hysteresis_lab.loop.data import loop_data
 from hysteresis_lab.loop.diagnosis.ranking import diagnose
-from hysteresis_lab.loop.driver import (
-    HeldOut,
-    LoopSettings,
-    _diverges,
-    _judge_held_out,
-    run_loop,
-)
+from hysteresis_lab.loop.driver import LoopSettings, run_loop
 from hysteresis_lab.models.augment import feature_context
 from hysteresis_lab.signals import multisine
 from hysteresis_lab.sim.default_dataset import make_default_dataset
-from hysteresis_lab.workflows.pipeline import RunResult
 
 FS = 100.0
 CLIP = 0.6
@@ -76,81 +69,47 @@ def test_overflow_is_scored_from_the_models_own_output():
 @pytest.mark.slow
 def test_the_loop_names_overflow_and_its_refit_cuts_the_free_run_error(tmp_path):
     """From model=linear effects=[] on a system whose output clips: the held-out residual
-    names overflow, the refit carries it as an output block after the dynamics, and the
-    test's free-run error falls."""
+    names overflow (beside the output-level feedback, which the folds tell apart), the refit
+    carries it as an output block after the dynamics, and the test's free-run error falls."""
     model = {"name": "linear", "order": 2, "effects": [], "lr": 0.01}
     data = DataSpec.from_config({"name": "clip", "scaling": {"mode": "standard"}})
     report = run_loop(model, data, TRAINER, clipped_splits(), tmp_path,
-                      LoopSettings(max_rounds=1, refit_lr_factors=(1.0,)), use_tensorboard=False)
+                      LoopSettings(max_rounds=1, refit_lr_factors=(1.0,), confounded_margin=0.25),
+                      use_tensorboard=False)
     first, refit = report["rounds"][:2]
     significant = [d["effect"] for d in first["diagnosis"] if d["significant"]]
-    assert significant[0] == "overflow" and first["added"] == "overflow"
+    # overflow and the output-level feedback both flatten the peaks, their scores too close
+    # to tell apart: each is refitted, and the folds keep overflow
+    assert "overflow" in significant[:2] and "overflow" in [first["added"],
+                                                          *first.get("alternatives", [])]
+    assert "overflow" in [c["effect"] for c in refit["compared"]]
     assert refit["effects"] == ["overflow"] and "rejected" not in refit
     assert refit["held_out"]["loss"] < first["held_out"]["loss"]
     assert refit["mean_rmse_free_run"] < 0.85 * first["mean_rmse_free_run"]
     assert report["result"] == 1
-    assert report["roles"] == {"train": ["train"],
-                               "validation": ["val"], "diagnosis": ["val"], "test": ["test"]}
-
-
-def test_without_validation_recordings_a_stretch_is_held_out_and_named():
-    splits = clipped_splits(val=False)
-    data = loop_data(splits, DataSpec.from_config({}), holdout=0.2)
-    assert data.fit.train[0].n_samples == 1200
-    assert [s.start for s in data.validation] == [1200]
-    assert data.validation[0].recording.n_samples == 1500  # simulated end to end
-    assert data.diagnosis == data.validation
-    assert data.roles() == {"train": ["train[0:1200]"], "validation": ["train[1200:1500]"],
-                            "diagnosis": ["train[1200:1500]"], "test": ["test"]}
-    with pytest.raises(DataError, match="loop.holdout=0.99"):
-        loop_data(splits, DataSpec.from_config({}), holdout=0.99)
+    assert report["roles"] == {"train": ["train", "val"], "folds": ["train[0:500], val[0:500]",
+                                                             "train[500:1000], val[500:1000]",
+                                                             "train[1000:1500], val[1000:1500]"],
+                               "diagnosis": ["train[0:500]", "val[0:500]", "train[500:1000]",
+                                             "val[500:1000]", "train[1000:1500]",
+                                             "val[1000:1500]"],
+                               "test": ["test"]}
 
 
 def test_data_diagnose_names_the_recordings_that_choose(tmp_path):
     splits = clipped_splits()
     extra = clipped(800, 4, "extra")[0]
     splits = dataclasses.replace(splits, test=[*splits.test, extra])
-    data = loop_data(splits, DataSpec.from_config({"diagnose": ["extra"]}), holdout=0.25)
+    data = loop_data(splits, DataSpec.from_config({"diagnose": ["extra"]}), folds=3)
     assert [s.name for s in data.diagnosis] == ["extra"]
     assert [r.name for r in data.fit.test] == ["test"]  # it left the before/after set
-    assert [s.name for s in data.validation] == ["val"]
-    with pytest.raises(ConfigError, match="a training recording"):
-        loop_data(splits, DataSpec.from_config({"diagnose": ["train"]}), holdout=0.25)
+    assert {s.name for s in data.validation} == {"train", "val"}  # the folds still judge
+    with pytest.raises(ConfigError, match="an identification recording"):
+        loop_data(splits, DataSpec.from_config({"diagnose": ["train"]}), folds=3)
     with pytest.raises(ConfigError, match="no recording of data 'clip'"):
-        loop_data(splits, DataSpec.from_config({"diagnose": ["nothing"]}), holdout=0.25)
+        loop_data(splits, DataSpec.from_config({"diagnose": ["nothing"]}), folds=3)
     with pytest.raises(ConfigError, match="every test recording"):
-        loop_data(splits, DataSpec.from_config({"diagnose": ["test", "extra"]}), holdout=0.25)
-
-
-def _result(tmp_path, name: str) -> RunResult:
-    folder = tmp_path / name
-    folder.mkdir()
-    (folder / "model.ckpt").write_text("weights")
-    (folder / "metrics.json").write_text("{}")
-    document = {"model_path": str(folder / "model.ckpt"), "tests": {}, "mean": {}}
-    return RunResult(document, 1.0, None, None, None)
-
-
-def test_a_refit_is_kept_only_when_stable_and_better_on_held_out_data(tmp_path):
-    last = (_result(tmp_path, "last"), HeldOut(0.5, {"val": 1.0}, [], []))
-    better = _result(tmp_path, "better")
-    kept, check = _judge_held_out(better, HeldOut(0.4, {"val": 0.9}, [], []), last, 0.0)
-    assert kept is better and check.loss == 0.4
-    worse = _result(tmp_path, "worse")
-    kept, check = _judge_held_out(worse, HeldOut(0.6, {"val": 1.1}, [], []), last, 0.0)
-    assert kept.document is last[0].document and not kept.improved and check.loss == 0.5
-    assert (tmp_path / "worse" / "rejected_refit_model.ckpt").is_file()  # set aside
-    assert not (tmp_path / "worse" / "model.ckpt").exists()
-    diverging = _result(tmp_path, "diverging")
-    kept, _ = _judge_held_out(diverging, HeldOut(0.1, {"val": 0.1}, ["test"], []), last, 0.0)
-    assert not kept.improved and kept.rejected_refit["held_out"]["diverging"] == ["test"]
-
-
-def test_a_free_run_that_leaves_the_output_range_diverges():
-    y = np.sin(np.linspace(0, 10, 200))[:, None]
-    assert not _diverges(y, 1.5 * y)
-    assert _diverges(y, y + 30.0)
-    assert _diverges(y, np.where(np.arange(200)[:, None] == 5, np.nan, y))
+        loop_data(splits, DataSpec.from_config({"diagnose": ["test", "extra"]}), folds=3)
 
 
 @pytest.mark.slow
@@ -166,12 +125,14 @@ def test_the_default_loop_starts_linear_and_names_its_start(tmp_path):
     report = json.loads((run / "loop_report.json").read_text())
     assert report["model"] == "linear"
     assert report["start"] == {"model": "linear", "effects": []}
-    assert report["roles"] == {"train": ["train[0:2250]"], "validation": ["train[2250:3000]"],
-                               "diagnosis": ["train[2250:3000]"],
+    assert report["roles"] == {"train": ["train"],
+                               "folds": ["train[0:1000]", "train[1000:2000]", "train[2000:3000]"],
+                               "diagnosis": ["train[0:1000]", "train[1000:2000]",
+                                             "train[2000:3000]"],
                                "test": ["sine_5", "sine_20"]}
     markdown = (run / "loop_report.md").read_text()
     assert "Start: `model=linear effects=[]`." in markdown
-    assert "- diagnosis (its residual chooses the effect): train[2250:3000]" in markdown
+    assert "- fitted the result (the whole identification record): train" in markdown
 
 
 def _dead_zone_loop(tmp_path, factors: tuple[float, ...]) -> dict:
@@ -200,10 +161,9 @@ def test_a_refit_rate_that_diverges_is_no_candidate_and_the_loop_goes_on(tmp_pat
     assert "2e+04: diverged" in (tmp_path / "loop_report.md").read_text()
 
 
-def test_when_every_refit_diverges_the_rounds_done_are_reported(tmp_path):
-    with pytest.raises(DivergedError, match="every refit diverged.*Fix: smaller rates"):
-        _dead_zone_loop(tmp_path, (1e6,))
-    report = json.loads((tmp_path / "loop_report.json").read_text())
-    assert "every refit diverged" in report["stopped"]
-    assert len(report["rounds"]) == 1 and report["result"] == 0  # round 0 stands
-    assert "stopped before its end" in (tmp_path / "loop_report.md").read_text()
+def test_when_every_refit_diverges_the_folds_drop_it_and_the_start_stands(tmp_path):
+    report = _dead_zone_loop(tmp_path, (1e6,))
+    refit = report["rounds"][1]
+    assert refit["rejected"] == refit["decision"]["effect"]
+    assert "the refit's free run diverges on fold" in refit["decision"]["reason"]
+    assert report["result"] == 0 and "stopped" not in report

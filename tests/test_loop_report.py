@@ -14,10 +14,17 @@ import pytest
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.evaluation.plots import save_figure
 from hysteresis_lab.evaluation.report import write_json
+from hysteresis_lab.loop.crossval import FoldsCheck, HeldOut, keep_refit
 from hysteresis_lab.loop.diagnosis.excitation import operator_excitation
 from hysteresis_lab.loop.diagnosis.ranking import diagnose
 from hysteresis_lab.loop.diagnosis.residuals import diagnostics_figure
-from hysteresis_lab.loop.driver import HeldOut, LoopSettings, _decision, _LoopState
+from hysteresis_lab.loop.driver import (
+    LoopSettings,
+    _Candidate,
+    _decision,
+    _LoopState,
+    _Standing,
+)
 from hysteresis_lab.loop.figures import ResidualEvidence
 from hysteresis_lab.loop.report import loop_markdown, write_round_figures
 from hysteresis_lab.models.augment import feature_context
@@ -46,6 +53,10 @@ def result(improved: bool = True, rejected: dict | None = None) -> RunResult:
     return RunResult({}, 1.0, None, None, None, improved, {"start": 0.5, "refit": 0.4}, rejected)
 
 
+def folds(loss: float) -> FoldsCheck:
+    return FoldsCheck([HeldOut(loss, {}, [], []), HeldOut(loss, {}, [], [])])
+
+
 def held(loss: float) -> dict:
     return {"loss": loss, "rmse": {"val[1500:2000]": loss}, "diverging": []}
 
@@ -67,18 +78,21 @@ def write_loop_folder(folder: LoopFolder) -> dict:
     save_figure(diagnostics_figure([rec], {"val": {"free_run": free_run}}, 100),
                 folder.path / "round_0" / "residual_diagnostics.png")
     state = _LoopState(effects=[], rounds=[start],
-                       kept=[(result(), HeldOut(0.5, {}, [], []))])
+                       kept=[_Standing(result(), [], folds(0.5))])
     refit = {"effects": ["hysteresis"], **scores(0.8), "diagnosis": [], "added": "creep",
              "held_out": held(0.3)}
-    refit["decision"] = _decision("hysteresis", result(), refit, state, 0.0)
+    kept, reason = keep_refit(folds(0.3), folds(0.5), 0.0)
+    refit["decision"] = _decision("hysteresis", kept, reason,
+                                  _Candidate({}, None, [], folds(0.3)), state)
     state.rounds.append(refit)
-    state.kept.append((result(), HeldOut(0.3, {}, [], [])))
+    state.kept.append(_Standing(result(), [], folds(0.3)))
     dropped = {"effects": ["hysteresis", "creep"], **scores(0.8), "diagnosis": [], "added": None,
                "held_out": held(0.3), "rejected": "creep",
-               "rejected_refit": {**scores(0.9), "held_out": held(0.35)},
+               "rejected_held_out": held(0.35),
                "note": "the refit with 'creep' did not beat the last model"}
-    lost = result(improved=False, rejected={"held_out": held(0.35)})
-    dropped["decision"] = _decision("creep", lost, dropped, state, 0.0)
+    kept, reason = keep_refit(folds(0.35), folds(0.3), 0.0)
+    dropped["decision"] = _decision("creep", kept, reason,
+                                    _Candidate({}, None, [], folds(0.35)), state)
     state.rounds.append(dropped)
     for number, entry in enumerate(state.rounds):
         write_round_figures(folder, number, entry, evidence, context, settings.min_score)
@@ -110,7 +124,9 @@ def test_the_report_is_a_notebook_page_of_its_json(notebook):
     assert kept["decision"] == {
         "effect": "hysteresis", "kept": True, "against_round": 0,
         "held_out_loss": {"before": 0.5, "after": 0.3},
-        "reason": "the refit's held-out validation loss 0.3 beats round 0's 0.5"}
+        "fold_losses": {"before": [0.5, 0.5], "after": [0.3, 0.3]},
+        "reason": "the refit's pooled held-out loss over 2 folds 0.3 beats the standing "
+                  "model's 0.5; it is lower on 2 of 2 folds"}
     assert dropped["decision"]["kept"] is False
     assert dropped["decision"]["against_round"] == 1  # the model that stands, not round 0
     assert dropped["decision"]["held_out_loss"] == {"before": 0.3, "after": 0.35}
@@ -121,7 +137,7 @@ def test_the_report_is_a_notebook_page_of_its_json(notebook):
     assert "- added: hysteresis" in added and "p " in added
     assert "hysteresis_0 " in added  # each operator's excitation ratio
     assert start["added_excitation"]["reading"] in added
-    assert "**Dropped**: the refit's held-out validation loss 0.35 does not beat round 1's 0.3" \
+    assert "**Dropped**: the refit's pooled held-out loss over 2 folds 0.35 does not beat" \
         in sections[2]
     # the JSON stays what it was: only keys were added
     for entry in report["rounds"]:
@@ -144,17 +160,13 @@ def test_the_check_fails_when_the_page_disagrees_with_the_json(notebook, tmp_pat
         check_loop_notebook(tmp_path)
 
 
-def test_a_refit_that_lost_in_training_is_dropped_without_a_held_out_loss():
-    state = _LoopState(effects=[], rounds=[{"held_out": held(0.5)}],
-                       kept=[(result(), HeldOut(0.5, {}, [], []))])
-    entry = {"refit_validation_loss": {"start": 0.4, "refit": 0.45}}
-    decision = _decision("creep", result(improved=False, rejected={}), entry, state, 0.02)
-    assert decision["kept"] is False and decision["held_out_loss"] == {"before": 0.5,
-                                                                       "after": None}
-    assert decision["reason"] == (
-        "the refit did not beat its start on the training validation data by more than "
-        "loop.min_refit_gain=0.02 of it (loss 0.45 against 0.4, scaled), so it was not "
-        "judged on the held-out data")
+def test_a_dropped_refit_records_every_folds_loss_and_no_test_scores(notebook):
+    report = json.loads((notebook / "loop_report.json").read_text())
+    dropped = report["rounds"][2]
+    assert dropped["decision"]["fold_losses"] == {"before": [0.3, 0.3], "after": [0.35, 0.35]}
+    section = round_sections((notebook / "loop_report.md").read_text())[2]
+    assert "- per fold (before -> after): 0.3 -> 0.35, 0.3 -> 0.35" in section
+    assert "no test scores" in subsection(section, "Before / after on the tests")
 
 
 def test_older_reports_without_the_new_keys_still_render():

@@ -18,6 +18,7 @@ from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.models.ffnn import FFNN
 
 REUSED = "reusing the finished fit"
+FOLDS = 3  # loop.folds' default
 
 
 def _loop_args(tmp_path):
@@ -69,7 +70,8 @@ def test_a_killed_loop_resumes_without_retraining_its_finished_fits(tmp_path):
 
     resumed, output = _loop_in(run_dir, *args)
     assert resumed.returncode == 0, resumed.stderr[-3000:]
-    assert output.count(REUSED) == 1  # round 0 only: the refits had not finished
+    # round 0 only (each fold's fit, then the whole record's): the refits had not finished
+    assert output.count(REUSED) == FOLDS + 1
     assert round_0_model.stat().st_mtime_ns == written  # not trained again
     # the refits started from the reloaded round-0 network: the same report to the digit
     assert json.loads((run_dir / "loop_report.json").read_text()) == expected
@@ -77,7 +79,8 @@ def test_a_killed_loop_resumes_without_retraining_its_finished_fits(tmp_path):
     again, output = _loop_in(run_dir, *args)
     assert again.returncode == 0, again.stderr[-3000:]
     fits = list(run_dir.rglob(fit_record.FIT_RECORD))
-    assert len(fits) == 3  # round 0 and the refit at each of the two rates
+    kept = not expected["rounds"][1].get("rejected")  # a kept refit is refitted on the whole
+    assert len(fits) == FOLDS + 1 + 2 * FOLDS + kept  # round 0; the refit per rate per fold
     assert output.count(REUSED) == len(fits)  # nothing trains
     assert json.loads((run_dir / "loop_report.json").read_text()) == expected
 
@@ -86,7 +89,8 @@ def test_a_killed_loop_resumes_without_retraining_its_finished_fits(tmp_path):
     assert damaged.returncode == 0, damaged.stderr[-3000:]
     assert "cannot be reused" in damaged.stdout + damaged.stderr  # a warning: on the terminal
     assert "cannot be reused" in output and "checkpoint is corrupt" in output
-    assert output.count(REUSED) == 2  # the refits: round 0 trained again to the same weights
+    # all but round 0's whole-record fit, trained again to the same weights
+    assert output.count(REUSED) == len(fits) - 1
     assert json.loads((run_dir / "loop_report.json").read_text()) == expected
 
     other, output = _loop_in(run_dir, *args, "trainer.max_epochs=2")

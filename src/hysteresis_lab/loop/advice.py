@@ -13,7 +13,6 @@ no decision of the loop.
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 from collections.abc import Sequence
 from typing import Any
@@ -60,8 +59,8 @@ def excitation_advice(
 ) -> list[dict[str, Any]]:
     """Per effect not judged for lack of excitation: the numbers, the recordings to add and
     how (``override``: the simulator's overrides; ``advice``: one sentence). Logged.
-    ``holdout``: ``loop.holdout``, the share of each training recording held out where the
-    data set has no validation recordings."""
+    ``holdout``: the share of an added identification recording the diagnosis reads (1: the
+    folds hold out every block of it once)."""
     fit = data.fit
     held = holdout if _holds_out(data) and not data_spec.diagnose else None
     make_sine = _sine_maker(fit.test[0].fs) if fit.test and fit.test[0].nu == 1 else None
@@ -84,14 +83,13 @@ def excitation_advice(
 
 
 def _holds_out(data: LoopData) -> bool:
-    """Whether the loop validates on held-out ends of the training recordings."""
-    return bool(data.validation) and data.validation[0].start > 0
+    """Whether the folds hold out blocks of the identification recordings (not whole ones)."""
+    return any(s.start > 0 or s.stop < s.recording.n_samples for s in data.validation)
 
 
 def _scored_parts(stretches: Sequence[Stretch]) -> list[Recording]:
-    """The part of each diagnosis stretch that is scored (a held-out stretch's end)."""
-    return [dataclasses.replace(s.recording, u=s.recording.u[s.start:],
-                                y=s.recording.y[s.start:]) for s in stretches]
+    """The part of each diagnosis stretch that is scored (a held-out block)."""
+    return [s.scored() for s in stretches]
 
 
 def _sine_maker(fs: float) -> SineMaker:
@@ -147,7 +145,7 @@ def _tests(driving: Sequence[str], n_tests: int) -> str:
 
 def _where(data: LoopData, data_spec: DataSpec) -> str:
     """Which recordings the diagnosis reads: ``"diagnose"`` (named in data.diagnose),
-    ``"holdout"`` (the ends of the training recordings) or ``"val"``."""
+    ``"holdout"`` (blocks of the identification recordings) or ``"val"`` (whole ones)."""
     if data_spec.diagnose:
         return "diagnose"
     return "holdout" if _holds_out(data) else "val"
@@ -183,10 +181,10 @@ def _sentence(
             + (f" (e.g. sines at {sines} Hz)" if sines else ""))
     some = f"those at {_hz(advice.val_hz) or 'other frequencies'} Hz"
     place = {
-        "holdout": " and pass them as extra data.train files (the loop validates and diagnoses "
-                   "on the last loop.holdout of each)",
-        "val": f" and pass them as extra data.train files, and {some} as data.val files (the "
-               "loop validates and diagnoses on those)",
+        "holdout": " and pass them as extra data.train files (the loop's folds hold out a "
+                   "block of each)",
+        "val": f" and pass them as extra data.train files, {some} among them (the loop's "
+               "folds hold out whole recordings)",
         "diagnose": f" and pass them as extra data.train files, and {some} in data.diagnose "
                     "(the recordings the diagnosis reads)",
     }[where] if advice.val_hz or where == "holdout" else " and pass them as extra data.train files"

@@ -34,6 +34,9 @@ from hysteresis_lab.run_folder import LoopFolder, RunFolder
 
 log = logging.getLogger(__name__)
 
+#: the fold whose fits `refit_choices` scores (the loop's fits of fold 0)
+FIRST_FOLD = "fold_0"
+
 #: effect RMS below this share of the residual RMS: the effect does not act there
 NEGLIGIBLE = 0.01
 #: check sines between the study's test frequencies (0.1 ... 500 Hz), apart from the training
@@ -224,26 +227,21 @@ def check_splits(data_cfg: dict[str, Any], frequencies: list[float]) -> DatasetS
 def round_candidates(run: Path, number: int, entry: dict[str, Any]) -> list[dict[str, Any]]:
     """Every refit a round ran: its rate, validation loss, weights and whether it was kept.
 
-    A rate's folder holds the refit as ``model.ckpt`` when it beat its start, else the start
-    there and the refit as ``rejected_refit_model.ckpt``."""
+    Each rate is read as the loop's first fold fitted it (``<rate folder>/fold_0``): its
+    folder holds the refit as ``model.ckpt`` when it beat its start, else the start there and
+    the refit as ``rejected_refit_model.ckpt``."""
     if "refit_candidates" not in entry:
         raise ConfigError(
             f"round {number} is no warm-started refit (e.g. the SVM refits from scratch): "
             "there is no refit choice to check."
         )
     losses = {c["refit_lr"]: c["validation_loss"] for c in entry["refit_candidates"]}
-    start_loss = entry["refit_validation_loss"]["start"]
     folder = LoopFolder(run).round_dir(number)
     candidates = []
     for rate, loss in losses.items():
-        rate_folder = RunFolder(LoopFolder.refit_dir(folder, rate, several=len(losses) > 1))
+        rate_folder = RunFolder(
+            LoopFolder.refit_dir(folder, rate, several=len(losses) > 1) / FIRST_FOLD)
         rejected = rate_folder.rejected_refit_model_file()
-        if rejected is None and not loss < start_loss:
-            raise DataError(
-                f"the refit at lr {rate:g} lost to its start and its weights were not saved "
-                "(a run from before they were)", source=str(rate_folder.path),
-                fix="rerun the loop.",
-            )
         candidates.append({
             "refit_lr": rate,
             "validation_loss": loss,
@@ -268,11 +266,11 @@ def refit_choices(run: Path, frequencies: list[float]) -> list[dict[str, Any]]:
     data_cfg = run_data_config(run)  # says plainly when the folder is no loop run at all
     rounds = loop_rounds(run)
     check = check_splits(data_cfg, frequencies)
-    standing = RunFolder(LoopFolder(run).round_dir(0)).model_file()
+    standing = RunFolder(LoopFolder(run).round_dir(0) / FIRST_FOLD).model_file()
     results = []
     for number, entry in enumerate(rounds[1:], start=1):
         candidates = round_candidates(run, number, entry)
-        start = {"refit_lr": None, "validation_loss": entry["refit_validation_loss"]["start"],
+        start = {"refit_lr": None, "validation_loss": float("nan"),
                  "kept": bool(entry.get("rejected")), "model": standing}
         everything = [start, *candidates]
         _score_candidates(everything, check)

@@ -1,17 +1,19 @@
-"""Which recordings play which role in the loop: train, validate, choose, report.
+"""Which recordings play which role in the loop: choose, fit, report.
 
-The effect a round adds is chosen from the residual of recordings that the before/after
-numbers (the test recordings) do not use, and a refit is judged on recordings it did not
-train on:
+The identification record (the data set's training and validation recordings) both
+chooses the structure and fits the result; the test recordings never inform a choice:
 
-* **validation** (judges every refit): the data set's validation recordings, or, where it
-  has none, a held-out stretch at the end of every training recording (``loop.holdout``,
-  a share of its samples). The model trains on the rest; the stretch is scored on the free
-  run of the whole recording, simulated end to end (a model that simulates from rest has no
-  other state to start the stretch from);
-* **diagnosis** (chooses the effect): the validation data, or the recordings named in
-  ``data.diagnose=[...]``: names of the data set's validation or test recordings (a test
-  recording named there leaves the before/after set) or files, read like ``data.test``;
+* **folds** (choose): ``loop.folds`` = k folds of the identification record. Where it has
+  at least k recordings, each fold holds out whole recordings (every k-th); else every
+  recording is cut into k contiguous blocks and fold j holds out block j of each. A fold's
+  models train on the rest and are scored on the free run of each held-out recording,
+  simulated end to end (a model that simulates from rest has no other state to start a
+  block from), over the held-out samples only;
+* **diagnosis** (chooses the effect): the folds' held-out residuals together, or the
+  recordings named in ``data.diagnose=[...]``: names of the data set's test recordings (a
+  test recording named there leaves the before/after set) or files, read like ``data.test``;
+* **fit** (the result): the whole identification record, which the structure the folds
+  chose is refitted on (`LoopData.fit`);
 * **test** (before/after): the test recordings that are left.
 """
 
@@ -44,42 +46,70 @@ class Stretch:
 
     recording: Recording
     start: int = 0
+    #: first sample after the scored part (None: the recording's end)
+    end: int | None = None
 
     @property
     def name(self) -> str:
         return self.recording.name
 
+    @property
+    def stop(self) -> int:
+        """First sample after the scored part."""
+        return self.recording.n_samples if self.end is None else self.end
+
     def describe(self) -> str:
-        """``name`` or ``name[start:]`` (samples), as the report lists it."""
-        n = self.recording.n_samples
-        return self.name if self.start == 0 else f"{self.name}[{self.start}:{n}]"
+        """``name`` or ``name[start:stop]`` (samples), as the report lists it."""
+        whole = self.start == 0 and self.stop == self.recording.n_samples
+        return self.name if whole else f"{self.name}[{self.start}:{self.stop}]"
+
+    def scored(self) -> Recording:
+        """The scored part of the recording."""
+        rec = self.recording
+        return dataclasses.replace(rec, u=rec.u[self.start:self.stop],
+                                   y=rec.y[self.start:self.stop])
+
+
+@dataclass(frozen=True)
+class Fold:
+    """One fold of the identification record: what its models train on (``fit``, tested on
+    the data set's test recordings) and the held-out stretches that score them."""
+
+    fit: DatasetSplits
+    held_out: list[Stretch]
+
+    def describe(self) -> str:
+        return ", ".join(s.describe() for s in self.held_out)
 
 
 @dataclass(frozen=True)
 class LoopData:
     """The loop's data in their roles (see the module docstring)."""
 
-    fit: DatasetSplits  # what every round trains on (and is tested on: ``fit.test``)
-    validation: list[Stretch]
+    #: the whole identification record (the result is fitted on it) and the tests
+    fit: DatasetSplits
+    folds: list[Fold]
     diagnosis: list[Stretch]
+
+    @property
+    def validation(self) -> list[Stretch]:
+        """Every fold's held-out stretches (together: the identification record)."""
+        return [s for fold in self.folds for s in fold.held_out]
 
     def roles(self) -> dict[str, list[str]]:
         """Every role's recordings (``name[a:b]`` for a stretch), for the report."""
-        def cut(rec: Recording) -> str:
-            full = rec.metadata.get("loop_cut_from")
-            return f"{rec.name}[0:{rec.n_samples}]" if full else rec.name
-
         return {
-            "train": [cut(r) for r in self.fit.train],
-            "validation": [s.describe() for s in self.validation],
+            "train": [r.name for r in self.fit.train],
+            "folds": [fold.describe() for fold in self.folds],
             "diagnosis": [s.describe() for s in self.diagnosis],
             "test": [r.name for r in self.fit.test],
         }
 
 
-def loop_data(splits: DatasetSplits, data: DataSpec, holdout: float) -> LoopData:
-    """The recordings of ``splits`` in the loop's roles; ``data.diagnose`` names the
-    diagnosis recordings (default: the validation data)."""
+def loop_data(splits: DatasetSplits, data: DataSpec, folds: int) -> LoopData:
+    """The recordings of ``splits`` in the loop's roles, with ``folds`` folds of the
+    identification record (training and validation recordings); ``data.diagnose`` names
+    the diagnosis recordings (default: the folds' held-out stretches)."""
     named = list(data.diagnose)
     chosen, moved = _diagnosis_recordings(splits, named, data)
     test = [r for r in splits.test if r.name not in moved]
@@ -87,49 +117,69 @@ def loop_data(splits: DatasetSplits, data: DataSpec, holdout: float) -> LoopData
         raise ConfigError(
             f"data.diagnose={named} takes every test recording: none is left for the "
             "before/after numbers. Fix: name fewer test recordings there (or none: the "
-            "validation data then choose)."
+            "folds then choose)."
         )
-    if splits.val:
-        fit = dataclasses.replace(splits, test=test)
-        validation = [Stretch(r) for r in splits.val]
-    else:
-        train, validation = _held_out_stretches(splits.train, holdout)
-        fit = dataclasses.replace(splits, train=train, test=test)
-    diagnosis = [Stretch(r) for r in chosen] or validation
-    return LoopData(fit, validation, diagnosis)
+    identification = [*splits.train, *splits.val]
+    fit = dataclasses.replace(splits, train=identification, val=[], test=test)
+    made = cross_validation_folds(fit, folds)
+    held = [s for fold in made for s in fold.held_out]
+    diagnosis = [Stretch(r) for r in chosen] or held
+    log.info("loop folds: %s", "; ".join(fold.describe() for fold in made))
+    return LoopData(fit, made, diagnosis)
 
 
-def _held_out_stretches(
-    recordings: Sequence[Recording], holdout: float
-) -> tuple[list[Recording], list[Stretch]]:
-    """Each training recording's first ``1 - holdout`` share to train on, and the whole
-    recording scored from the cut on."""
-    train, stretches = [], []
-    for rec in recordings:
-        cut = int(round((1.0 - holdout) * rec.n_samples))
-        if min(cut, rec.n_samples - cut) < MIN_STRETCH:
-            raise DataError(
-                f"has {rec.n_samples} samples: a held-out stretch of loop.holdout={holdout:g} "
-                f"leaves {cut} to train on and {rec.n_samples - cut} to validate on (at least "
-                f"{MIN_STRETCH} each).",
-                source=f"training recording '{rec.name}'",
-                fix="give validation recordings (data.val=[...]), a longer training recording, "
-                "or another loop.holdout",
-            )
-        metadata = {**rec.metadata, "loop_cut_from": rec.n_samples}
-        train.append(dataclasses.replace(rec, u=rec.u[:cut], y=rec.y[:cut], metadata=metadata))
-        stretches.append(Stretch(rec, cut))
-    log.info("no validation recordings: the last %g %% of every training recording is held out "
-             "(%s)", 100 * holdout, ", ".join(s.describe() for s in stretches))
-    return train, stretches
+def cross_validation_folds(fit: DatasetSplits, k: int) -> list[Fold]:
+    """``k`` folds of ``fit.train``: whole recordings (every k-th) where there are at least
+    ``k``, else the j-th of ``k`` contiguous blocks of every recording."""
+    recordings = fit.train
+    if k < 2:
+        raise ConfigError(f"loop.folds={k} must be at least 2. Fix: e.g. loop.folds=3.")
+    if len(recordings) >= k:
+        return [Fold(dataclasses.replace(fit, train=[r for i, r in enumerate(recordings)
+                                                     if i % k != j]),
+                     [Stretch(r) for r in recordings[j::k]]) for j in range(k)]
+    folds = []
+    for j in range(k):
+        train, held = [], []
+        for rec in recordings:
+            a, b = _block(rec, j, k)
+            train += [piece for piece in (_piece(rec, 0, a), _piece(rec, b, rec.n_samples))
+                      if piece is not None]
+            held.append(Stretch(rec, a, b))
+        folds.append(Fold(dataclasses.replace(fit, train=train), held))
+    return folds
+
+
+def _block(rec: Recording, j: int, k: int) -> tuple[int, int]:
+    """Samples ``[a, b)`` of block ``j`` of ``k`` of ``rec``, at least `MIN_STRETCH` long."""
+    n = rec.n_samples
+    if n // k < MIN_STRETCH:
+        raise DataError(
+            f"has {n} samples: {k} folds (loop.folds) leave {n // k} per block (at least "
+            f"{MIN_STRETCH}).",
+            source=f"identification recording '{rec.name}'",
+            fix="fewer folds (e.g. loop.folds=2) or a longer recording",
+        )
+    return round(j * n / k), round((j + 1) * n / k)
+
+
+def _piece(rec: Recording, a: int, b: int) -> Recording | None:
+    """Samples ``[a, b)`` of ``rec`` to train on (None: too short to train on)."""
+    if b - a < MIN_STRETCH:
+        return None
+    if a == 0 and b == rec.n_samples:
+        return rec
+    metadata = {**rec.metadata, "loop_piece": [a, b]}
+    return dataclasses.replace(rec, name=f"{rec.name}[{a}:{b}]", u=rec.u[a:b], y=rec.y[a:b],
+                               metadata=metadata)
 
 
 def _diagnosis_recordings(
     splits: DatasetSplits, named: Sequence[str], data: DataSpec
 ) -> tuple[list[Recording], set[str]]:
     """The recordings ``named`` (data set names or files) and the test names among them."""
-    by_name = {r.name: r for r in [*splits.val, *splits.test]}
-    training = {r.name for r in splits.train}
+    by_name = {r.name: r for r in splits.test}
+    training = {r.name for r in [*splits.train, *splits.val]}
     chosen, moved = [], set()
     for entry in map(str, named):
         if entry in by_name:
@@ -137,8 +187,9 @@ def _diagnosis_recordings(
             moved |= {entry} & {r.name for r in splits.test}
         elif entry in training:
             raise ConfigError(
-                f"data.diagnose names '{entry}', a training recording: its residual is what the "
-                "model was fitted to. Fix: name validation or test recordings "
+                f"data.diagnose names '{entry}', an identification recording: its residual is "
+                "what the result is fitted to (the folds already diagnose it). Fix: name test "
+                "recordings "
                 f"({sorted(by_name)}) or files."
             )
         elif Path(entry).is_file():

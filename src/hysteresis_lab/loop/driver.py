@@ -1,17 +1,21 @@
 """The closed loop: fit -> residuals -> diagnose -> add the top significant effect -> refit.
 
-Each round trains the model with the effects declared so far, scores it on the test
-recordings in both modes, analyses the free-run residuals and ranks the effects the model
-does not declare yet (`hysteresis_lab.loop.diagnosis.ranking`). The top significant one is added
-and the next round refits, until nothing significant remains or ``max_rounds`` effects are
-added. A refit that does not beat the model it started from on validation is rejected: the
-effect is dropped, the last model stands and the next significant effect is tried (a model
-refitted from scratch, the SVM, meets the last kept one on its validation MSE).
-With ``warm_start`` a refit starts from the previous round's network with the new effect's
-input weights at zero (nested models: it begins exactly where the last round ended); with
-``refit="new_inputs"`` (the default) it trains only those weights, so everything the last
-round fitted stays exactly as it was and the before/after difference is what the added
-effect brings, not the spread between two fits.
+Each round fits the model with the effects declared so far on every fold of the
+identification record (`hysteresis_lab.loop.data`), scores each fold's model on the fold's
+held-out stretches, and ranks the effects the model does not declare yet from those
+held-out residuals, every fold's blocks voting together
+(`hysteresis_lab.loop.diagnosis.ranking`). The top significant one is added and the next
+round refits it on every fold: the refit stands only when its free run is stable on every
+fold, its pooled held-out loss beats the standing model's and it is better on a majority of
+the folds (`hysteresis_lab.loop.crossval.keep_refit`); the refit's learning rate and the
+effect's place are the candidates' with the lowest pooled held-out loss. The structure the
+folds chose is then refitted on the whole identification record: that model is the round's
+result, the one reported on the tests and saved in ``round_<n>/``.
+
+With ``warm_start`` every refit (each fold's and the whole record's) starts from the same
+lane's previous model with the new effect's input weights at zero; with
+``refit="new_inputs"`` (the default) it trains only those weights, so a fold's refit costs
+little more than the new block's fit.
 """
 
 from __future__ import annotations
@@ -27,7 +31,6 @@ from typing import Any
 
 import numpy as np
 
-from hysteresis_lab import fit_record
 from hysteresis_lab._console import SUMMARY
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.spec import DataSpec
@@ -37,10 +40,10 @@ from hysteresis_lab.effects.registry import get_effect
 from hysteresis_lab.errors import ConfigError, DivergedError, HysteresisLabError
 from hysteresis_lab.evaluation.evaluate import scoring_start
 from hysteresis_lab.evaluation.plots import loops_figure, save_figure
-from hysteresis_lab.evaluation.predict import free_run
 from hysteresis_lab.evaluation.report import write_json
 from hysteresis_lab.lightning_trainer import TrainerSettings
 from hysteresis_lab.loop.advice import excitation_advice
+from hysteresis_lab.loop.crossval import FoldsCheck, HeldOut, held_out, keep_refit
 from hysteresis_lab.loop.data import LoopData, Stretch, loop_data
 from hysteresis_lab.loop.diagnosis.excitation import operator_excitation
 from hysteresis_lab.loop.diagnosis.ranking import TESTS, EffectScore, diagnose, evidence_lags
@@ -54,10 +57,10 @@ from hysteresis_lab.loop.report import (
     write_round_figures,
 )
 from hysteresis_lab.models.augment import SETTING as BASELINE_SETTING
-from hysteresis_lab.models.augment import feature_context, for_model
+from hysteresis_lab.models.augment import feature_context
 from hysteresis_lab.models.settings import TrainingSettings
 from hysteresis_lab.models.spec import ModelSpec
-from hysteresis_lab.run_folder import LoopFolder, RunFolder
+from hysteresis_lab.run_folder import LoopFolder
 from hysteresis_lab.workflows.grow import REFIT_LR_FACTORS, refit_mode, refit_rates
 from hysteresis_lab.workflows.pipeline import (
     RunConfig,
@@ -73,9 +76,8 @@ REFITS = ("new_inputs", "full")
 #: the residual analysis' figure in the folder of each diagnosed round's fit
 DIAGNOSTICS_FIGURE = "residual_diagnostics.png"
 
-#: a free run that leaves the measured output's range by more than this many times its
-#: span (or is not finite) diverges: such a model is never the loop's result
-DIVERGED_SPANS = 10.0
+#: a round's fits on fold j land in ``round_<n>/fold_<j>``
+FOLD_DIR = "fold_{}"
 
 
 @dataclass
@@ -99,9 +101,14 @@ class LoopSettings:
     #: run again in the folder of a stopped loop (``hydra.run.dir``), each fit that finished
     #: there with the same settings, data and start is reused, not trained again
     resume: bool = True
-    #: share at the end of every training recording held out to validate on and diagnose
-    #: from, when the data set has no validation recordings (`hysteresis_lab.loop.data`)
-    holdout: float = 0.25
+    #: folds of the identification record that choose the effect, its place and whether a
+    #: refit stands (`hysteresis_lab.loop.data`); the result is refitted on all of it
+    folds: int = 3
+    #: significant effects scoring within this share of the top score are confounded with
+    #: it: each is refitted and the folds keep the best (`confounded`)
+    confounded_margin: float = 0.2
+    #: at most this many effects refitted in one round (the top one included)
+    max_alternatives: int = 3
     #: the diagnosis drops each residual's start transient and also reads the input-side
     #: effects through the model's own dynamics (`hysteresis_lab.loop.diagnosis.ranking`): a
     #: recording that starts with a jump from rest rings, and filters of the input started
@@ -110,10 +117,16 @@ class LoopSettings:
     diagnosis_through_dynamics: bool = True
 
     def __post_init__(self) -> None:
-        if not 0.0 < self.holdout < 1.0:
+        if not 0.0 <= self.confounded_margin < 1.0 or self.max_alternatives < 1:
             raise ConfigError(
-                f"loop.holdout={self.holdout} must lie in (0, 1): it is the share of every "
-                "training recording held out. Fix: e.g. loop.holdout=0.25."
+                f"loop.confounded_margin={self.confounded_margin} must lie in [0, 1) and "
+                f"loop.max_alternatives={self.max_alternatives} be at least 1. Fix: e.g. "
+                "loop.confounded_margin=0.2 loop.max_alternatives=3."
+            )
+        if self.folds < 2:
+            raise ConfigError(
+                f"loop.folds={self.folds} must be at least 2: each fold holds out a share of "
+                "the identification record. Fix: e.g. loop.folds=3."
             )
         self.refit_lr_factors = tuple(float(f) for f in self.refit_lr_factors)
         if not self.refit_lr_factors or min(self.refit_lr_factors) <= 0:
@@ -149,21 +162,23 @@ class LoopSettings:
             raise ConfigError(f"loop.max_rounds={self.max_rounds} must be >= 0.")
 
 
-@dataclass
-class HeldOut:
-    """A round's model on the loop's held-out data (`hysteresis_lab.loop.data`)."""
+@dataclass(frozen=True)
+class _Lane:
+    """Fits of the loop on one set of training data: the whole identification record or
+    one fold's share of it."""
 
-    #: mean over the validation stretches (and outputs) of the free-run MSE over the
-    #: variance of the measured output there: unit-free, each stretch weighing the same
-    loss: float
-    rmse: dict[str, float]  # free-run RMSE per validation stretch
-    #: every recording (validation, diagnosis, test) on which the free run diverges
-    diverging: list[str]
-    #: the free run of each diagnosis stretch (whole recording)
-    diagnosis_predictions: list[np.ndarray]
+    config: RunConfig  # the loop's trainer and bookkeeping settings
+    splits: DatasetSplits
 
-    def to_dict(self) -> dict[str, Any]:
-        return {"loss": self.loss, "rmse": self.rmse, "diverging": self.diverging}
+    def fit(self, **options: Any) -> RunResult:
+        """`fit_model` on this lane's data (``options``: its model, training, folder, warm
+        start and refit mode)."""
+        return fit_model(self.config, self.splits, **options)
+
+    @property
+    def samples(self) -> int:
+        """Training samples of this lane."""
+        return sum(rec.n_samples for rec in self.splits.train)
 
 
 @dataclass(frozen=True)
@@ -176,14 +191,45 @@ class _LoopRun:
     settings: LoopSettings
     data: LoopData
     context: FeatureContext
-    #: `fit_model` with the run's data, trainer and bookkeeping settings bound
-    fit_model: Callable[..., RunResult]
-    #: `held_out` with the run's data and device bound
-    judge: Callable[[RunResult], HeldOut]
+    #: fits on the whole identification record (the result's)
+    whole: _Lane
+    #: fits on each fold's training data (no figures: nobody reads them)
+    folds: list[_Lane]
+    #: `held_out` on each fold's held-out stretches, with the device bound
+    fold_judges: list[Callable[[RunResult], HeldOut]]
     folder: LoopFolder
     use_tensorboard: bool
     #: the data config (the advice on recordings to add names its overrides)
     data_spec: DataSpec
+    device: str
+
+
+@dataclass
+class _Standing:
+    """A structure that stands: fitted on the whole identification record (the result) and
+    on every fold (what the next refit of each fold starts from), with its fold scores."""
+
+    final: RunResult
+    folds: list[RunResult]
+    check: FoldsCheck
+
+
+@dataclass
+class _Candidate:
+    """A round's structure at one place (``variant``) and refit rate, fitted on every fold
+    (None: that fold's fit diverged in training)."""
+
+    variant: dict[str, Any]
+    rate: float | None
+    folds: list[RunResult | None]
+    check: FoldsCheck
+    model: ModelSpec | None = None  # the round's model (its effects) before the variant
+    effect: str | None = None  # the effect it adds (None: the start)
+
+    def refit_loss(self) -> float:
+        """The folds' mean training validation loss of the refit (inf: none)."""
+        losses = [_refit_loss(r) for r in self.folds if r is not None]
+        return float(np.mean(losses)) if losses else float("inf")
 
 
 @dataclass
@@ -193,13 +239,14 @@ class _LoopState:
     #: the effects the standing model declares
     effects: list[str]
     rounds: list[dict[str, Any]] = dataclasses.field(default_factory=list)
-    #: the rounds whose model stands, with their held-out scores
-    kept: list[tuple[RunResult, HeldOut]] = dataclasses.field(default_factory=list)
+    #: the rounds whose model stands
+    kept: list[_Standing] = dataclasses.field(default_factory=list)
     diagnosis: list[EffectScore] = dataclasses.field(default_factory=list)
     #: effects tried on the standing model
     tried: set[str] = dataclasses.field(default_factory=set)
-    #: the effect the next round adds
-    trying: str | None = None
+    #: the effects the next round refits, one at a time (the top one and those the evidence
+    #: does not tell apart from it); the folds keep at most one
+    trying: list[str] = dataclasses.field(default_factory=list)
     #: the standing model's free run on the diagnosis recordings (the report's figures)
     evidence: ResidualEvidence | None = None
 
@@ -230,24 +277,30 @@ def run_loop(
         )
     start = {"model": model.name, "effects": model.effects}
     log.info("loop start: %s", start_label(start))
-    data = loop_data(splits, data_spec, settings.holdout)
+    data = loop_data(splits, data_spec, settings.folds)
     log.info("loop data roles: %s", data.roles())
     bookkeeping = RunSettings(seed=seed, use_tensorboard=use_tensorboard,
                               min_refit_gain=settings.min_refit_gain, reuse=settings.resume,
                               resume=settings.resume)
+    base = RunConfig(model, data_spec, trainer, output_dir, bookkeeping, training)
+    quiet = dataclasses.replace(base, settings=dataclasses.replace(
+        bookkeeping, plots=False, use_tensorboard=False))
+    device = trainer.evaluation_device()
     run = _LoopRun(
         model=model,
         training=training,
         settings=settings,
         data=data,
         context=feature_context(data.fit.train),
-        fit_model=functools.partial(
-            fit_model, RunConfig(model, data_spec, trainer, output_dir, bookkeeping, training),
-            data.fit),
-        judge=functools.partial(held_out, data=data, device=trainer.evaluation_device()),
+        whole=_Lane(base, data.fit),
+        folds=[_Lane(quiet, fold.fit) for fold in data.folds],
+        fold_judges=[functools.partial(held_out, stretches=fold.held_out,
+                                       n_init=data.fit.n_init, device=device)
+                     for fold in data.folds],
         folder=LoopFolder(output_dir),
         use_tensorboard=use_tensorboard,
         data_spec=data_spec,
+        device=device,
     )
     state = _LoopState(effects=list(start["effects"]))
     try:
@@ -299,75 +352,159 @@ def _report(
 def _fit_round_and_decide(
     run: _LoopRun, state: _LoopState, number: int
 ) -> tuple[dict[str, Any], bool]:
-    """Round ``number``: fit (a refit when an effect is being tried), judge it on held-out
-    data, keep or reject it, and diagnose a kept model's residual. Returns the round's
+    """Round ``number``: fit the round's structure on every fold (each place and refit rate
+    when an effect is being tried), keep or reject it on the folds, refit what stands on the
+    whole identification record and diagnose its residual on the folds. Returns the round's
     report entry and False when the loop cannot go on (the start diverges)."""
     settings, trying = run.settings, state.trying
-    round_effects = state.effects + ([trying] if trying else [])
-    log.info("=== loop round %d: effects %s ===", number, round_effects or "none")
-    warm_start = (_previous_network([k[0] for k in state.kept])
-                  if settings.warm_start else None)
-    model = run.model.with_settings({**run.model.settings, "effects": round_effects})
-    variants = _refit_variants(model, warm_start, trying)
-    result, round_dir, refit_lr, losses, check = _fit_round(
-        run.fit_model,
-        run.judge,
-        model,
-        run.training,
-        run.folder.round_dir(number),
-        _refit_rates(run.training, settings) if warm_start is not None else [None],
-        variants=variants,
-        warm_start=warm_start,
-        refit=_refit_mode(settings.refit, trying, run.model.cls),
-    )
-    if trying is not None and warm_start is None:
-        result = judge_cold_refit(result, state.kept[-1][0], settings.min_refit_gain)
-        if not result.improved:
-            _set_aside_rejected_files(result.rejected_refit)
-    if trying is not None and result.improved:
-        result, check = _judge_held_out(result, check, state.kept[-1], settings.min_refit_gain)
-    entry = _round_entry(round_effects, result)
-    entry["held_out"] = check.to_dict()
-    if refit_lr is not None:
-        entry["refit_lr"] = refit_lr
-        entry["refit_candidates"] = losses
-    if len(variants) > 1:
-        entry["refit_settings"] = {k: result.model.hparams.get(k) for k in variants[0]}
-    if trying is not None:
-        entry["decision"] = _decision(trying, result, entry, state, settings.min_refit_gain)
+    log.info("=== loop round %d: effects %s%s ===", number, state.effects or "none",
+             f" + one of {trying}" if trying else "")
+    standing = state.kept[-1] if state.kept else None
+    warm = (settings.warm_start and standing is not None
+            and bool(standing.final.model.warm_starts))
+    rates: list[float] | list[None] = (
+        _refit_rates(run.training, settings) if warm else [None])
+    round_dir = run.folder.round_dir(number)
+    candidates, variants = [], [{}]
+    for effect in trying or [None]:
+        effects = state.effects + ([effect] if effect else [])
+        model = run.model.with_settings({**run.model.settings, "effects": effects})
+        variants = _refit_variants(model, standing.final.model if warm else None, effect)
+        refit = _refit_mode(settings.refit, effect, run.model.cls)
+        folder = round_dir / effect if len(trying) > 1 else round_dir
+        candidates += [
+            _fit_on_folds(run, model, variant, rate,
+                          _candidate_dir(folder, variant, rate, variants, rates),
+                          standing if warm else None, refit, effect)
+            for variant, rate in itertools.product(variants, rates)
+        ]
+    best = min(candidates, key=lambda c: (c.check.loss, c.refit_loss()))
+    model, round_effects = best.model, best.model.effects
+    refit = _refit_mode(settings.refit, best.effect, run.model.cls)
+    if standing is None:
+        kept, reason = True, ""
+    else:
+        kept, reason = keep_refit(best.check, standing.check, settings.min_refit_gain)
+    fitted_on = None
+    if kept:
+        final, samples = _fit_final(run, model, best, round_dir, standing if warm else None,
+                                    refit)
+        fitted_on = {"samples": samples, "recordings": [r.name for r in run.data.fit.train]}
+    else:
+        final = standing.final
+    entry = _round_entry(round_effects, final)
+    entry["chosen_on"] = {"folds": len(run.data.folds),
+                          "samples": [lane.samples for lane in run.folds]}
+    entry["fitted_on"] = fitted_on
+    entry["held_out"] = (best.check if kept else standing.check).to_dict()
+    if rates[0] is not None:
+        entry["refit_lr"] = best.rate
+        entry["refit_candidates"] = [_candidate_entry(c) for c in candidates]
+    if len(variants) > 1 or best.variant:
+        entry["refit_settings"] = dict(best.variant)
+    if kept and standing is not None and final.refit_validation is not None:
+        entry["refit_validation_loss"] = final.refit_validation
+    if trying:
+        entry["decision"] = _decision(best.effect, kept, reason, best, state)
+    if len(trying) > 1:
+        entry["compared"] = compared_effects(candidates)
     state.rounds.append(entry)
-    if trying is not None and not result.improved:
-        entry["rejected"] = trying
-        where = "the held-out validation data" if "held_out" in (
-            result.rejected_refit or {}) else "validation"
+    if trying and not kept:
+        entry["rejected"] = best.effect
+        entry["rejected_held_out"] = best.check.to_dict()
+        entry["note"] = (f"the refit with '{best.effect}' did not pass the folds: "
+                         f"'{best.effect}' dropped, the last model stands")
+        return entry, True
+    if best.check.diverging:
         entry["note"] = (
-            f"the refit with '{trying}' did not beat the last model on {where}: "
-            f"'{trying}' dropped, the last model stands"
-        )
-    elif check.diverging:
-        entry["note"] = (
-            f"the start model's free run diverges on {check.diverging}: it is no result, "
+            f"the start model's free run diverges on {best.check.diverging}: it is no result, "
             "and nothing is diagnosed from it. Fix: another start (model=linear is stable "
             "by construction) or other training settings"
         )
         log.error("%s", entry["note"])
         return entry, False
-    else:
-        state.effects, state.tried = round_effects, set()
-        state.kept.append((result, check))
-        state.diagnosis, state.evidence = _diagnose_round(
-            result, check, run.data, run.context, held_effects(run.model, state.effects),
-            settings, round_dir,
-            run.use_tensorboard, number,
-        )
-        entry["diagnosis"] = [d.to_dict() for d in state.diagnosis]
-        advice = excitation_advice(state.diagnosis, run.data, run.data_spec, run.context,
-                                   settings.min_score, settings.holdout)
-        if advice:
-            entry["under_excited"] = advice
-        entry["figures"] = {
-            "diagnostics": run.folder.relative(round_dir / DIAGNOSTICS_FIGURE)}
+    if standing is not None and not final.improved:
+        entry["final_refit"] = (
+            "the whole-record refit did not beat its start on its training validation "
+            "windows: the result keeps the last model's weights, the new block at no effect")
+        log.warning("round %d: %s", number, entry["final_refit"])
+    state.effects, state.tried = round_effects, set()
+    fold_results = [r for r in best.folds if r is not None]
+    state.kept.append(_Standing(final, fold_results, best.check))
+    state.diagnosis, state.evidence = _diagnose_round(
+        run, final, best.check, held_effects(run.model, state.effects), round_dir, number)
+    entry["diagnosis"] = [d.to_dict() for d in state.diagnosis]
+    # every sample of an added recording is held out by one fold: the diagnosis reads all
+    advice = excitation_advice(state.diagnosis, run.data, run.data_spec, run.context,
+                               settings.min_score, 1.0)
+    if advice:
+        entry["under_excited"] = advice
+    entry["figures"] = {"diagnostics": run.folder.relative(round_dir / DIAGNOSTICS_FIGURE)}
     return entry, True
+
+
+def _candidate_dir(round_dir: Path, variant: Mapping[str, Any], rate: float | None,
+                   variants: Sequence[Mapping[str, Any]],
+                   rates: Sequence[float | None]) -> Path:
+    """Where a candidate's fold fits land (below it: ``fold_<j>``)."""
+    base = round_dir / _variant_label(variant) if len(variants) > 1 else round_dir
+    return LoopFolder.refit_dir(base, rate, several=len(rates) > 1)
+
+
+def _fit_on_folds(
+    run: _LoopRun, model: ModelSpec, variant: Mapping[str, Any], rate: float | None,
+    folder: Path, standing: _Standing | None, refit: str, effect: str | None = None,
+) -> _Candidate:
+    """``model`` at place ``variant`` and refit rate ``rate`` fitted on every fold (from the
+    fold's standing model when ``standing`` is given) and scored on its held-out stretches."""
+    spec = model.with_settings({**model.settings, **variant})
+    training = run.training.with_changes(**({"refit_lr": rate} if rate is not None else {}))
+    results: list[RunResult | None] = []
+    checks: list[HeldOut | None] = []
+    for j, (lane, judge) in enumerate(zip(run.folds, run.fold_judges, strict=True)):
+        try:
+            result = lane.fit(model=spec, training=training,
+                         output_dir=folder / FOLD_DIR.format(j),
+                         warm_start=None if standing is None else standing.folds[j].model,
+                         refit=refit)
+        except DivergedError as exc:
+            log.warning("the fit %s at learning rate %s diverged on fold %d (%s)",
+                        dict(variant), rate, j, exc)
+            results.append(None)
+            checks.append(None)
+            continue
+        results.append(result)
+        checks.append(judge(result))
+    candidate = _Candidate(dict(variant), rate, results, FoldsCheck(checks), model, effect)
+    log.info("%s %s at rate %s: pooled held-out loss %.4g (folds %s)", model.effects,
+             dict(variant), rate, candidate.check.loss,
+             ", ".join(f"{x:.4g}" for x in candidate.check.fold_losses()))
+    return candidate
+
+
+def _fit_final(run: _LoopRun, model: ModelSpec, chosen: _Candidate, round_dir: Path,
+               standing: _Standing | None, refit: str) -> tuple[RunResult, int]:
+    """The structure the folds chose (its place and rate) refitted on the whole
+    identification record, from the standing result when ``standing`` is given; with the
+    samples it trained on."""
+    rate = {"refit_lr": chosen.rate} if chosen.rate is not None else {}
+    lane = run.whole
+    result = lane.fit(model=model.with_settings({**model.settings, **chosen.variant}),
+                      training=run.training.with_changes(**rate), output_dir=round_dir,
+                      warm_start=None if standing is None else standing.final.model,
+                      refit=refit)
+    return result, lane.samples
+
+
+def _candidate_entry(candidate: _Candidate) -> dict[str, Any]:
+    """A refit candidate in the report: place, rate, losses (and where it diverged)."""
+    entry = {**candidate.variant, "refit_lr": candidate.rate,
+             "validation_loss": candidate.refit_loss(), "held_out_loss": candidate.check.loss,
+             "fold_losses": candidate.check.fold_losses()}
+    if any(r is None for r in candidate.folds):
+        entry["diverged"] = "in training on " + ", ".join(
+            f"fold {j}" for j, r in enumerate(candidate.folds) if r is None)
+    return entry
 
 
 def _choose_next_effect(run: _LoopRun, state: _LoopState, entry: dict[str, Any]) -> bool:
@@ -390,8 +527,15 @@ def _choose_next_effect(run: _LoopRun, state: _LoopState, entry: dict[str, Any])
             "note", f"loop.max_rounds={run.settings.max_rounds} reached; next: {top.effect}"
         )
         return False
-    entry["added"] = state.trying = top.effect
-    state.tried.add(top.effect)
+    group = confounded(state.diagnosis, top, state.tried | set(uncarried),
+                       run.settings.confounded_margin, run.settings.max_alternatives)
+    entry["added"], state.trying = top.effect, group
+    if len(group) > 1:
+        entry["alternatives"] = group[1:]
+        log.info("'%s' is confounded with %s (scores within loop.confounded_margin=%g of "
+                 "its): each is refitted and the folds keep the best", top.effect, group[1:],
+                 run.settings.confounded_margin)
+    state.tried |= set(group)
     if get_effect(top.effect).block in MODEL_OUTPUT_BLOCKS:  # no input operators to compare
         log.info("'%s' added (it acts on the model's output)", top.effect)
         return True
@@ -408,55 +552,30 @@ def _write_report(run: _LoopRun, state: _LoopState, report: dict[str, Any]) -> N
     write_json(report, run.folder.report_json)
     run.folder.report_md.write_text(loop_markdown(report))
     if state.kept:
-        _before_after_figure(run.data.fit, state.kept[0][0], state.kept[-1][0], state.rounds,
-                             state.effects, run.folder.before_after_figure)
+        _before_after_figure(run.data.fit, state.kept[0].final, state.kept[-1].final,
+                             state.rounds, state.effects, run.folder.before_after_figure)
     log.info("%s", result_line(report), extra=SUMMARY)
     log.info("report: %s (beside it: %s, each round's fit in round_<n>/)",
              run.folder.report_md, run.folder.REPORT_JSON, extra=SUMMARY)
 
 
-def _decision(
-    trying: str, result: RunResult, entry: dict[str, Any], state: _LoopState, min_gain: float
-) -> dict[str, Any]:
-    """Why round ``entry``'s refit with ``trying`` was kept or dropped: the round it was
-    judged against (the standing model's) and both held-out validation losses (the refit's
-    is None when it lost already on the training validation data)."""
+def _decision(trying: str, kept: bool, reason: str, refit: _Candidate,
+              state: _LoopState) -> dict[str, Any]:
+    """Why a round's refit with ``trying`` was kept or dropped: the round it was judged
+    against (the standing model's) and both pooled held-out losses, per fold too."""
     against = max(i for i, r in enumerate(state.rounds) if not r.get("rejected"))
-    before = state.kept[-1][1].loss
-    refit = entry["held_out"] if result.improved else (
-        (result.rejected_refit or {}).get("held_out"))
-    after = None if refit is None else refit["loss"]
+    before = state.kept[-1].check
     return {
         "effect": trying,
-        "kept": bool(result.improved),
+        "kept": kept,
         "against_round": against,
-        "held_out_loss": {"before": before, "after": after},
-        "reason": _decision_reason(result, entry, refit, against, before, min_gain),
+        "held_out_loss": {"before": before.loss, "after": refit.check.loss},
+        "fold_losses": {"before": before.fold_losses(), "after": refit.check.fold_losses()},
+        "reason": reason,
     }
 
 
-def _decision_reason(
-    result: RunResult, entry: dict[str, Any], refit: dict[str, Any] | None, against: int,
-    before: float, min_gain: float,
-) -> str:
-    """The keep-or-drop rule that decided, with its numbers."""
-    gain = f" by more than loop.min_refit_gain={min_gain:g} of it" if min_gain else ""
-    if refit is None:
-        loss = entry.get("refit_validation_loss") or {}
-        numbers = (f" (loss {loss['refit']:.4g} against {loss['start']:.4g}, scaled)"
-                   if loss else "")
-        return (f"the refit did not beat its start on the training validation data{gain}"
-                f"{numbers}, so it was not judged on the held-out data")
-    if refit["diverging"]:
-        return f"the refit's free run diverges on {', '.join(refit['diverging'])}"
-    verb = "beats" if result.improved else "does not beat"
-    return (f"the refit's held-out validation loss {refit['loss']:.4g} {verb} round "
-            f"{against}'s {before:.4g}{gain}")
-
-
-def _result_round(
-    rounds: list[dict[str, Any]], kept: list[tuple[RunResult, HeldOut]]
-) -> int | None:
+def _result_round(rounds: list[dict[str, Any]], kept: list[_Standing]) -> int | None:
     """The round whose model is the loop's result: the last one kept (None: none stands)."""
     if not kept:
         return None
@@ -488,63 +607,6 @@ def _before_after_figure(
     )
 
 
-def held_out(result: RunResult, data: LoopData, device: str) -> HeldOut:
-    """``result``'s model on the loop's validation and diagnosis stretches (each recording
-    simulated end to end, scored from its stretch's start), and where its free run diverges
-    (those recordings and the test recordings)."""
-    stretches = list(data.validation) + [s for s in data.diagnosis if s not in data.validation]
-    recordings = [s.recording for s in stretches]
-    predictions = free_run(result.model, for_model(result.model, recordings), result.window,
-                           device=device)
-    n_skip = scoring_start(result.window, data.fit.n_init)
-    by_stretch = dict(zip(map(id, stretches), predictions, strict=True))
-    losses, rmse = [], {}
-    for stretch in data.validation:
-        first = max(stretch.start, n_skip)
-        y = stretch.recording.y[first:]
-        error = y - by_stretch[id(stretch)][first:]
-        mse = np.mean(error**2, axis=0)
-        losses.append(float(np.mean(mse / np.maximum(np.var(y, axis=0), 1e-300))))
-        rmse[stretch.describe()] = float(np.sqrt(np.mean(mse)))
-    runs = [(s.name, s.recording.y, p) for s, p in zip(stretches, predictions, strict=True)]
-    runs += [(rec.name, rec.y, result.evaluation.predictions[rec.name]["free_run"])
-             for rec in data.fit.test]
-    diverging = sorted({name for name, y, p in runs if _diverges(y, p)})
-    loss = float(np.mean(losses)) if not diverging else float("inf")
-    return HeldOut(loss, rmse, diverging, [by_stretch[id(s)] for s in data.diagnosis])
-
-
-def _diverges(y: np.ndarray, prediction: np.ndarray) -> bool:
-    """Whether a free run is not finite or leaves the measured output's range by more than
-    `DIVERGED_SPANS` times its span."""
-    prediction = np.asarray(prediction, dtype=float)
-    if not np.all(np.isfinite(prediction)):
-        return True
-    low, high = np.min(y, axis=0), np.max(y, axis=0)
-    margin = DIVERGED_SPANS * np.maximum(high - low, 1e-12)
-    return bool(np.any(prediction < low - margin) or np.any(prediction > high + margin))
-
-
-def _judge_held_out(
-    refit: RunResult, check: HeldOut, last: tuple[RunResult, HeldOut], min_gain: float
-) -> tuple[RunResult, HeldOut]:
-    """Keep a refit only when its free run on the held-out validation data is stable and
-    beats the last kept model's by more than the share ``min_gain``; otherwise the last
-    model stands, the refit's scores kept as what it would have done."""
-    last_result, last_check = last
-    if not check.diverging and check.loss < (1.0 - min_gain) * last_check.loss:
-        return refit, check
-    why = f"diverges on {check.diverging}" if check.diverging else (
-        f"held-out validation loss {check.loss:.4g} against the last model's {last_check.loss:.4g}")
-    log.info("refit rejected on the held-out validation data: %s", why)
-    document = {**refit.document, "held_out": check.to_dict()}
-    _set_aside_rejected_files(document)
-    return dataclasses.replace(
-        last_result, improved=False, refit_validation=refit.refit_validation,
-        rejected_refit=document,
-    ), last_check
-
-
 def next_effect(
     diagnosis: Sequence[EffectScore], tried: set[str]
 ) -> tuple[EffectScore | None, list[str]]:
@@ -554,6 +616,37 @@ def next_effect(
     candidates = [d for d in diagnosis if d.significant and d.effect not in tried]
     reported = [d.effect for d in candidates if not d.predictable]
     return next((d for d in candidates if d.predictable), None), reported
+
+
+def confounded(diagnosis: Sequence[EffectScore], top: EffectScore, tried: set[str],
+               margin: float, most: int) -> list[str]:
+    """``top`` and the significant, input-driven effects not yet tried whose score lies
+    within the share ``margin`` of its (best first, ``most`` in all): the evidence does not
+    tell them apart, so each is refitted and the folds choose."""
+    close = [d.effect for d in diagnosis
+             if d is not top and d.significant and d.predictable and d.effect not in tried
+             and d.score >= (1.0 - margin) * top.score]
+    return [top.effect, *close][:most]
+
+
+def compared_effects(candidates: Sequence[_Candidate]) -> list[dict[str, Any]]:
+    """Per effect refitted in a round: its best place and rate on the folds, the pooled and
+    per-fold held-out losses, and whether the folds tell it from the best one (lower on a
+    majority of them); best first."""
+    best: dict[str | None, _Candidate] = {}
+    for c in candidates:
+        if c.effect not in best or c.check.loss < best[c.effect].check.loss:
+            best[c.effect] = c
+    ranked = sorted(best.values(), key=lambda c: c.check.loss)
+    winner = ranked[0].check.fold_losses()
+    rows = []
+    for c in ranked:
+        losses = c.check.fold_losses()
+        wins = sum(w < x for w, x in zip(winner, losses, strict=True))
+        rows.append({"effect": c.effect, **c.variant, "refit_lr": c.rate,
+                     "held_out_loss": c.check.loss, "fold_losses": losses,
+                     "told_apart": c is ranked[0] or 2 * wins > len(losses)})
+    return rows
 
 
 def held_effects(model: ModelSpec, effects: Sequence[str]) -> list[str]:
@@ -581,34 +674,6 @@ def _not_carried(
             and not carries(d.effect)]
 
 
-def judge_cold_refit(refit: RunResult, last: RunResult, min_gain: float) -> RunResult:
-    """Keep a refit trained from scratch (the SVM, or ``loop.warm_start=false``) only when its
-    validation MSE beats the last kept model's by more than the share ``min_gain``; otherwise
-    the last model stands, with the refit's scores kept as what it would have done (as a
-    warm-started refit that lost to its start is reported)."""
-    losses = {"start": last.val_mse, "refit": refit.val_mse}
-    if refit.val_mse < (1.0 - min_gain) * last.val_mse:
-        return dataclasses.replace(refit, refit_validation=losses)
-    log.info(
-        "refit did not beat the last model on validation (%.4e vs %.4e, scaled): kept that model",
-        refit.val_mse,
-        last.val_mse,
-    )
-    return dataclasses.replace(
-        last, improved=False, refit_validation=losses, rejected_refit=refit.document
-    )
-
-
-def _set_aside_rejected_files(document: dict[str, Any]) -> None:
-    """A rejected refit trained from scratch leaves its model and metrics under the names a
-    rejected warm-started refit uses, so a round folder's ``model.*`` is always a model that
-    stands (the one it lost to is the last kept round's)."""
-    model_path = Path(document["model_path"])
-    fit_record.forget(model_path.parent)  # its files move: a resumed loop refits it
-    aside = RunFolder(model_path.parent).set_model_aside_as_rejected(model_path)
-    document["model_path"] = str(aside)
-
-
 def fit_model(base: RunConfig, splits: DatasetSplits, model: ModelSpec,
               training: TrainingSettings, output_dir: Path, warm_start: Any | None,
               refit: str) -> RunResult:
@@ -621,16 +686,10 @@ def fit_model(base: RunConfig, splits: DatasetSplits, model: ModelSpec,
 
 
 def _round_entry(effects: list[str], result: RunResult) -> dict[str, Any]:
-    """A round of ``loop_report.json``: its effects and errors (diagnosis and decision follow).
-    A refit that lost to its start adds ``rejected_refit``: what it would have scored."""
+    """A round of ``loop_report.json``: its effects and the test errors of the model that
+    stands after it (diagnosis and decision follow)."""
     entry: dict[str, Any] = {"effects": list(effects), **_scores(result.document)}
     entry.update(diagnosis=[], added=None)
-    if result.refit_validation is not None:
-        entry["refit_validation_loss"] = result.refit_validation
-    if result.rejected_refit is not None:
-        entry["rejected_refit"] = _scores(result.rejected_refit)
-        if "held_out" in result.rejected_refit:
-            entry["rejected_refit"]["held_out"] = result.rejected_refit["held_out"]
     return entry
 
 
@@ -648,111 +707,72 @@ def _scores(document: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def _diagnose_round(
-    result: RunResult,
-    check: HeldOut,
-    data: LoopData,
-    context: FeatureContext,
-    effects: list[str],
-    settings: LoopSettings,
-    round_dir: Path,
-    use_tensorboard: bool,
+    run: _LoopRun, final: RunResult, check: FoldsCheck, effects: list[str], round_dir: Path,
     number: int,
 ) -> tuple[list[EffectScore], ResidualEvidence]:
     """Residual analysis (JSON, figure, TensorBoard) and the ranked diagnosis of a round, on
-    the diagnosis recordings (never the test recordings: `hysteresis_lab.loop.data`),
-    and the free run they were read from (for the report's figures)."""
-    n_skip = scoring_start(result.window, data.fit.n_init)
-    recordings, residuals, shown, predictions, starts = [], [], [], {}, []
-    for stretch, prediction in zip(data.diagnosis, check.diagnosis_predictions, strict=True):
-        first = max(stretch.start, n_skip)
-        starts.append(first)
-        e = stretch.recording.y - prediction
+    the diagnosis stretches: by default every fold's held-out stretches, each read from its
+    fold's model (which did not train on it), their blocks voting together; recordings named
+    in ``data.diagnose`` are read from the result (`hysteresis_lab.loop.data`). Never the
+    test recordings. Also the free run they were read from (for the report's figures)."""
+    data, settings = run.data, run.settings
+    if data.diagnosis == data.validation:
+        stretches = data.validation
+        predictions = [p for fold in check.folds if fold is not None for p in fold.predictions]
+    else:
+        stretches = data.diagnosis
+        predictions = held_out(final, stretches, data.fit.n_init, run.device).predictions
+    n_skip = scoring_start(final.window, data.fit.n_init)
+    recordings, residuals, shown, shown_predictions, starts, kept = [], [], [], {}, [], []
+    for stretch, prediction in zip(stretches, predictions, strict=True):
+        first, stop = max(stretch.start, n_skip), stretch.stop
+        rec = _until(stretch.recording, stop)
+        prediction = np.asarray(prediction)[:stop]
+        e = rec.y - prediction
         e[:first] = np.nan
-        recordings.append(stretch.recording)
+        starts.append(first)
+        recordings.append(rec)
         residuals.append(e)
+        kept.append(prediction)
         part = _from(stretch, first)
         shown.append(part)
-        predictions[part.name] = {"free_run": prediction[first:]}
+        shown_predictions[part.name] = {"free_run": prediction[first:]}
     diagnosis = diagnose(
         recordings,
         residuals,
-        context,
+        run.context,
         declared=effects,
         min_score=settings.min_score,
         alpha=settings.alpha,
-        lags=evidence_lags(result.window.nb),
+        lags=evidence_lags(final.window.nb),
         test=settings.significance,
-        predictions=list(check.diagnosis_predictions),
+        predictions=kept,
         through_dynamics=settings.diagnosis_through_dynamics,
     )
-    write_json(residual_analysis(shown, predictions, 0), round_dir / "residual_analysis.json")
-    figure = diagnostics_figure(shown, predictions, 0)
+    write_json(residual_analysis(shown, shown_predictions, 0),
+               round_dir / "residual_analysis.json")
+    figure = diagnostics_figure(shown, shown_predictions, 0)
     save_figure(figure, round_dir / DIAGNOSTICS_FIGURE)
-    if use_tensorboard:
+    if run.use_tensorboard:
         _log_round_to_tensorboard(round_dir / "tensorboard", figure, diagnosis, number)
-    evidence = ResidualEvidence(recordings, list(check.diagnosis_predictions), starts,
-                                [part.name for part in shown])
+    evidence = ResidualEvidence(recordings, kept, starts, [part.name for part in shown])
     return diagnosis, evidence
+
+
+def _until(rec: Recording, stop: int) -> Recording:
+    """``rec`` up to sample ``stop`` (a held-out block's end)."""
+    if stop >= rec.n_samples:
+        return rec
+    return dataclasses.replace(rec, u=rec.u[:stop], y=rec.y[:stop])
 
 
 def _from(stretch: Stretch, first: int) -> Recording:
     """The scored part of a diagnosis stretch, named as the report names it."""
     rec = stretch.recording
-    if first == 0:
+    if first == 0 and stretch.stop == rec.n_samples:
         return rec
-    return dataclasses.replace(rec, u=rec.u[first:], y=rec.y[first:], name=stretch.describe())
-
-
-def _fit_round(
-    fit_model: Callable[..., RunResult],
-    judge: Callable[[RunResult], HeldOut],
-    model: ModelSpec,
-    training: TrainingSettings,
-    round_dir: Path,
-    rates: list[float] | list[None],
-    variants: Sequence[Mapping[str, Any]] = ({},),
-    **fit_options: Any,
-) -> tuple[RunResult, Path, float | None, list[dict[str, Any]], HeldOut]:
-    """Fit a round's ``model`` with ``fit_model`` (`fit_model` bound to the loop's data and
-    settings) once per refit learning rate in ``rates`` (``[None]``: no refit, one fit),
-    each in its own folder when there are several, and score each on the held-out data with
-    ``judge``; the one with the lowest held-out validation loss (then training validation
-    loss) is returned with its folder, its rate, every rate's losses and its held-out scores
-    (the test recordings play no part in the choice). A refit that diverges in training is
-    no candidate (recorded with ``diverged``); when every one does, `DivergedError`.
-    ``variants``: model settings each rate is fitted with (the model class's
-    ``refit_variants``: a law's place), each in its own folder when there are several."""
-    runs, diverged = [], []
-    for variant, rate in itertools.product(variants, rates):
-        base = round_dir / _variant_label(variant) if len(variants) > 1 else round_dir
-        run_dir = LoopFolder.refit_dir(base, rate, several=len(rates) > 1)
-        refit_lr = {"refit_lr": rate} if rate is not None else {}
-        try:
-            result = fit_model(model=model.with_settings({**model.settings, **variant}),
-                               training=training.with_changes(**refit_lr),
-                               output_dir=run_dir, **fit_options)
-        except DivergedError as exc:
-            if rate is None and len(variants) == 1:
-                raise
-            log.warning("the refit %s at learning rate %s diverged: not a candidate (%s)",
-                        dict(variant), rate, exc)
-            diverged.append({**variant, "refit_lr": rate, "validation_loss": float("inf"),
-                             "held_out_loss": float("inf"), "diverged": str(exc)})
-            continue
-        runs.append((result, run_dir, rate, judge(result), dict(variant)))
-    if not runs:
-        raise DivergedError(
-            f"every refit diverged in training (learning rates "
-            f"{', '.join(f'{r:.3g}' for r in rates if r is not None)}). Fix: smaller rates, "
-            "e.g. loop.refit_lr_factors=[0.1] or a smaller training.lr."
-        )
-    result, run_dir, rate, check, _ = min(runs, key=lambda run: (run[3].loss,
-                                                                 _refit_loss(run[0])))
-    losses = [
-        {**v, "refit_lr": r, "validation_loss": _refit_loss(res), "held_out_loss": c.loss}
-        for res, _, r, c, v in runs if r is not None
-    ] + diverged
-    return result, run_dir, rate, losses, check
+    return dataclasses.replace(rec, u=rec.u[first:stretch.stop], y=rec.y[first:stretch.stop],
+                               name=stretch.describe())
 
 
 def _variant_label(variant: Mapping[str, Any]) -> str:
@@ -783,13 +803,6 @@ def _refit_mode(refit: str, added: str | None, model_cls: type) -> str:
     """How a round's refit trains (`grow.refit_mode`: the whole model where the added
     effect changes what the fitted part was fitted to)."""
     return refit_mode(added, model_cls, refit)
-
-
-def _previous_network(results: list[RunResult]) -> Any | None:
-    """The last round's fitted network to start the refit from (None: first round, or SVM)."""
-    if not results or not results[-1].model.warm_starts:
-        return None
-    return results[-1].model
 
 
 def _log_round_to_tensorboard(

@@ -142,9 +142,13 @@ def _rules_lines(settings: Mapping[str, Any] | None) -> list[str]:
     return [
         f"An effect is significant when its held-out score reaches loop.min_score="
         f"{settings['min_score']:g} at p <= loop.alpha={settings['alpha']:g} "
-        f"(loop.significance={settings['significance']}); a refit is kept when its free run "
-        "on the held-out validation data beats the last kept model's by more than the share "
-        f"loop.min_refit_gain={settings['min_refit_gain']:g} and stays stable.",
+        f"(loop.significance={settings['significance']}), every fold's held-out blocks voting; "
+        f"a refit is kept when its free run is stable on every one of loop.folds="
+        f"{settings.get('folds', '?')} folds, and its held-out loss beats the standing "
+        "model's pooled over the folds (by more than the share "
+        f"loop.min_refit_gain={settings['min_refit_gain']:g}) and on a majority of them. "
+        "The folds choose; what they chose is then refitted on the whole identification "
+        "record, and that model is the round's result (its test numbers below).",
     ]
 
 
@@ -189,8 +193,18 @@ def _fit_lines(r: Mapping[str, Any], unit: str) -> list[str]:
         lines = [f"- refit of round {decision['against_round']}'s model with "
                  f"'{decision['effect']}': effects {r['effects']}"]
     lines += _refit_rate_lines(r)
+    chosen, fitted = r.get("chosen_on"), r.get("fitted_on")
+    if chosen:
+        where = (f"the result refitted on the whole identification record "
+                 f"({', '.join(fitted['recordings'])}: {fitted['samples']} samples)"
+                 if fitted else "not refitted on the whole record (the folds dropped it)")
+        lines.append(f"- chosen on {chosen['folds']} folds (each trained on "
+                     f"{', '.join(map(str, chosen['samples']))} samples); {where}")
+    if r.get("final_refit"):
+        lines.append(f"- {r['final_refit']}")
     if decision is None or decision["kept"]:
-        lines += _held_out_lines("held-out validation", r.get("held_out"), unit)
+        lines += _held_out_lines("held out on the folds (each fold's model)", r.get("held_out"),
+                                 unit)
     if decision is None and r.get("note") and not r.get("diagnosis"):
         lines.append(f"- {r['note']}")  # a start that diverges
     return lines
@@ -201,7 +215,8 @@ def before_after_table(report: Mapping[str, Any], number: int, unit: str) -> lis
     the refit (after, kept or not), and the change."""
     r = report["rounds"][number]
     if not r["decision"]["kept"] and "rejected_refit" not in r:
-        return ["The dropped refit's test scores were not kept."]
+        return ["The folds dropped this refit before it was fitted on the whole identification "
+                "record: it has no test scores."]
     before, after = before_after(report, number)
     against = r["decision"]["against_round"]
     kept = "" if r["decision"]["kept"] else ", not kept"
@@ -237,15 +252,38 @@ def _decision_lines(r: Mapping[str, Any], unit: str) -> list[str]:
     lines = [f"**{'Kept' if decision['kept'] else 'Dropped'}**: {decision['reason']}.", ""]
     after = "not judged" if held["after"] is None else f"{held['after']:.4g}"
     change = "" if held["after"] is None else f" ({_change(held['before'], held['after'])})"
-    lines.append(f"- held-out validation loss (MSE / variance): round "
+    lines.append(f"- held-out loss pooled over the folds (MSE / variance): round "
                  f"{decision['against_round']} {held['before']:.4g}, refit {after}{change}")
     loss = r.get("refit_validation_loss")
     if loss:
         lines.append(f"- training validation loss (scaled): start {loss['start']:.4g}, "
                      f"refit {loss['refit']:.4g} ({_change(loss['start'], loss['refit'])})")
+    lines += _compared_lines(r.get("compared"))
+    folds = decision.get("fold_losses")
+    if folds:
+        pairs = ", ".join(f"{b:.4g} -> {a:.4g}" for b, a in
+                          zip(folds["before"], folds["after"], strict=True))
+        lines.append(f"- per fold (before -> after): {pairs}")
     if not decision["kept"]:
-        lines += _held_out_lines("the dropped refit's held-out validation",
-                                 (r.get("rejected_refit") or {}).get("held_out"), unit)
+        lines += _held_out_lines("the dropped refit's held-out folds",
+                                 r.get("rejected_held_out"), unit)
+    return lines
+
+
+def _compared_lines(compared: Sequence[Mapping[str, Any]] | None) -> list[str]:
+    """The confounded effects refitted in a round, each with its cross-validated numbers,
+    and those the folds cannot tell from the best."""
+    if not compared:
+        return []
+    lines = ["- effects the diagnosis could not tell apart, each refitted on the folds "
+             "(pooled held-out loss; per fold):"]
+    for row in compared:
+        folds = ", ".join(f"{x:.4g}" for x in row["fold_losses"])
+        lines.append(f"  - {row['effect']}: {row['held_out_loss']:.4g} ({folds})")
+    tied = [row["effect"] for row in compared[1:] if not row["told_apart"]]
+    if tied:
+        lines.append(f"  - the folds cannot tell {compared[0]['effect']} from "
+                     f"{', '.join(tied)}: it is not lower on a majority of them")
     return lines
 
 
@@ -291,6 +329,10 @@ def _added_lines(report: Mapping[str, Any], number: int) -> list[str]:
                      f"can predict: score {score['score']:.3f}, p {score['p_value']:.3g}"
                      f"{' (significant)' if score['significant'] else ''}")
         lines.append(f"  - {score['evidence']}")
+    if r.get("alternatives"):
+        lines.append(f"- refitted beside it, its scores too close to tell apart "
+                     f"(loop.confounded_margin): {', '.join(r['alternatives'])}; the folds "
+                     "keep the best")
     figure = r.get("figures", {}).get("added")
     if figure:
         lines += ["", f"![the residual and what '{r['added']}' reproduces of it]({figure})", ""]
@@ -334,8 +376,8 @@ def _undecided_lines(report: Mapping[str, Any], r: Mapping[str, Any]) -> list[st
         )
     if lines:
         lines.append(
-            "- each held-out block is one vote of the significance test: more validation data "
-            "(recordings in data.val=[...], or a longer loop.holdout) give more votes"
+            "- each held-out block (of every fold) is one vote of the significance test: more "
+            "identification data (recordings in data.train=[...]) give more votes"
         )
     return lines
 
@@ -388,9 +430,12 @@ def _result_section(report: Mapping[str, Any], unit: str) -> list[str]:
 
 
 def _roles_lines(roles: Mapping[str, list[str]]) -> list[str]:
-    """Which recordings (``name[a:b]``: samples a to b) played which role."""
+    """Which recordings (``name[a:b]``: samples a to b) played which role: which data chose
+    and which fitted."""
     what = {
-        "train": "trained on",
+        "train": "fitted the result (the whole identification record)",
+        "folds": "chose (cross-validation folds: each held out in turn, its models trained "
+                 "on the rest)",
         "validation": "validation (judges every refit)",
         "diagnosis": "diagnosis (its residual chooses the effect)",
         "test": "test (the before/after numbers)",
