@@ -107,7 +107,7 @@ class Study:
         data_cfg = run_data_config(run)
         splits = build_splits(data_cfg)
         settings = LoopSettings(**OmegaConf.to_container(cfg.loop, resolve=True))
-        fit = loop_data(splits, DataSpec.from_config(cfg.data), settings.holdout).fit
+        fit = loop_data(splits, DataSpec.from_config(cfg.data), settings.folds).fit
         return cls(run, data_cfg, cfg, fit, list(splits.test), splits.n_init,
                    load_model(run / "round_0" / "model.ckpt"))
 

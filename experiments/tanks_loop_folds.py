@@ -1,10 +1,10 @@
-"""Why the cascaded tanks' loop stops short of its target: the held-out share it reads and
-trains without.
+"""The cascaded tanks' loop at several fold counts: what ``loop.folds`` decides.
 
-The tanks have one identification record of 1024 samples. Without validation recordings the
-loop trains on the first ``1 - loop.holdout`` of it and both chooses the next effect
-(diagnosis) and judges every refit on the rest. This runs the loop from ``model=linear
-effects=[]`` at several held-out shares, nothing else changed, and lists per share:
+The tanks have one identification record of 1024 samples. The loop cuts it into ``loop.folds``
+contiguous blocks; each fold trains on the others and holds one out, and the held-out blocks
+of all folds choose the next effect (diagnosis) and judge every refit (stable on every fold,
+better pooled and on a majority). This runs the loop from ``model=linear effects=[]`` at
+several fold counts, nothing else changed, and lists per count:
 
 * the rounds: the effect each round added and whether its refit was kept;
 * the block votes of ``nonlinear_feedback`` (the tanks' outflow law, which the loop needs
@@ -12,12 +12,12 @@ effects=[]`` at several held-out shares, nothing else changed, and lists per sha
   untried: held-out blocks that gain, lose, carry no evidence, and its p;
 * the result's free-run RMSE on the test record;
 * the structure the tanks need declared (``model.effects=[overflow,nonlinear_feedback]
-  model.feedback_on=output_stage loop.max_rounds=0``) and trained on the same share, with the
-  loop's default training: what the loop could reach on that share had it named both.
+  model.feedback_on=output_stage loop.max_rounds=0``) and trained on the whole record, with
+  the loop's default training: what the loop could reach had it named both.
 
-The test record chooses nothing here. Writes ``docs/results/tanks_loop_holdout.md``.
+The test record chooses nothing here. Writes ``docs/results/tanks_loop_folds.md``.
 
-    OMP_NUM_THREADS=1 python experiments/tanks_loop_holdout.py --root /tmp/tanks-holdout
+    OMP_NUM_THREADS=1 python experiments/tanks_loop_folds.py --root /tmp/tanks-folds
 """
 
 from __future__ import annotations
@@ -34,14 +34,14 @@ from hysteresis_lab.evaluation.provenance import commit_stamp
 from hysteresis_lab.loop.diagnosis.ranking import BlockCounts
 
 REPO = Path(__file__).resolve().parents[1]
-OUT = REPO / "docs" / "results" / "tanks_loop_holdout.md"
-SHARES = (0.25, 0.35, 0.5)
+OUT = REPO / "docs" / "results" / "tanks_loop_folds.md"
+FOLDS = (2, 3, 4)
 COMMON = ("data=cascaded_tanks", "trainer.enable_progress_bar=false", "logger=none")
 DECLARED = ("model.effects=[overflow,nonlinear_feedback]", "model.feedback_on=output_stage",
             "loop.max_rounds=0")
 LAW = "nonlinear_feedback"
 
-log = logging.getLogger("tanks_loop_holdout")
+log = logging.getLogger("tanks_loop_folds")
 
 
 def _rounds(report: dict[str, Any]) -> str:
@@ -68,18 +68,18 @@ def _law_votes(report: dict[str, Any]) -> str:
     return "not scored"
 
 
-def _measure(share: float, root: Path) -> dict[str, Any]:
-    holdout = f"loop.holdout={share}"
-    loop, seconds = run_fresh_loop([*COMMON, holdout], root / f"loop_{share}")
-    declared, _ = run_fresh_loop([*COMMON, holdout, *DECLARED], root / f"declared_{share}")
+def _measure(folds: int, root: Path) -> dict[str, Any]:
+    setting = f"loop.folds={folds}"
+    loop, seconds = run_fresh_loop([*COMMON, setting], root / f"loop_{folds}")
+    declared, _ = run_fresh_loop([*COMMON, setting, *DECLARED], root / f"declared_{folds}")
     if loop["result"] is None:
-        raise SystemExit(f"the loop at loop.holdout={share} has no standing model: see "
-                         f"{root / f'loop_{share}'}/loop_report.md")
+        raise SystemExit(f"the loop at {setting} has no standing model: see "
+                         f"{root / f'loop_{folds}'}/loop_report.md")
     result = loop["rounds"][loop["result"]]
-    log.info("holdout %g: %.4f V (%s) in %.0f s", share, result["mean_rmse_free_run"],
+    log.info("%d folds: %.4f V (%s) in %.0f s", folds, result["mean_rmse_free_run"],
              _rounds(loop), seconds)
     return {
-        "share": share,
+        "folds": folds,
         "roles": loop["roles"],
         "rounds": _rounds(loop),
         "effects": result["effects"],
@@ -94,25 +94,25 @@ def _measure(share: float, root: Path) -> dict[str, Any]:
 def _page(rows: list[dict[str, Any]], jobs: int) -> str:
     stamp = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
     lines = [
-        "# The cascaded tanks' loop: what the held-out share decides",
+        "# The cascaded tanks' loop: what the number of folds decides",
         "",
-        f"Written by `python experiments/tanks_loop_holdout.py` on {stamp}, commit "
+        f"Written by `python experiments/tanks_loop_folds.py` on {stamp}, commit "
         f"{commit_stamp(REPO)}; 2-core CPU, {jobs} loop(s) side by side. Each row runs "
-        "`hysteresis-lab-loop data=cascaded_tanks loop.holdout=<share>` from `model=linear "
-        "effects=[]`, nothing else changed; `loop.holdout=0.25` is the default. The last "
+        "`hysteresis-lab-loop data=cascaded_tanks loop.folds=<k>` from `model=linear "
+        "effects=[]`, nothing else changed; `loop.folds=3` is the default. The last "
         "column trains the structure the tanks need, declared (`"
-        + " ".join(DECLARED) + "`), on the same share with the loop's default training. "
+        + " ".join(DECLARED) + "`), with the loop's default training. "
         "Free-run RMSE on the test record (tanks_test); target 0.25 V.",
         "",
-        "| held out | trained on / held out | rounds after the start | result's effects | "
+        "| folds | held out per fold | rounds after the start | result's effects | "
         "nonlinear feedback's votes (last diagnosis scoring it) | start | result | "
         "declared structure | loop time |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         lines.append(
-            f"| {r['share']:g} | {', '.join(r['roles']['train'])} / "
-            f"{', '.join(r['roles']['validation'])} | {r['rounds']} | {r['effects']} | "
+            f"| {r['folds']} | {'; '.join(r['roles']['folds'])} | {r['rounds']} | "
+            f"{r['effects']} | "
             f"{r['law']} | {r['start']:.4f} V | {r['result']:.4f} V | {r['declared']:.4f} V | "
             f"{r['seconds']:.0f} s |"
         )
@@ -120,8 +120,8 @@ def _page(rows: list[dict[str, Any]], jobs: int) -> str:
         "",
         "A held-out block is one vote of the diagnosis' significance test "
         "(`hysteresis_lab.loop.diagnosis.ranking.BlockCounts`); a silent block is one neither fit "
-        "predicts better than nothing. More held-out samples give more votes, and fewer "
-        "samples to train on.",
+        "predicts better than nothing. More folds give more votes on the keep rule's "
+        "majority, and one more fit per candidate.",
         "",
     ]
     return "\n".join(lines)
@@ -129,13 +129,13 @@ def _page(rows: list[dict[str, Any]], jobs: int) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--root", type=Path, default=Path("outputs/tanks_loop_holdout"))
-    parser.add_argument("--shares", type=float, nargs="+", default=list(SHARES))
+    parser.add_argument("--root", type=Path, default=Path("outputs/tanks_loop_folds"))
+    parser.add_argument("--folds", type=int, nargs="+", default=list(FOLDS))
     parser.add_argument("--jobs", type=int, default=2, help="loops run side by side")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
     with ThreadPoolExecutor(args.jobs) as pool:
-        rows = list(pool.map(lambda share: _measure(share, args.root), args.shares))
+        rows = list(pool.map(lambda folds: _measure(folds, args.root), args.folds))
     OUT.write_text(_page(rows, args.jobs))
     log.info("wrote %s", OUT)
 
