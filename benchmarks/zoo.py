@@ -1,0 +1,339 @@
+"""The physical models on a zoo of drawn positioners, through the user-CSV path.
+
+    python benchmarks/zoo.py --plants 30 --seed 0 --jobs 2     # plants 0 ... 29
+    python benchmarks/zoo.py --render                          # only rewrite the page
+
+Each plant (`hysteresis_lab.sim.zoo.draw_plant`, seeds ``seed ... seed + plants - 1``) is
+exported to CSV (`export_zoo_plant`: the 500-line multisine to train, a second realisation
+to validate, the study's twelve ±100 V sines to test) and fitted as a user would, default
+settings, three ways: ``hysteresis-lab-train model=greybox data=csv ...``,
+``hysteresis-lab-train model=linear model.effects=[hysteresis] data=csv ...`` and
+``hysteresis-lab-loop model=linear model.effects=[] data=csv ...`` (the loop's result).
+Only the progress bar and TensorBoard are off, which change no number. A plant's results go
+to ``<root>/plant_<seed>/result.json`` and are skipped when they exist (resume); every
+finished plant is merged into ``docs/results/zoo.json`` and ``docs/results/zoo.md`` is
+regenerated from it. Scores are free-run RMSE over the plant's sensor noise σ.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import logging
+import math
+import os
+import shutil
+import subprocess
+import sys
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hysteresis_lab.evaluation.provenance import commit_stamp
+from hysteresis_lab.sim.zoo import export_zoo_plant
+
+REPO = Path(__file__).resolve().parents[1]
+OUT = REPO / "docs" / "results" / "zoo.md"
+KEPT = OUT.with_suffix(".json")
+QUIET = ["logger=none", "trainer.enable_progress_bar=false"]
+#: the three fits: name -> (console script, overrides)
+FITS: dict[str, tuple[str, list[str]]] = {
+    "greybox": ("hysteresis-lab-train", ["model=greybox"]),
+    "linear+hysteresis": ("hysteresis-lab-train", ["model=linear", "model.effects=[hysteresis]"]),
+    "loop": ("hysteresis-lab-loop", ["model=linear", "model.effects=[]"]),
+}
+#: the issue's targets, in units of the plant's noise σ
+MEDIAN_TARGET, P90_TARGET = 1.5, 3.0
+
+log = logging.getLogger("zoo")
+#: plants finishing at once write the kept rows and the page one after the other
+WRITING = threading.Lock()
+
+
+def script(name: str) -> str:
+    """The console script of this interpreter's environment (else the one on PATH)."""
+    beside = Path(sys.executable).parent / name
+    found = str(beside) if beside.is_file() else shutil.which(name)
+    if not found:
+        raise SystemExit(f"{name} not found: install the package (pip install -e .)")
+    return found
+
+
+def data_overrides(files: dict[str, Any]) -> list[str]:
+    return ["data=csv", f"data.train={files['train']}", f"data.val={files['val']}",
+            f"data.test=[{','.join(files['test'])}]"]
+
+
+def run_fit(fit: str, files: dict[str, Any], folder: Path) -> dict[str, Any]:
+    """One fit of a plant into ``folder`` (fresh); its command, wall time and metrics."""
+    program, overrides = FITS[fit]
+    command = [script(program), *overrides, *data_overrides(files), *QUIET,
+               f"hydra.run.dir={folder}"]
+    if folder.exists():
+        shutil.rmtree(folder)
+    folder.mkdir(parents=True)
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+    start = time.perf_counter()
+    with (folder / "zoo_fit.log").open("w") as handle:
+        proc = subprocess.run(command, cwd=REPO, env=env, stdout=handle,
+                              stderr=subprocess.STDOUT, check=False)
+    seconds = time.perf_counter() - start
+    shown = " ".join([Path(command[0]).name, *overrides, "data=csv ...", *QUIET])
+    if proc.returncode != 0:
+        return {"command": shown, "seconds": seconds, "failed": f"exit {proc.returncode}",
+                "log": str(folder / "zoo_fit.log")}
+    return {"command": shown, "seconds": seconds, **read_scores(fit, folder)}
+
+
+def read_scores(fit: str, folder: Path) -> dict[str, Any]:
+    """Free-run RMSE per test, validation MSE (scaled) and, for the loop, what it added."""
+    from hysteresis_lab.run_folder import LoopFolder, RunFolder
+
+    extra: dict[str, Any] = {}
+    if fit == "loop":
+        report = json.loads(LoopFolder(folder).report_json.read_text())
+        result = report["result"] if report["result"] is not None else 0
+        metrics = RunFolder(LoopFolder(folder).round_dir(result)).read_metrics()
+        extra["effects"] = report["rounds"][result]["effects"]
+        extra["start_rmse"] = report["rounds"][0]["mean_rmse_free_run"]
+    else:
+        metrics = RunFolder(folder).read_metrics()
+    tests = {name: float(m["rmse_free_run"]) for name, m in metrics["tests"].items()}
+    r2 = {name: float(m["r2_free_run"]) for name, m in metrics["tests"].items()}
+    return {"tests": tests, "min_r2": min(r2.values()), "val_mse_scaled":
+            metrics.get("val_mse_scaled"), "train_seconds": metrics.get("train_seconds"),
+            **extra}
+
+
+def run_plant(seed: int, root: Path, stamp: dict[str, str]) -> dict[str, Any]:
+    """Export plant ``seed`` and fit it three ways (a fit done before is reused)."""
+    folder = root / f"plant_{seed}"
+    result_path = folder / "result.json"
+    if result_path.is_file():
+        log.info("plant %d: reusing %s", seed, result_path)
+        return json.loads(result_path.read_text())
+    files = export_zoo_plant(seed, folder / "data")
+    plant = json.loads((folder / "data" / "plant.json").read_text())
+    y_train = np.loadtxt(files["train"], delimiter=",", skiprows=1)[:, -1]
+    row: dict[str, Any] = {"seed": seed, "description": plant["description"],
+                           "noise_um": plant["effects"]["noise"]["rms_um"],
+                           "y_scale": float(np.std(y_train)), "fits": {}, **stamp}
+    for fit in FITS:
+        partial = folder / f"{fit}.json"
+        if partial.is_file():
+            row["fits"][fit] = json.loads(partial.read_text())
+            continue
+        log.info("plant %d: %s", seed, fit)
+        row["fits"][fit] = run_fit(fit, files, folder / fit.replace("+", "_"))
+        partial.write_text(json.dumps(row["fits"][fit], indent=1) + "\n")
+        log.info("plant %d: %s %s", seed, fit, summary(row, fit))
+    result_path.write_text(json.dumps(row, indent=1) + "\n")
+    return row
+
+
+# ------------------------------------------------------------------------------ scoring
+def score(row: dict[str, Any], fit: str) -> dict[str, Any]:
+    """A fit's free-run RMSE over σ: mean over the tests, worst test, validation; diverged
+    where a test is not finite or worse than its mean (R² < 0)."""
+    result = row["fits"].get(fit) or {}
+    sigma = row["noise_um"]
+    if "tests" not in result:
+        return {"failed": result.get("failed", "not run"), "diverged": True}
+    tests = result["tests"]
+    values = np.array(list(tests.values()))
+    worst = max(tests, key=lambda k: tests[k] if math.isfinite(tests[k]) else math.inf)
+    val = result.get("val_mse_scaled")
+    val_sigma = (math.sqrt(val) * row["y_scale"] / sigma
+                 if val is not None and math.isfinite(val) else math.nan)
+    diverged = not np.all(np.isfinite(values)) or result["min_r2"] < 0
+    return {"ratio": float(np.mean(values)) / sigma, "worst": worst.replace("test_sine_", ""),
+            "worst_ratio": tests[worst] / sigma, "val_ratio": val_sigma, "diverged": diverged,
+            "seconds": result["seconds"]}
+
+
+def summary(row: dict[str, Any], fit: str) -> str:
+    s = score(row, fit)
+    if "ratio" not in s:
+        return f"failed ({s['failed']})"
+    return f"{s['ratio']:.3g} σ (worst {s['worst']} {s['worst_ratio']:.3g} σ)"
+
+
+def structure_gaps(row: dict[str, Any], fit: str) -> list[str]:
+    """What of the plant lies outside the fitted model's class (the greybox's defaults: a
+    Bouc–Wen cell of exponent 1, one mode, a one-sample delay, no creep, no asymmetry;
+    ``model=linear``: linear dynamics and a Bouc–Wen cell of exponent 1)."""
+    d = row["description"]
+    gaps = []
+    if d["cell"] == "prandtl_ishlinskii":
+        gaps.append(f"Prandtl–Ishlinskii cell ({d['plays']} plays)")
+    elif abs(d["exponent"] - 1.0) > 0.05:
+        gaps.append(f"Bouc–Wen n = {d['exponent']:.2f}")
+    if d["asymmetry"]:
+        gaps.append("asymmetric loop")
+    if d["creep_per_decade"] > 0:
+        gaps.append(f"creep {100 * d['creep_per_decade']:.1f} %/decade")
+    if fit == "greybox":
+        if len(d["modes_hz"]) > 1:
+            gaps.append(f"{len(d['modes_hz'])} modes")
+        if d["delay_samples"] != 1:
+            gaps.append(f"{d['delay_samples']} samples of delay (greybox: 1)")
+    return gaps
+
+
+def why(row: dict[str, Any], fit: str) -> str:
+    """Why a fit misses 3 σ, with numbers: excitation (validation far better than the tests),
+    start (the loop's grown path far better), structure (what the model cannot hold),
+    optimiser (validation itself far above σ with nothing structural missing)."""
+    s = score(row, fit)
+    if "ratio" not in s:
+        return f"the fit failed ({s['failed']})"
+    reasons = []
+    if s["diverged"]:
+        reasons.append("diverged (a test's R² < 0)")
+    val = s["val_ratio"]
+    if math.isfinite(val) and s["ratio"] > 2.0 * val:
+        reasons.append(f"excitation: validation multisine {val:.3g} σ, tests {s['ratio']:.3g} σ "
+                       f"(worst {s['worst']} {s['worst_ratio']:.3g} σ)")
+    loop = score(row, "loop")
+    if fit != "loop" and "ratio" in loop and loop["ratio"] < s["ratio"] / 1.2:
+        reasons.append(f"start: the grown loop reaches {loop['ratio']:.3g} σ")
+    gaps = structure_gaps(row, fit)
+    if gaps:
+        reasons.append("structure: " + ", ".join(gaps))
+    elif math.isfinite(val) and val > 3.0:
+        reasons.append(f"optimiser: validation {val:.3g} σ with the plant inside the class")
+    return "; ".join(reasons) or f"validation {val:.3g} σ"
+
+
+# ------------------------------------------------------------------------------ the page
+def load_kept(path: Path = KEPT) -> dict[str, dict]:
+    return json.loads(path.read_text()) if path.is_file() else {}
+
+
+def keep(rows: list[dict[str, Any]], path: Path = KEPT) -> dict[str, dict]:
+    kept = {**load_kept(path), **{str(r["seed"]): r for r in rows}}
+    kept = dict(sorted(kept.items(), key=lambda item: int(item[0])))
+    path.write_text(json.dumps(kept, indent=1) + "\n")
+    return kept
+
+
+def plant_cell(row: dict[str, Any]) -> str:
+    d = row["description"]
+    cell = (f"PI {d['plays']}" if d["cell"] == "prandtl_ishlinskii"
+            else f"BW n {d['exponent']:.2f}, γ/β {d['rate_ratio']:+.2f}")
+    modes = "/".join(f"{f:.0f}" for f in d["modes_hz"])
+    extras = [x for x, on in (("asym", d["asymmetry"]), ("creep", d["creep_per_decade"] > 0))
+              if on]
+    return (f"{cell}; d {d['d_um_per_v']:.2f}; modes {modes} Hz; amp {d['amplifier_hz'] / 1e3:.1f}"
+            f" kHz; delay {d['delay_samples']}" + (f"; {', '.join(extras)}" if extras else ""))
+
+
+def fit_cell(row: dict[str, Any], fit: str) -> str:
+    s = score(row, fit)
+    if "ratio" not in s:
+        return f"failed ({s['failed']})"
+    mark = " **diverged**" if s["diverged"] else ""
+    return f"{s['ratio']:.3g} ({s['worst']} {s['worst_ratio']:.3g}){mark}"
+
+
+def statistics(kept: dict[str, dict], fit: str) -> str:
+    scores = [score(row, fit) for row in kept.values()]
+    ratios = np.array([s.get("ratio", math.inf) for s in scores])
+    diverged = sum(s["diverged"] for s in scores)
+    median, p90 = np.median(ratios), np.percentile(ratios, 90)
+    met = median <= MEDIAN_TARGET and p90 <= P90_TARGET and diverged == 0
+    seconds = [s["seconds"] for s in scores if "seconds" in s]
+    return (f"| {fit} | {median:.3g} σ | {p90:.3g} σ | {diverged} | "
+            f"{'met' if met else 'missed'} | {np.median(seconds):.0f} s |")
+
+
+def render(kept: dict[str, dict]) -> str:
+    rows = list(kept.values())
+    commits = sorted({r["commit"] for r in rows})
+    dates = sorted({r["date"] for r in rows})
+    lines = [
+        "# The physical models on a zoo of positioners",
+        "",
+        f"Command: `python benchmarks/zoo.py --plants N --seed S --jobs J` (resumes; "
+        f"`--render` rewrites this page from `zoo.json`); commit {', '.join(commits)}; "
+        f"{', '.join(dates)}; shared 2-core CPU (OMP_NUM_THREADS=1, other work running: "
+        "times are rough).",
+        "",
+        f"**{len(rows)} plants** (seeds {', '.join(kept)}) drawn from the zoo's prior "
+        "([docs/zoo.md](../zoo.md)), each exported to CSV and fitted through `data=csv` with "
+        "default settings: trained on the 500-line multisine, validated on a second "
+        "realisation, tested on the study's twelve ±100 V sines. The issue asks for at least "
+        f"30 plants; {'this run has them' if len(rows) >= 30 else 'this run has fewer (the '
+        'machine was shared; rerun with more plants to extend the table)'}.",
+        "",
+        "Scores are the mean free-run RMSE over the twelve tests divided by the plant's "
+        f"sensor noise σ. Target for each model: median ≤ {MEDIAN_TARGET} σ, 90th "
+        f"percentile ≤ {P90_TARGET} σ, no plant diverging (a test not finite or with "
+        "R² < 0).",
+        "",
+        "| model | median | 90th percentile | diverged | target | median fit time |",
+        "|---|---|---|---|---|---|",
+        *(statistics(kept, fit) for fit in FITS),
+        "",
+        "Per plant: mean RMSE / σ (worst sine in Hz and its RMSE / σ). `loop` is "
+        "`hysteresis-lab-loop model=linear model.effects=[]`'s result, with the effects it "
+        "kept.",
+        "",
+        "| seed | plant | σ (µm) | greybox | linear + hysteresis | loop | loop kept |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for row in rows:
+        loop = row["fits"].get("loop", {})
+        lines.append(f"| {row['seed']} | {plant_cell(row)} | {row['noise_um']:.3g} | "
+                     f"{fit_cell(row, 'greybox')} | {fit_cell(row, 'linear+hysteresis')} | "
+                     f"{fit_cell(row, 'loop')} | {', '.join(loop.get('effects', [])) or '-'} |")
+    lines += ["", "## Why a plant misses (> 3 σ)", "",
+              "Excitation: the validation multisine is fitted far better than the tests; "
+              "start: the loop's grown path does better from the same data; structure: what "
+              "the plant has that the model cannot hold (the greybox's defaults: a Bouc–Wen "
+              "cell of exponent 1, one mode, one sample of delay; neither model carries creep "
+              "or an asymmetric loop undeclared); optimiser: validation far above σ with "
+              "nothing structural missing. Validation RMSE is read from the fit's scaled "
+              "validation loss times the training output's standard deviation (the CSV path's "
+              "standard scaling).", ""]
+    for row in rows:
+        for fit in FITS:
+            s = score(row, fit)
+            if "ratio" not in s or s["ratio"] > P90_TARGET or s["diverged"]:
+                lines.append(f"- plant {row['seed']}, {fit}: {why(row, fit)}")
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--plants", type=int, default=30)
+    parser.add_argument("--seed", type=int, default=0, help="the first plant's seed")
+    parser.add_argument("--jobs", type=int, default=1, help="plants fitted at once")
+    parser.add_argument("--root", type=Path, default=REPO / "outputs" / "zoo")
+    parser.add_argument("--render", action="store_true", help="only rewrite the page")
+    args = parser.parse_args()
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
+    if not args.render:
+        stamp = {"commit": commit_stamp(REPO, ["src", "benchmarks"]),
+                 "date": datetime.date.today().isoformat()}
+        seeds = range(args.seed, args.seed + args.plants)
+
+        def one(seed: int) -> dict[str, Any]:
+            row = run_plant(seed, args.root, stamp)
+            with WRITING:  # a finished plant is kept at once (the page survives a stop)
+                OUT.write_text(render(keep([row])))
+            return row
+
+        with ThreadPoolExecutor(max_workers=args.jobs) as pool:
+            list(pool.map(one, seeds))
+    OUT.write_text(render(load_kept()))
+    log.info("wrote %s", OUT)
+
+
+if __name__ == "__main__":
+    main()
