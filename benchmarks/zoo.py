@@ -268,8 +268,8 @@ def render(kept: dict[str, dict]) -> str:
         "([docs/zoo.md](../zoo.md)), each exported to CSV and fitted through `data=csv` with "
         "default settings: trained on the 500-line multisine, validated on a second "
         "realisation, tested on the study's twelve ±100 V sines. The issue asks for at least "
-        f"30 plants; {'this run has them' if len(rows) >= 30 else 'this run has fewer (the '
-        'machine was shared; rerun with more plants to extend the table)'}.",
+        "30 plants; " + ("this run has them." if len(rows) >= 30 else "this run has fewer "
+                         "(the machine was shared; rerun with more plants to extend it)."),
         "",
         "Scores are the mean free-run RMSE over the twelve tests divided by the plant's "
         f"sensor noise σ. Target for each model: median ≤ {MEDIAN_TARGET} σ, 90th "

@@ -43,7 +43,6 @@ from hysteresis_lab.physics.bouc_wen import (
 )
 from hysteresis_lab.physics.play import play_operators
 
-
 #: the simulator's hysteresis cells (``data.effects.hysteresis.cell``)
 CELLS = ("bouc_wen", "prandtl_ishlinskii")
 

@@ -48,9 +48,6 @@ def _modes(c: PositionerConfig) -> tuple[list[Any], list[float]]:
     for m in (c.mode1, c.mode2, c.mode3):
         if not m.enabled:
             continue
-        if modes:
-            weights = [w * (1.0 - m.weight) for w in weights] + [m.weight]
-        else:
-            weights = [1.0]
+        weights = [w * (1.0 - m.weight) for w in weights] + [m.weight] if modes else [1.0]
         modes.append(m)
     return modes, weights
