@@ -8,12 +8,14 @@ import dataclasses
 
 import numpy as np
 import pytest
+import torch
 
 from hysteresis_lab.data.user_files import load_user_files
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.physics.bouc_wen import bouc_wen_state, bouc_wen_state_exponent
 from hysteresis_lab.signals import multisine, sine
 from hysteresis_lab.sim import Positioner, PositionerConfig
+from hysteresis_lab.sim.reference_chain import chain_from_positioner
 from hysteresis_lab.sim.zoo import (
     OFF_BLOCKS,
     ZooPrior,
@@ -123,6 +125,24 @@ def test_bouc_wen_exponent_one_matches_the_exact_update_and_two_saturates_lower(
     # n = 2: the state saturates at (alpha d / (beta + gamma))^(1/2)
     h2 = bouc_wen_state_exponent(v, 0.23, alpha, 0.02, 0.006, 2.0)
     assert np.max(np.abs(h2)) == pytest.approx((0.32 * 0.23 / 0.026) ** 0.5, rel=0.01)
+
+
+def test_the_simulator_runs_the_cell_with_its_exponent():
+    v = sine(3.0, fs=FS, amplitude=100.0, n_periods=2.0)
+    bare = {**QUIET, "mode1": {"enabled": False}, "amplifier": {"enabled": False},
+            "input_delay": {"samples": 0}}
+    y = Positioner({**bare, "hysteresis": {"exponent": 2.0}}).simulate(v, FS)
+    h2 = bouc_wen_state_exponent(v, 0.23, np.full(len(v), 0.32), 0.02, 0.006, 2.0)
+    np.testing.assert_allclose(y, 0.23 * v - h2, atol=1e-9)
+
+
+def test_three_modes_in_the_reference_chain_reproduce_the_simulator():
+    cfg = {**QUIET, "mode2": {"enabled": True}, "mode3": {"enabled": True, "weight": 0.1}}
+    u = multisine(4000, fs=FS, amplitude=100.0, seed=5)
+    y_sim = Positioner(cfg).simulate(u, FS)
+    chain = chain_from_positioner(cfg, FS, 100.0, 20.0).double()
+    y = chain(torch.tensor(u[None] / 100.0))[0].detach().numpy() * 20.0
+    assert np.max(np.abs(y - y_sim)) / np.max(np.abs(y_sim)) < 1e-6
 
 
 def test_prandtl_ishlinskii_cell_widens_the_loop_by_its_plays():
