@@ -173,9 +173,21 @@ def test_third_mode_adds_its_resonance():
 
 
 def test_exported_plant_reads_back_through_the_csv_path(tmp_path):
-    paths = export_zoo_plant(3, tmp_path)
+    paths = export_zoo_plant(3, tmp_path, max_test_samples=4000)
     splits = load_user_files(paths["train"], test=paths["test"], val=paths["val"])
     assert len(splits.train) == 1 and len(splits.val) == 1 and len(splits.test) == 12
     assert splits.train[0].n_samples == 80_000 and splits.val[0].n_samples == 20_000
     y = Positioner(draw_plant(3)).simulate(splits.train[0].u[:, 0], FS, seed=0)
     assert np.std(splits.train[0].y[:, 0]) == pytest.approx(np.std(y), rel=0.05)
+
+
+def test_simulate_app_runs_a_zoo_plant(tmp_path):
+    from hysteresis_lab.api import compose
+    from hysteresis_lab.cli.simulate import run
+
+    out = tmp_path / "zoo_3.csv"
+    cfg = compose("zoo_seed=3", "signal.n_samples=2000", f"output={out}", config="simulate")
+    run(cfg)
+    data = np.loadtxt(out, delimiter=",", skiprows=1)
+    expected = Positioner(draw_plant(3)).simulate(data[:, 1], FS, seed=0)
+    np.testing.assert_allclose(data[:, 2], expected, atol=1e-6)

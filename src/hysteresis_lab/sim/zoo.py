@@ -248,19 +248,22 @@ def describe(config: PositionerConfig) -> dict[str, Any]:
 
 
 def export_zoo_plant(seed: int, folder: str | Path, data_seed: int = 0,
-                     prior: ZooPrior | None = None) -> dict[str, Any]:
+                     prior: ZooPrior | None = None,
+                     max_test_samples: int | None = None) -> dict[str, Any]:
     """Write plant ``seed``'s study recordings to ``folder`` as CSV (``t,u,y``; s, V, µm):
     ``train.csv`` (the 500-line multisine), ``val.csv`` (a second realisation, 20,000
     samples) and ``test_sine_<f>Hz.csv`` (the twelve ±100 V sines), with ``plant.json`` (the
-    plant's ``data.effects`` and its description). Returns the paths by role, for
-    ``data=csv data.train=... data.val=... data.test=[...]``."""
+    plant's ``data.effects`` and its description); ``max_test_samples`` cuts the sines
+    short (quick checks). Returns the paths by role, for ``data=csv data.train=...
+    data.val=... data.test=[...]``."""
     from hysteresis_lab.data.readers import write_csv
     from hysteresis_lab.sim.default_dataset import make_default_dataset
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     effects = draw_effects(seed, prior)
-    splits = make_default_dataset(effects, seed=data_seed, val_samples=20_000)
+    splits = make_default_dataset(effects, seed=data_seed, val_samples=20_000,
+                                  max_test_samples=max_test_samples)
     paths = {"train": str(write_csv(splits.train[0], folder / "train.csv")),
              "val": str(write_csv(splits.val[0], folder / "val.csv")),
              "test": [str(write_csv(rec, folder / f"test_{rec.name}.csv"))
