@@ -94,20 +94,37 @@ def read_scores(fit: str, folder: Path) -> dict[str, Any]:
     """Free-run RMSE per test, validation MSE (scaled) and, for the loop, what it added."""
     from hysteresis_lab.run_folder import LoopFolder, RunFolder
 
-    extra: dict[str, Any] = {}
-    if fit == "loop":
+    if fit == "loop":  # the report holds the result round's scores (its fit may sit in
+        # the folder of the refit rate that won)
         report = json.loads(LoopFolder(folder).report_json.read_text())
         result = report["result"] if report["result"] is not None else 0
-        metrics = RunFolder(LoopFolder(folder).round_dir(result)).read_metrics()
-        extra["effects"] = report["rounds"][result]["effects"]
-        extra["start_rmse"] = report["rounds"][0]["mean_rmse_free_run"]
-    else:
-        metrics = RunFolder(folder).read_metrics()
+        chosen = report["rounds"][result]
+        held_out = (chosen.get("held_out") or {}).get("rmse") or {}
+        return {"tests": {name: float(m["rmse_free_run"]) for name, m in chosen["tests"].items()},
+                "min_r2": min(float(m["r2_free_run"]) for m in chosen["tests"].values()),
+                "val_rmse": float(np.mean(list(held_out.values()))) if held_out else None,
+                "effects": chosen["effects"],
+                "start_rmse": report["rounds"][0]["mean_rmse_free_run"]}
+    metrics = RunFolder(folder).read_metrics()
     tests = {name: float(m["rmse_free_run"]) for name, m in metrics["tests"].items()}
     r2 = {name: float(m["r2_free_run"]) for name, m in metrics["tests"].items()}
     return {"tests": tests, "min_r2": min(r2.values()), "val_mse_scaled":
-            metrics.get("val_mse_scaled"), "train_seconds": metrics.get("train_seconds"),
-            **extra}
+            metrics.get("val_mse_scaled"), "train_seconds": metrics.get("train_seconds")}
+
+
+def finished_fit(fit: str, folder: Path) -> dict[str, Any] | None:
+    """A fit that finished in ``folder`` before the benchmark stopped (its scores, its wall
+    time from its config to its last file); None where it did not finish."""
+    from hysteresis_lab.run_folder import LoopFolder, RunFolder
+
+    done = LoopFolder(folder).report_json if fit == "loop" else RunFolder(folder).metrics
+    start = folder / ".hydra" / "config.yaml"
+    if not (done.is_file() and start.is_file()):
+        return None
+    _, overrides = FITS[fit]
+    shown = " ".join([FITS[fit][0], *overrides, "data=csv ...", *QUIET])
+    return {"command": shown, "seconds": done.stat().st_mtime - start.stat().st_mtime,
+            **read_scores(fit, folder)}
 
 
 def run_plant(seed: int, root: Path, stamp: dict[str, str]) -> dict[str, Any]:
@@ -130,7 +147,8 @@ def run_plant(seed: int, root: Path, stamp: dict[str, str]) -> dict[str, Any]:
             row["fits"][fit] = json.loads(partial.read_text())
             continue
         log.info("plant %d: %s", seed, fit)
-        row["fits"][fit] = run_fit(fit, files, folder / fit.replace("+", "_"))
+        fit_folder = folder / fit.replace("+", "_")
+        row["fits"][fit] = finished_fit(fit, fit_folder) or run_fit(fit, files, fit_folder)
         partial.write_text(json.dumps(row["fits"][fit], indent=1) + "\n")
         log.info("plant %d: %s %s", seed, fit, summary(row, fit))
     result_path.write_text(json.dumps(row, indent=1) + "\n")
@@ -151,6 +169,8 @@ def score(row: dict[str, Any], fit: str) -> dict[str, Any]:
     val = result.get("val_mse_scaled")
     val_sigma = (math.sqrt(val) * row["y_scale"] / sigma
                  if val is not None and math.isfinite(val) else math.nan)
+    if result.get("val_rmse") is not None:  # the loop's held-out RMSE, in the output's units
+        val_sigma = result["val_rmse"] / sigma
     diverged = not np.all(np.isfinite(values)) or result["min_r2"] < 0
     return {"ratio": float(np.mean(values)) / sigma, "worst": worst.replace("test_sine_", ""),
             "worst_ratio": tests[worst] / sigma, "val_ratio": val_sigma, "diverged": diverged,
@@ -354,7 +374,7 @@ def render(kept: dict[str, dict]) -> str:
               "or an asymmetric loop undeclared); optimiser: validation far above σ with "
               "nothing structural missing. Validation RMSE is read from the fit's scaled "
               "validation loss times the training output's standard deviation (the CSV path's "
-              "standard scaling).", ""]
+              "standard scaling); the loop's is its held-out RMSE.", ""]
     for row in rows:
         for fit in FITS:
             s = score(row, fit)
