@@ -280,7 +280,8 @@ def why(row: dict[str, Any], fit: str) -> str:
         reasons.append("structure (each piece's size alone): " + ", ".join(gaps))
     elif math.isfinite(val) and val > 3.0:
         reasons.append(f"optimiser: validation {val:.3g} σ with the plant inside the class")
-    reasons.append(f"validation {val:.3g} σ, tests {s['ratio']:.3g} σ")
+    if not any(reason.startswith("excitation") for reason in reasons):
+        reasons.append(f"validation {val:.3g} σ, tests {s['ratio']:.3g} σ")
     return "; ".join(reasons)
 
 
@@ -322,8 +323,10 @@ def statistics(kept: dict[str, dict], fit: str) -> str:
     median, p90 = np.median(ratios), np.percentile(ratios, 90)
     met = median <= MEDIAN_TARGET and p90 <= P90_TARGET and diverged == 0
     seconds = [s["seconds"] for s in scores if "seconds" in s]
+    outside = sum(bool(structure_gaps(row, fit)) for row in kept.values())
     return (f"| {fit} | {median:.3g} σ | {p90:.3g} σ | {diverged} | "
-            f"{'met' if met else 'missed'} | {np.median(seconds):.0f} s |")
+            f"{'met' if met else 'missed'} | {outside} of {len(kept)} | "
+            f"{np.median(seconds):.0f} s |")
 
 
 def render(kept: dict[str, dict]) -> str:
@@ -350,8 +353,9 @@ def render(kept: dict[str, dict]) -> str:
         f"percentile ≤ {P90_TARGET} σ, no plant diverging (a test not finite or with "
         "R² < 0).",
         "",
-        "| model | median | 90th percentile | diverged | target | median fit time |",
-        "|---|---|---|---|---|---|",
+        "| model | median | 90th percentile | diverged | target | plants outside the model's "
+        "class | median fit time |",
+        "|---|---|---|---|---|---|---|",
         *(statistics(kept, fit) for fit in FITS),
         "",
         "Per plant: mean RMSE / σ (worst sine in Hz and its RMSE / σ). `loop` is "
