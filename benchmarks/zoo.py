@@ -242,7 +242,8 @@ def gap_sizes(effects: dict[str, Any], sigma: float) -> dict[str, float]:
 
 
 def structure_gaps(row: dict[str, Any], fit: str) -> list[str]:
-    """What of the plant lies outside the fitted model's class, each with its size."""
+    """What of the plant lies outside the fitted model's class, each with its size (pieces
+    smaller than σ left out)."""
     d, sizes = row["description"], row.get("gaps", {})
     gaps = []
     if d["cell"] == "prandtl_ishlinskii":
@@ -253,7 +254,7 @@ def structure_gaps(row: dict[str, Any], fit: str) -> list[str]:
              "modes": f"{len(d['modes_hz'])} modes",
              "delay": f"{d['delay_samples']} samples of delay (greybox: 1)"}
     for gap in GAPS[fit]:
-        if gap in sizes:
+        if sizes.get(gap, 0.0) >= 1.0:  # a piece below the noise is no miss's reason
             gaps.append(f"{names[gap]} ({sizes[gap]:.3g} σ)")
     return gaps
 
