@@ -4,6 +4,7 @@ Example::
 
     hysteresis-lab-simulate signal.kind=sine signal.frequency=1 effects.creep.enabled=false \
         output=sine_1Hz.csv
+    hysteresis-lab-simulate zoo_seed=7 output=zoo_7.csv   # a random plant of the zoo
 """
 
 from __future__ import annotations
@@ -49,6 +50,12 @@ def run(cfg: DictConfig) -> Path:
     else:
         raise ConfigError(f"unknown signal.kind '{sig.kind}'. Fix: signal.kind=multisine or sine.")
     effects = OmegaConf.to_container(cfg.effects, resolve=True)
+    if cfg.get("zoo_seed") is not None:
+        from hysteresis_lab.sim.zoo import draw_effects
+
+        effects = draw_effects(int(cfg.zoo_seed))
+        log.info("simulating plant %d of the zoo (effects.* overrides are not applied)",
+                 cfg.zoo_seed)
     recording = simulate_recording(u, cfg.fs, effects, seed=cfg.seed, name=name)
     path = output_path(str(explicit or f"outputs/simulated/{name}.csv"))
     try:

@@ -1,15 +1,16 @@
-"""Hysteresis: rate-independent memory of the drive (Bouc–Wen in the simulator, play
-operators as evidence).
+"""Hysteresis: rate-independent memory of the drive (a Bouc–Wen or Prandtl–Ishlinskii cell
+in the simulator, play operators as evidence).
 
 Faces: Prandtl–Ishlinskii play operators of the input as operators and evidence, and of the
-model's own output as state evidence; the simulator's Bouc–Wen element, which turns the drive
-into a displacement (``data.effects.hysteresis``); ``model=linear``'s Bouc–Wen cell on each
+model's own output as state evidence; the simulator's hysteresis cell (Bouc–Wen of any admissible
+exponent, or Prandtl–Ishlinskii with any thresholds), which turns the drive into a
+displacement (``data.effects.hysteresis``); ``model=linear``'s Bouc–Wen cell on each
 input (`HysteresisCell`) and Bouc–Wen restoring force in the dynamics' feedback
 (`StateHysteresis`); the grey-box's own hysteresis cell carries it."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -35,16 +36,31 @@ from hysteresis_lab.effects.base import (
     LinearContext,
     PlantSignals,
 )
-from hysteresis_lab.physics.bouc_wen import bouc_wen_advance, bouc_wen_state
+from hysteresis_lab.physics.bouc_wen import (
+    bouc_wen_advance,
+    bouc_wen_state,
+    bouc_wen_state_exponent,
+)
 from hysteresis_lab.physics.play import play_operators
+
+#: the simulator's hysteresis cells (``data.effects.hysteresis.cell``)
+CELLS = ("bouc_wen", "prandtl_ishlinskii")
 
 
 @dataclass
 class HysteresisConfig:
-    """Rate-independent Bouc–Wen hysteresis (Low & Guo 1995; Goldfarb & Celanovic 1997).
+    """Rate-independent hysteresis cell: Bouc–Wen (Low & Guo 1995; Goldfarb & Celanovic 1997)
+    or Prandtl–Ishlinskii (Kuhnen 2003).
 
-    ``x = d v - h``, ``dh/dt = alpha d dv/dt - beta |dv/dt| h - gamma dv/dt |h|``; needs
-    ``beta > |gamma|``. Defaults: ±100 V → ±20 µm, major loop ≈ 11 % of the stroke.
+    ``cell=bouc_wen``: ``x = d v - h``, ``dh/dt = alpha d dv/dt - beta |dv/dt| |h|^(n-1) h -
+    gamma dv/dt |h|^n`` with ``n = exponent >= 1``; needs ``beta > |gamma|`` (both rates
+    ``beta -/+ gamma`` positive: a bounded, passive loop). Defaults: ``n = 1``, ±100 V →
+    ±20 µm, major loop ≈ 11 % of the stroke.
+
+    ``cell=prandtl_ishlinskii``: ``x = d ((1 - sum w) v + sum_i w_i play_{r_i}(v))`` with the
+    play thresholds ``thresholds_v`` (V, any spacing) and their ``weights`` (each >= 0, summing
+    to less than 1, so the displacement follows the drive's direction); ``alpha``, ``beta``,
+    ``gamma`` and ``exponent`` are unused (and rate dependence has no ``alpha`` to scale).
     """
 
     enabled: bool = True
@@ -52,6 +68,15 @@ class HysteresisConfig:
     alpha: float = 0.32
     beta: float = 0.02
     gamma: float = 0.006
+    exponent: float = 1.0
+    cell: str = "bouc_wen"
+    thresholds_v: list[float] = field(default_factory=list)
+    weights: list[float] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        # YAML and Hydra overrides give numbers as they are written (ints, ListConfig)
+        self.thresholds_v = [float(r) for r in self.thresholds_v]
+        self.weights = [float(w) for w in self.weights]
 
 
 class HysteresisCell(nn.Module):
@@ -215,14 +240,23 @@ class Hysteresis(Effect):
         return play_operators(y, np.array([0.02, 0.05, 0.1, 0.2, 0.4]) * width)
 
     def simulate(self, plant: PlantSignals, cfg: HysteresisConfig) -> None:
-        """Bouc–Wen displacement ``d v - h`` (µm); ``alpha`` per sample times the factor a
-        rate-dependence block left (`PlantSignals.alpha_factor`)."""
-        v = plant.v
+        """The cell's displacement (µm): Bouc–Wen ``d v - h`` with ``alpha`` per sample times
+        the factor a rate-dependence block left (`PlantSignals.alpha_factor`), or the
+        Prandtl–Ishlinskii sum of plays (`HysteresisConfig`)."""
+        v = np.ascontiguousarray(plant.v, dtype=float)
+        if cfg.cell == "prandtl_ishlinskii":
+            weights = np.asarray(cfg.weights, dtype=float)
+            plays = play_operators(v, np.asarray(cfg.thresholds_v, dtype=float))
+            plant.x = cfg.d_um_per_v * ((1.0 - weights.sum()) * v + plays @ weights)
+            return
         alpha = np.full(len(v), cfg.alpha)
         if plant.alpha_factor is not None:
             alpha = alpha * plant.alpha_factor
-        h = bouc_wen_state(np.ascontiguousarray(v, dtype=float), cfg.d_um_per_v, alpha,
-                           cfg.beta, cfg.gamma)
+        if cfg.exponent == 1.0:  # the exact closed-form update
+            h = bouc_wen_state(v, cfg.d_um_per_v, alpha, cfg.beta, cfg.gamma)
+        else:
+            h = bouc_wen_state_exponent(v, cfg.d_um_per_v, alpha, cfg.beta, cfg.gamma,
+                                        cfg.exponent)
         plant.x = cfg.d_um_per_v * v - h
 
     def simulate_disabled(self, plant: PlantSignals, cfg: HysteresisConfig) -> None:
@@ -231,11 +265,20 @@ class Hysteresis(Effect):
 
     def validate(self, cfg: HysteresisConfig, key: str) -> list[str]:
         problems = []
-        if not cfg.beta > abs(cfg.gamma):
-            problems.append(f"{key} needs beta > |gamma| (got beta={cfg.beta}, "
-                            f"gamma={cfg.gamma}).")
         if not cfg.d_um_per_v > 0:
             problems.append(f"{key}.d_um_per_v={cfg.d_um_per_v!r} must be positive.")
+        if cfg.cell not in CELLS:
+            problems.append(f"{key}.cell={cfg.cell!r} is no hysteresis cell. Fix: "
+                            f"{key}.cell=bouc_wen or {key}.cell=prandtl_ishlinskii.")
+        elif cfg.cell == "prandtl_ishlinskii":
+            problems += _play_problems(cfg, key)
+        else:
+            if not cfg.beta > abs(cfg.gamma):
+                problems.append(f"{key} needs beta > |gamma| (got beta={cfg.beta}, "
+                                f"gamma={cfg.gamma}).")
+            if not cfg.exponent >= 1.0:
+                problems.append(f"{key}.exponent={cfg.exponent!r} must be >= 1 "
+                                "(Bouc–Wen's admissible exponents).")
         return problems
 
     def linear_blocks(self, ctx: LinearContext) -> list[LinearBlock]:
@@ -251,3 +294,19 @@ class Hysteresis(Effect):
     def greybox_part(self) -> GreyBoxPart:
         """The grey-box's own hysteresis cell (``model.hysteresis``) carries it."""
         return GreyBoxPart(in_cell=True)
+
+
+def _play_problems(cfg: HysteresisConfig, key: str) -> list[str]:
+    """Problems of a Prandtl–Ishlinskii cell's thresholds and weights."""
+    r, w = np.asarray(cfg.thresholds_v), np.asarray(cfg.weights)
+    if len(r) == 0 or len(r) != len(w):
+        return [f"{key}.thresholds_v and {key}.weights need one weight per threshold (got "
+                f"{len(r)} and {len(w)}). Fix: e.g. {key}.thresholds_v=[5,20,50] "
+                f"{key}.weights=[0.05,0.05,0.05]."]
+    problems = []
+    if not np.all(r > 0):
+        problems.append(f"{key}.thresholds_v={cfg.thresholds_v} must all be positive (V).")
+    if not (np.all(w >= 0) and w.sum() < 1.0):
+        problems.append(f"{key}.weights={cfg.weights} must be >= 0 and sum to less than 1 "
+                        "(the share of the drive left elastic).")
+    return problems

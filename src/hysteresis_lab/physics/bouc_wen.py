@@ -13,7 +13,8 @@ there. The update is therefore exact for a piecewise-linear input, at any sampli
 while moving against the state's sign) and ``r2 = beta + gamma`` (moving with it);
 `advance_grad` also returns its partial derivatives, from which `bw_backward` runs the
 recursion in reverse (reverse-mode differentiation of the exact update, no smoothing).
-`bouc_wen_state` is the simulator's single element; `bw_states` / `bw_backward` run ``C``
+`bouc_wen_state` is the simulator's single element (`bouc_wen_state_exponent` the same with
+an exponent ``n != 1``, integrated numerically); `bw_states` / `bw_backward` run ``C``
 parallel elements on a batch, with an optional per-sample factor ``m`` (B, T) of ``a``
 (rate-dependent hysteresis: the step into sample ``k`` runs with ``a * m[b, k]``; None: ``a``
 as it is, which numba compiles on its own without the factor's branches). `BoucWenStates`
@@ -71,6 +72,63 @@ def bouc_wen_state(
         if dv != 0.0:
             s = 1.0 if dv > 0.0 else -1.0
             h = advance(h, abs(dv), s, alpha[k] * d, beta - gamma, beta + gamma)
+        h_out[k] = h
+        v_prev = v[k]
+    return h_out
+
+
+@numba.njit(**JIT)
+def _exponent_slope(g: float, a: float, r1: float, r2: float, n: float) -> float:
+    """``dg/dx`` of ``g = s h`` along the motion: ``a - r2 g^n`` with the state's sign,
+    ``a + r1 |g|^n`` against it."""
+    if g >= 0.0:
+        return a - r2 * g**n
+    return a + r1 * (-g) ** n
+
+
+@numba.njit(**JIT)
+def advance_exponent(
+    h: float, x: float, s: float, a: float, r1: float, r2: float, n: float, x_max: float
+) -> float:
+    """`advance` for an exponent ``n != 1`` (``|h|^(n-1) h`` in place of ``h``): no closed
+    form, so classical Runge–Kutta along the input, in steps of at most ``x_max``."""
+    n_steps = max(1, int(math.ceil(x / x_max)))
+    dx = x / n_steps
+    g = s * h
+    for _ in range(n_steps):
+        k1 = _exponent_slope(g, a, r1, r2, n)
+        k2 = _exponent_slope(g + 0.5 * dx * k1, a, r1, r2, n)
+        k3 = _exponent_slope(g + 0.5 * dx * k2, a, r1, r2, n)
+        k4 = _exponent_slope(g + dx * k3, a, r1, r2, n)
+        g += dx * (k1 + 2.0 * k2 + 2.0 * k3 + k4) / 6.0
+    return s * g
+
+
+@numba.njit(cache=True)
+def bouc_wen_state_exponent(
+    v: np.ndarray, d: float, alpha: np.ndarray, beta: float, gamma: float, n: float
+) -> np.ndarray:
+    """`bouc_wen_state` with the exponent ``n`` (``dh/dt = alpha d v' - beta |v'| |h|^(n-1) h
+    - gamma v' |h|^n``, Bouc 1971; Wen 1976), starting at rest: each sample's input step is
+    integrated in sub-steps over which the state's slope changes by at most about 5 % (its
+    derivative is largest at the saturated state ``(alpha d / (beta + gamma))^(1/n)``).
+    ``n = 1`` has `bouc_wen_state`'s exact update."""
+    r1, r2 = beta - gamma, beta + gamma
+    count = v.shape[0]
+    h_out = np.empty(count)
+    h = 0.0
+    v_prev = 0.0
+    for k in range(count):
+        dv = v[k] - v_prev
+        if dv != 0.0:
+            s = 1.0 if dv > 0.0 else -1.0
+            a = alpha[k] * d
+            if a > 0.0:  # the slope's rate of change at saturation bounds the sub-step
+                h_sat = (a / r2) ** (1.0 / n)
+                x_max = 0.05 / (n * max(r1, r2) * h_sat ** (n - 1.0))
+            else:
+                x_max = abs(dv)
+            h = advance_exponent(h, abs(dv), s, a, r1, r2, n, x_max)
         h_out[k] = h
         v_prev = v[k]
     return h_out

@@ -11,11 +11,13 @@ positioner runs them in signal order; parameters in `hysteresis_lab.sim.config` 
           -> backlash         play operator of half-width w [off, 5 V]
           -> input_delay      [1 sample]
           -> hysteresis       Bouc-Wen, n = 1 [d = 0.23 um/V, alpha 0.32, beta 0.02, gamma 0.006]
+                              (or any n >= 1, or a Prandtl-Ishlinskii cell)
           -> asymmetry        + c * 40 um * (v / 100 V)^2 [off, c = 0.02]
           -> rate_dependence  alpha * (1 + k |dv/dt| / rate_ref) [off, k = 0.5]
           -> creep            x + w * sum_i lowpass_tau_i(x), tau = 0.1, 1, 10, 100 s [w = 1.5 %]
           -> mode1            2nd-order resonance, unit DC gain [900 Hz, zeta 0.03]
           -> mode2            second bending mode [off, 2.8 kHz, zeta 0.02, 15 % of the gain]
+          -> mode3            third mode [off, 4.5 kHz, zeta 0.02, 5 % of the gain]
           -> output_delay     [off]
           -> drift            ramp + slow oscillation [off, 4 nm/s, 0.08 um, 20 s period]
           -> noise            Gaussian sensor noise [0.01 um RMS]
@@ -41,7 +43,8 @@ Sources and justification:
 * Amplifier bandwidth of a few kHz for piezo loads; capacitive sensors ~0.01 um RMS noise.
 
 `Positioner` simulates, `simulate_recording` returns a `Recording`, and
-`hysteresis_lab.sim.default_dataset.make_default_dataset` builds the study's data set.
+`hysteresis_lab.sim.default_dataset.make_default_dataset` builds the study's data set;
+`hysteresis_lab.sim.zoo` draws random positioners of the same physics class from a seed.
 """
 
 from hysteresis_lab.sim.config import PositionerConfig

@@ -104,8 +104,8 @@ class AsymmetryBlock(PlantBlock):
 
 class ModeBlock(PlantBlock):
     """A structural mode: the first turns the displacement into the output (switched off:
-    the output is the displacement), a second adds its share of the displacement's response
-    (``y = (1 - w) y + w mode2(x)``)."""
+    the output is the displacement), a later one adds its share of the displacement's
+    response (``y = (1 - w) y + w mode(x)``)."""
 
     place = "dynamics"
     sim_config = Mode
@@ -172,5 +172,6 @@ def plant_only_blocks() -> list[Any]:
     """The blocks of the positioner that are no effect, one per ``data.effects`` key."""
     return [AmplifierBlock("amplifier"), DelayBlock("input_delay", "input", 50),
             AsymmetryBlock("asymmetry"), ModeBlock("mode1", 50, first=True),
-            ModeBlock("mode2", 60, first=False), DelayBlock("output_delay", "output", 20),
+            ModeBlock("mode2", 60, first=False), ModeBlock("mode3", 70, first=False),
+            DelayBlock("output_delay", "output", 20),
             NoiseBlock("noise"), QuantisationBlock("quantisation")]

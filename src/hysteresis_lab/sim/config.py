@@ -39,6 +39,10 @@ def _second_mode() -> Mode:
     return Mode(enabled=False, frequency_hz=2800.0, damping=0.02, weight=0.15)
 
 
+def _third_mode() -> Mode:
+    return Mode(enabled=False, frequency_hz=4500.0, damping=0.02, weight=0.05)
+
+
 def _no_output_delay() -> Delay:
     return Delay(enabled=False, samples=0)
 
@@ -72,6 +76,7 @@ class PositionerConfig:
     creep: Creep = field(default_factory=Creep)
     mode1: Mode = field(default_factory=Mode)
     mode2: Mode = field(default_factory=_second_mode)
+    mode3: Mode = field(default_factory=_third_mode)
     output_delay: Delay = field(default_factory=_no_output_delay)
     drift: Drift = field(default_factory=Drift)
     noise: Noise = field(default_factory=Noise)

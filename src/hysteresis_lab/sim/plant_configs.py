@@ -38,8 +38,9 @@ class Asymmetry:
 class Mode:
     """Lightly damped structural mode (unit DC gain).
 
-    ``weight`` is the share of the static gain the second mode carries when it is enabled
-    (``y = (1 - w) * mode1(x) + w * mode2(x)``); it is ignored for the first mode.
+    ``weight`` is the share of the static gain a later mode carries when it is enabled
+    (``y = (1 - w) * y + w * mode(x)``, in order: mode2 on mode1, mode3 on both); it is
+    ignored for the first mode.
 
     Piezo cantilevers/benders have their first bending mode at a few hundred Hz to ~1 kHz.
     """

@@ -16,25 +16,38 @@ def chain_from_positioner(
 ) -> BlockChain:
     """The chain with a simulator `PositionerConfig`'s (or mapping's) parameters, in units of
     ``u / u_scale`` and ``y / y_scale``: the blocks of its enabled amplifier, input delay,
-    hysteresis, creep and modes (other effects are not represented)."""
+    hysteresis (a Bouc–Wen cell of exponent 1), creep and modes (other effects are not
+    represented)."""
     if not isinstance(config, PositionerConfig):
         config = PositionerConfig.from_dict(config)
     c = config
     amp = FirstOrderLag(fs, c.amplifier.cutoff_hz) if c.amplifier.enabled else None
     delay = Delay(c.input_delay.samples) if c.input_delay.enabled else None
     bw = None
-    if c.hysteresis.enabled:
+    if c.hysteresis.enabled and c.hysteresis.cell == "bouc_wen" and c.hysteresis.exponent == 1:
         h = c.hysteresis
         bw = BoucWen(**bouc_wen_scaled_params(h.d_um_per_v, h.alpha, h.beta, h.gamma,
                                               u_scale, y_scale))
     creep = CreepBank(fs, c.creep.time_constants_s, c.creep.weight_per_decade) \
         if c.creep.enabled else None
-    modes = [m for m in (c.mode1, c.mode2) if m.enabled]
+    modes, weights = _modes(c)
     mode = None
     if len(modes) == 1:
         mode = SecondOrderMode(fs, modes[0].frequency_hz, modes[0].damping)
-    elif len(modes) == 2:
-        w2 = c.mode2.weight
+    elif modes:
         mode = SecondOrderMode(fs, [m.frequency_hz for m in modes], [m.damping for m in modes],
-                               n_modes=2, weights=[1.0 - w2, w2])
+                               n_modes=len(modes), weights=weights)
     return BlockChain(amp, delay, bw, creep, mode)
+
+
+def _modes(c: PositionerConfig) -> tuple[list[Any], list[float]]:
+    """The enabled modes and the share of the static gain each carries (a later mode takes
+    its ``weight`` of the response so far, `hysteresis_lab.sim.blocks.ModeBlock`)."""
+    modes: list[Any] = []
+    weights: list[float] = []
+    for m in (c.mode1, c.mode2, c.mode3):
+        if not m.enabled:
+            continue
+        weights = [w * (1.0 - m.weight) for w in weights] + [m.weight] if modes else [1.0]
+        modes.append(m)
+    return modes, weights
