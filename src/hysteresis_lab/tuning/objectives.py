@@ -6,13 +6,14 @@ Every objective is minimised:
   one-step objective, the free-run MSE over ``horizon`` segments for the simulation one);
 * ``val_free_run_mse``: the free run over each whole validation recording, from its input
   alone, MSE in scaled units (the first ``window.first_target`` samples, measured initial
-  conditions, not scored);
+  conditions, not scored); +inf when the free run diverges (an unstable model);
 * ``train_seconds``: the wall-clock seconds the fit took (data preparation and scoring aside).
 """
 
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -49,7 +50,7 @@ def check_objectives(names: Sequence[str]) -> tuple[str, ...]:
 
 def free_run_mse(model: Any, recordings: Sequence[Recording], window: WindowSpec) -> float:
     """MSE (scaled units) of ``model``'s free run over ``recordings``, all samples and outputs
-    after the measured initial conditions."""
+    after the measured initial conditions; +inf when the free run diverges (NaN or inf)."""
     from hysteresis_lab.evaluation.predict import free_run
 
     scale = np.asarray(model.scaler.y_scale, dtype=float)
@@ -58,7 +59,9 @@ def free_run_mse(model: Any, recordings: Sequence[Recording], window: WindowSpec
         ((predicted[first:] - np.asarray(rec.y, dtype=float)[first:]) / scale).ravel()
         for rec, predicted in zip(recordings, free_run(model, recordings, window), strict=True)
     ]
-    return float(np.mean(np.square(np.concatenate(errors))))
+    with np.errstate(over="ignore", invalid="ignore"):
+        mse = float(np.mean(np.square(np.concatenate(errors))))
+    return mse if math.isfinite(mse) else math.inf
 
 
 def trial_value(cfg: Mapping[str, Any], result: Any, output_dir: Path) -> float | list[float]:

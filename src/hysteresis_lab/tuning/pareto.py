@@ -11,13 +11,13 @@ from __future__ import annotations
 import argparse
 import csv
 import logging
-import warnings
+import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import optuna
-from optuna.trial import FrozenTrial
+from optuna.trial import FrozenTrial, TrialState
 
 from hysteresis_lab.tuning.bookkeeping import counted
 from hysteresis_lab.tuning.objectives import OBJECTIVES
@@ -29,8 +29,9 @@ FRONT_CSV, FRONT_MD, FRONT_PNG = "pareto.csv", "pareto.md", "pareto.png"
 
 def pareto_front(study: optuna.Study) -> list[FrozenTrial]:
     """The complete, counted trials no other complete trial beats in every objective, by
-    their first objective (the error), lowest first."""
-    front = [t for t in study.best_trials if counted(t)]
+    their first objective (the error), lowest first; a trial with an infinite objective (a
+    diverged free run) is left out."""
+    front = [t for t in study.best_trials if counted(t) and all(math.isfinite(v) for v in t.values)]
     return sorted(front, key=lambda t: (t.values[0], t.number))
 
 
@@ -97,25 +98,50 @@ def _cell(value: Any) -> str:
 
 
 def _plot_front(study: optuna.Study, objectives: Sequence[str], path: Path) -> None:
-    """Every complete trial in objective space, the front highlighted (2 or 3 objectives)."""
+    """The first two objectives of every complete trial with finite values, the front
+    highlighted, joined and labelled with trial numbers."""
     import matplotlib.pyplot as plt
-    from optuna.visualization import matplotlib as ovm
 
-    if len(objectives) not in (2, 3):
-        log.warning("a Pareto figure needs 2 or 3 objectives, not %d", len(objectives))
+    if len(objectives) < 2:
         return
-    try:
-        with warnings.catch_warnings():  # the plot is "experimental" in every Optuna so far
-            warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
-            axes = ovm.plot_pareto_front(
-                study, target_names=[OBJECTIVES.get(n, n) for n in objectives]
-            )
-    except (ValueError, RuntimeError) as exc:
-        log.warning("could not draw %s: %s", path.name, exc)
-        return
-    axes.set_title(f"Pareto front of {study.study_name}")
-    figure = axes.get_figure()
-    figure.set_size_inches(7, 4.5)
+    trials = [
+        t
+        for t in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
+        if counted(t) and all(math.isfinite(v) for v in t.values)
+    ]
+    front = pareto_front(study)
+    figure, axes = plt.subplots(figsize=(7, 4.5))
+    axes.scatter(
+        [t.values[0] for t in trials],
+        [t.values[1] for t in trials],
+        s=18,
+        color="0.6",
+        label="trial",
+    )
+    axes.step(
+        [t.values[0] for t in front],
+        [t.values[1] for t in front],
+        where="post",
+        color="tab:red",
+        marker="o",
+        label="Pareto front",
+    )
+    for t in front:
+        axes.annotate(
+            str(t.number),
+            (t.values[0], t.values[1]),
+            textcoords="offset points",
+            xytext=(4, 4),
+            fontsize=8,
+        )
+    for axis, scale in enumerate((axes.set_xscale, axes.set_yscale)):
+        values = [t.values[axis] for t in trials]
+        if values and min(values) > 0 and max(values) > 30 * min(values):
+            scale("log")  # errors and costs of a study span decades
+    axes.set_xlabel(OBJECTIVES.get(objectives[0], objectives[0]))
+    axes.set_ylabel(OBJECTIVES.get(objectives[1], objectives[1]))
+    axes.set_title(f"Pareto front of {study.study_name} ({len(trials)} trials shown)")
+    axes.legend()
     figure.tight_layout()
     figure.savefig(path, dpi=110)
     plt.close(figure)

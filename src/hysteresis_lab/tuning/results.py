@@ -21,7 +21,7 @@ from optuna.trial import TrialState
 
 from hysteresis_lab.tuning.bookkeeping import counted
 from hysteresis_lab.tuning.objectives import DEFAULT_OBJECTIVES, OBJECTIVES
-from hysteresis_lab.tuning.pareto import write_front
+from hysteresis_lab.tuning.pareto import pareto_front, write_front
 
 log = logging.getLogger(__name__)
 
@@ -46,10 +46,10 @@ def best_trial(study: optuna.Study) -> optuna.trial.FrozenTrial:
     `ValueError` when no trial completed."""
     if len(study.directions) == 1:
         return study.best_trial
-    front = [t for t in study.best_trials if counted(t)]
+    front = pareto_front(study)
     if not front:
         raise ValueError("no complete trial")
-    return min(front, key=lambda t: (t.values[0], t.number))
+    return front[0]
 
 
 def sweep_data(config: DictConfig) -> dict[str, Any]:

@@ -267,7 +267,7 @@ def _tell(
         log.warning("trial %d failed: %s: %s", trial.number, type(exc).__name__, exc)
         study.tell(trial, state=TrialState.FAIL)
         return
-    values = _finite_values(value, n_objectives)
+    values = _usable_values(value, n_objectives)
     if values is None:
         log.warning("trial %d returned %s: marked failed", trial.number, value)
         study.tell(trial, state=TrialState.FAIL)
@@ -275,13 +275,17 @@ def _tell(
     study.tell(trial, values[0] if n_objectives == 1 else values)
 
 
-def _finite_values(value: Any, n_objectives: int) -> list[float] | None:
-    """The job's return as ``n_objectives`` finite floats; None when it is not that."""
+def _usable_values(value: Any, n_objectives: int) -> list[float] | None:
+    """The job's return as ``n_objectives`` floats; None when it is not that. A single
+    objective must be finite; in a multi-objective study +inf stands for a free run that
+    diverged (`hysteresis_lab.tuning.objectives.free_run_mse`): a result the sampler learns
+    from, which the Pareto front leaves out."""
     raw = value if isinstance(value, Sequence) and not isinstance(value, str) else [value]
     try:
         values = [float(v) for v in raw]
     except (TypeError, ValueError):
         return None
-    if len(values) != n_objectives or not all(math.isfinite(v) for v in values):
+    allowed = math.isfinite if n_objectives == 1 else (lambda v: v == math.inf or math.isfinite(v))
+    if len(values) != n_objectives or not all(allowed(v) for v in values):
         return None
     return values
