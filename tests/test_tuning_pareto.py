@@ -61,8 +61,9 @@ def test_pareto_study_writes_a_non_dominated_front_and_searches_the_lags(tmp_pat
     results = tmp_path / "optuna"
     proc = run_app("train", *csv_data, *sweep(results, 3), env={STORAGE_ENV: ""})
     assert proc.returncode == 0, proc.stderr[-3000:]
-    study = optuna.load_study(study_name="ffnn_pareto_csv",
-                              storage=f"sqlite:///{results}/ffnn_pareto_csv.db")
+    study = optuna.load_study(
+        study_name="ffnn_pareto_csv", storage=f"sqlite:///{results}/ffnn_pareto_csv.db"
+    )
     assert len(study.directions) == 2
     complete = [t for t in study.get_trials() if counted(t) and t.state == TrialState.COMPLETE]
     assert len(complete) == 3
@@ -106,13 +107,22 @@ def test_pruning_is_on_by_default_on_the_cpu_and_prunes_a_clearly_bad_trial(
     """A trial that cannot learn (learning rate 1e-9) after one that does is stopped at the
     first rung by the default pruner; single- and multi-objective studies alike."""
     results = tmp_path / "optuna"
-    common = [*csv_data, *sweep(results, 1, "hydra.sweeper.warmup_epochs=1", search=search),
-              "model.neurons=16", "data.window.na=4", "data.window.nb=4"]
+    common = [
+        *csv_data,
+        *sweep(results, 1, "hydra.sweeper.warmup_epochs=1", search=search),
+        "model.neurons=16",
+        "data.window.na=4",
+        "data.window.nb=4",
+    ]
     good = run_app("train", *common, "training.lr=tag(log, interval(1e-3, 1.001e-3))")
     assert good.returncode == 0, good.stderr[-3000:]
     assert "hyperband pruner" in good.stdout + good.stderr
-    bad = run_app("train", *common, "hydra.sweeper.n_trials=2",
-                  "training.lr=tag(log, interval(1e-9, 1.001e-9))")
+    bad = run_app(
+        "train",
+        *common,
+        "hydra.sweeper.n_trials=2",
+        "training.lr=tag(log, interval(1e-9, 1.001e-9))",
+    )
     assert bad.returncode == 0, bad.stderr[-3000:]
     name = f"{search}_csv"
     study = optuna.load_study(study_name=name, storage=f"sqlite:///{results}/{name}.db")
@@ -124,11 +134,13 @@ def test_the_default_pruner_is_hyperband_on_the_cpu_and_median_on_a_gpu():
     assert resolve_pruner("auto", "cpu") == "hyperband"
     assert resolve_pruner("auto", "gpu") == "median"
     assert resolve_pruner("successive_halving", "gpu") == "successive_halving"
-    assert isinstance(make_pruner("hyperband", n_warmup_steps=3, max_resource=30),
-                      optuna.pruners.HyperbandPruner)
+    assert isinstance(
+        make_pruner("hyperband", n_warmup_steps=3, max_resource=30), optuna.pruners.HyperbandPruner
+    )
     # no epoch past the first rung: nothing to prune
-    assert isinstance(make_pruner("hyperband", n_warmup_steps=10, max_resource=10),
-                      optuna.pruners.NopPruner)
+    assert isinstance(
+        make_pruner("hyperband", n_warmup_steps=10, max_resource=10), optuna.pruners.NopPruner
+    )
     with pytest.raises(ConfigError, match="unknown pruner 'asha'"):
         resolve_pruner("asha", "cpu")
     with pytest.raises(ConfigError, match="hydra.sweeper.objectives="):
@@ -144,8 +156,11 @@ def test_the_front_holds_the_non_dominated_trials_of_a_stored_study(tmp_path):
     # trial 5: a diverged free run (inf), the fastest, but no useful model: off the front
     points = [(0.5, 10.0), (0.2, 40.0), (0.6, 12.0), (0.3, 5.0), (0.9, 1.0), (math.inf, 0.5)]
     for i, values in enumerate(points):
-        study.add_trial(optuna.trial.create_trial(
-            params={"training.lr": 1e-3 * (i + 1)}, distributions=lr, values=list(values)))
+        study.add_trial(
+            optuna.trial.create_trial(
+                params={"training.lr": 1e-3 * (i + 1)}, distributions=lr, values=list(values)
+            )
+        )
     assert [t.number for t in pareto_front(study)] == [1, 3, 4]
     assert study.trials[5].state == TrialState.COMPLETE
 
@@ -161,11 +176,13 @@ def test_the_front_holds_the_non_dominated_trials_of_a_stored_study(tmp_path):
 def test_a_free_run_objective_without_validation_recordings_fails_before_training(tmp_path):
     train, tests = small_dataset(tmp_path / "data", n_train=600)
     results = tmp_path / "optuna"
-    proc = run_app("train", *data_overrides(train, tests), *sweep(results, 2),
-                   env={STORAGE_ENV: ""})
+    proc = run_app(
+        "train", *data_overrides(train, tests), *sweep(results, 2), env={STORAGE_ENV: ""}
+    )
     assert proc.returncode != 0
     assert "the objective val_free_run_mse simulates the validation recordings" in (
-        proc.stdout + proc.stderr)
+        proc.stdout + proc.stderr
+    )
     assert "Traceback" not in proc.stdout + proc.stderr
     assert not (results / "runs").exists()
 
@@ -179,18 +196,25 @@ def test_each_narx_architecture_has_a_pareto_search_with_lags(name, tmp_path, cs
     from hysteresis_lab.run_folder import RunFolder
 
     results = tmp_path / "optuna"
-    args = ["-m", f"hparams_search={name}_pareto", f"hydra.sweeper.results_dir={results}",
-            "hydra.sweeper.n_trials=2", "hydra.sweeper.n_startup_trials=2",
-            "trainer.max_epochs=1", "trainer.enable_progress_bar=false",
-            f"hydra.sweep.dir={results}/runs"]
+    args = [
+        "-m",
+        f"hparams_search={name}_pareto",
+        f"hydra.sweeper.results_dir={results}",
+        "hydra.sweeper.n_trials=2",
+        "hydra.sweeper.n_startup_trials=2",
+        "trainer.max_epochs=1",
+        "trainer.enable_progress_bar=false",
+        f"hydra.sweep.dir={results}/runs",
+    ]
     if name == "svm":
         args += ["model.n_components=50", "model.max_samples=300"]
     if name == "subnet":
         args += ["training.horizon=choice(50)"]
     proc = run_app("train", *csv_data, *args, env={STORAGE_ENV: ""})
     assert proc.returncode == 0, proc.stderr[-3000:]
-    study = optuna.load_study(study_name=f"{name}_pareto_csv",
-                              storage=f"sqlite:///{results}/{name}_pareto_csv.db")
+    study = optuna.load_study(
+        study_name=f"{name}_pareto_csv", storage=f"sqlite:///{results}/{name}_pareto_csv.db"
+    )
     trials = [t for t in study.get_trials() if counted(t)]
     assert [t.state for t in trials] == [TrialState.COMPLETE] * 2
     for t in trials:
