@@ -223,3 +223,18 @@ def test_each_narx_architecture_has_a_pareto_search_with_lags(name, tmp_path, cs
         window = model_window(load_model(model_file))
         assert (window.na, window.nb) == (t.params["data.window.na"], t.params["data.window.nb"])
     assert (results / f"{name}_pareto_csv" / "pareto.csv").is_file()
+
+
+def test_a_stored_study_keeps_its_objectives():
+    """Resuming a study with other objectives is refused before any trial, with the fix."""
+    from hysteresis_lab.tuning.sweep import _check_same_objectives
+
+    study = optuna.create_study(study_name="s", directions=["minimize"] * 2)
+    _check_same_objectives(study, OBJECTIVES)  # a new study takes the names
+    assert study.user_attrs["objectives"] == OBJECTIVES
+    _check_same_objectives(study, OBJECTIVES)
+    with pytest.raises(ConfigError, match="same hydra.sweeper.objectives, or a new"):
+        _check_same_objectives(study, ["val_mse", "train_seconds"])
+    single = optuna.create_study(study_name="t")
+    with pytest.raises(ConfigError, match="was run with the objectives"):
+        _check_same_objectives(single, OBJECTIVES)
