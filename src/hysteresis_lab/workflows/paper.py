@@ -98,17 +98,9 @@ def plan_workers(
 
 
 def _run_job(job: _Job, callbacks: list[Any] | None = None) -> PaperEntry:
-    """Run one model; in a worker process (``job.threads`` set) torch and the native thread
-    pools (BLAS, OpenMP: the SVM's Nystroem features and free run) keep to the worker's share
-    of the cores, so that a worker does not take the cores another is training on."""
-    from threadpoolctl import threadpool_limits  # scikit-learn's own dependency
-
-    if job.threads is None:
-        result = run_model(job.config, splits=job.splits, callbacks=callbacks)
-    else:
+    if job.threads is not None:
         torch.set_num_threads(job.threads)
-        with threadpool_limits(limits=job.threads):
-            result = run_model(job.config, splits=job.splits, callbacks=callbacks)
+    result = run_model(job.config, splits=job.splits, callbacks=callbacks)
     free_run = {name: p["free_run"] for name, p in result.evaluation.predictions.items()}
     return PaperEntry(result.document, free_run)
 
