@@ -113,7 +113,9 @@ def test_sweep_writes_results_and_resumes_without_repeating(tmp_path, csv_data):
 @pytest.mark.slow
 def test_sigkill_mid_trial_loses_no_completed_trial(tmp_path, csv_data):
     results = tmp_path / "optuna"
-    args = [*csv_data, *sweep_args(results, 3, "trainer.max_epochs=40")]
+    # no pruning: every trial that runs to its end completes (Hyperband would stop some)
+    args = [*csv_data, *sweep_args(results, 3, "trainer.max_epochs=40",
+                                   "hydra.sweeper.pruner=none")]
     worker = popen_app("train", *args)
     db = results / "ffnn_csv.db"
     deadline = time.time() + 300

@@ -21,8 +21,13 @@ class HysteresisLabSweeperConf:
     sampler: str = "gp"  # gp (Gaussian-process BO, the study's method) | tpe | random
     seed: int = 0
     n_startup_trials: int = 10  # random trials before the model-based sampler takes over
-    pruner: str = "median"  # median | hyperband | none
-    warmup_epochs: int = 10  # epochs before a trial may be pruned
+    # auto: Hyperband when trials train on the CPU, else median | hyperband |
+    # successive_halving | median | none
+    pruner: str = "auto"
+    warmup_epochs: int = 10  # epochs before a trial may be pruned (Hyperband's first rung)
+    # minimised; several: a multi-objective study and its Pareto front (val_mse |
+    # val_free_run_mse | train_seconds)
+    objectives: list[str] = field(default_factory=lambda: ["val_mse"])
     storage: str | None = None  # default: sqlite under results_dir; see README for PostgreSQL
     results_dir: str = "outputs/optuna"
     grace_s: float = 120.0  # a running trial without heartbeat this long is re-run

@@ -7,7 +7,8 @@ Examples::
     hysteresis-lab-train experiment=paper                  # Table 2 + Figure 1
     hysteresis-lab-train -m hparams_search=ffnn            # Bayesian tuning (Optuna)
 
-The return value is the validation MSE (scaled units), the objective of sweeps.
+The return value is the sweep's objective: the validation MSE (scaled units), or the values of a
+multi-objective study's ``sweep_trial.objectives`` (`hysteresis_lab.tuning.objectives`).
 """
 
 from __future__ import annotations
@@ -30,10 +31,11 @@ log = logging.getLogger(__name__)
 
 @report_errors
 @interruptible(resumable=True)
-def run(cfg: DictConfig) -> float | None:
+def run(cfg: DictConfig) -> float | list[float] | None:
     """Run the task the composed config describes; return the sweep objective."""
     from hysteresis_lab.data.spec import DataSpec
     from hysteresis_lab.lightning_trainer import TrainerSettings
+    from hysteresis_lab.tuning.objectives import trial_value
     from hysteresis_lab.tuning.pruning import trial_callback
     from hysteresis_lab.workflows.paper import run_paper
     from hysteresis_lab.workflows.pipeline import train_from_config
@@ -61,7 +63,7 @@ def run(cfg: DictConfig) -> float | None:
     )
     result = train_from_config(cfg, output_dir, callbacks=[pruning] if pruning else None)
     log_run_files(output_dir)
-    return result.val_mse
+    return trial_value(cfg, result, output_dir)
 
 
 def log_run_files(output_dir: Path) -> None:
@@ -91,7 +93,7 @@ def log_run_files(output_dir: Path) -> None:
 
 
 @hydra.main(config_path=CONFIG_PATH, config_name="train")
-def _main(cfg: DictConfig) -> float | None:
+def _main(cfg: DictConfig) -> float | list[float] | None:
     with terminal():
         return run(cfg)
 

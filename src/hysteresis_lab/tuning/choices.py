@@ -7,7 +7,10 @@ import optuna
 from hysteresis_lab.errors import ConfigError
 
 SAMPLERS = ("gp", "tpe", "random")
-PRUNERS = ("median", "hyperband", "none")
+#: ``auto``: multi-fidelity Hyperband when the trials train on the CPU, median otherwise
+PRUNERS = ("auto", "hyperband", "successive_halving", "median", "none")
+#: Hyperband's and successive halving's share of trials kept at each rung is 1 / this
+REDUCTION_FACTOR = 3
 
 
 def make_sampler(name: str, seed: int, n_startup_trials: int = 10) -> optuna.samplers.BaseSampler:
@@ -23,16 +26,55 @@ def make_sampler(name: str, seed: int, n_startup_trials: int = 10) -> optuna.sam
     )
 
 
+def resolve_pruner(name: str, accelerator: str | None) -> str:
+    """The pruner ``name`` stands for: ``auto`` is Hyperband for a study whose trials train on
+    the CPU (``trainer.accelerator`` cpu, or auto without a GPU), median stopping otherwise."""
+    check_pruner(name)
+    if name != "auto":
+        return name
+    import torch
+
+    on_cpu = accelerator == "cpu" or (
+        accelerator in (None, "auto") and not torch.cuda.is_available()
+    )
+    return "hyperband" if on_cpu else "median"
+
+
+def check_pruner(name: str) -> None:
+    if name not in PRUNERS:
+        raise ConfigError(
+            f"unknown pruner '{name}'. Fix: hydra.sweeper.pruner=one of {list(PRUNERS)}."
+        )
+
+
 def make_pruner(
-    name: str, n_startup_trials: int = 5, n_warmup_steps: int = 10
+    name: str,
+    n_startup_trials: int = 5,
+    n_warmup_steps: int = 10,
+    max_resource: int | None = None,
 ) -> optuna.pruners.BasePruner:
-    """Median stopping (default), Hyperband, or no pruning."""
+    """Hyperband or successive halving (multi-fidelity: epochs are the resource, the first
+    rung after ``n_warmup_steps`` epochs, ``max_resource`` the trials' ``max_epochs``; None:
+    read off the first finished trial), median stopping, or no pruning. ``auto`` must have
+    been resolved (`resolve_pruner`)."""
+    check_pruner(name)
     if name == "median":
         return optuna.pruners.MedianPruner(
             n_startup_trials=n_startup_trials, n_warmup_steps=n_warmup_steps
         )
+    min_resource = max(1, n_warmup_steps)
+    if name == "successive_halving":
+        return optuna.pruners.SuccessiveHalvingPruner(
+            min_resource=min_resource, reduction_factor=REDUCTION_FACTOR
+        )
     if name == "hyperband":
-        return optuna.pruners.HyperbandPruner(min_resource=n_warmup_steps)
+        if max_resource is not None and max_resource <= min_resource:
+            return optuna.pruners.NopPruner()  # no trial lives past its first rung
+        return optuna.pruners.HyperbandPruner(
+            min_resource=min_resource,
+            max_resource=max_resource or "auto",
+            reduction_factor=REDUCTION_FACTOR,
+        )
     if name == "none":
         return optuna.pruners.NopPruner()
-    raise ConfigError(f"unknown pruner '{name}'. Fix: hydra.sweeper.pruner=one of {list(PRUNERS)}.")
+    raise ConfigError(f"pruner '{name}' must be resolved first (resolve_pruner).")

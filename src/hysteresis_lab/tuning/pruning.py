@@ -1,4 +1,9 @@
-"""Prune hopeless trials: report the validation loss after every epoch to the shared study."""
+"""Prune hopeless trials: report the validation loss after every epoch to the shared study.
+
+Epochs are the fidelity of multi-fidelity pruning (Hyperband, successive halving). A
+multi-objective study cannot take intermediate values (Optuna prunes single-objective studies
+only), so its trials report to a single-objective companion study (`pruning_study_name`)
+whose trial the sweeper names in ``sweep_trial``."""
 
 from __future__ import annotations
 
@@ -39,14 +44,21 @@ class PruningCallback(L.Callback):
             )
 
 
+def pruning_study_name(study_name: str) -> str:
+    """The single-objective study a multi-objective study's trials report their epochs to."""
+    return f"{study_name}.pruning"
+
+
 def trial_callback(sweep_trial: dict | None) -> PruningCallback | None:
     """The pruning callback of the sweep trial this job runs (``sweep_trial`` config node)."""
     url = os.environ.get(STORAGE_ENV)
     if not sweep_trial or sweep_trial.get("number") is None or not url:
         return None
+    max_epochs = sweep_trial.get("max_epochs")
     pruner = make_pruner(
         sweep_trial.get("pruner", "median"),
         n_warmup_steps=int(sweep_trial.get("warmup_epochs", 10)),
+        max_resource=None if max_epochs is None else int(max_epochs),
     )
     study = optuna.load_study(study_name=sweep_trial["study"], storage=url, pruner=pruner)
     trial_number = int(sweep_trial["number"])

@@ -1,4 +1,5 @@
-"""What a finished sweep leaves behind: best config, trials table, history and importance plots."""
+"""What a finished sweep leaves behind: best config, trials table, history and importance plots,
+and for a multi-objective study its Pareto front (`hysteresis_lab.tuning.pareto`)."""
 
 from __future__ import annotations
 
@@ -6,6 +7,7 @@ import csv
 import json
 import logging
 import math
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -18,21 +20,36 @@ from omegaconf import DictConfig, OmegaConf
 from optuna.trial import TrialState
 
 from hysteresis_lab.tuning.bookkeeping import counted
+from hysteresis_lab.tuning.objectives import DEFAULT_OBJECTIVES, OBJECTIVES
+from hysteresis_lab.tuning.pareto import pareto_front, write_front
 
 log = logging.getLogger(__name__)
 
 
 def first_best_trial(study: optuna.Study) -> int | None:
-    """Number of the trial at which the final best value was first reached."""
+    """Number of the trial at which the final best value (of the first objective) was first
+    reached."""
     complete = [
         t
         for t in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
-        if counted(t) and t.value is not None and math.isfinite(t.value)
+        if counted(t) and t.values and math.isfinite(t.values[0])
     ]
     if not complete:
         return None
-    best = min(t.value for t in complete)
-    return min(t.number for t in complete if t.value <= best)
+    best = min(t.values[0] for t in complete)
+    return min(t.number for t in complete if t.values[0] <= best)
+
+
+def best_trial(study: optuna.Study) -> optuna.trial.FrozenTrial:
+    """The trial with the lowest first objective (the error): the best trial of a
+    single-objective study, the front's most accurate trial of a multi-objective one.
+    `ValueError` when no trial completed."""
+    if len(study.directions) == 1:
+        return study.best_trial
+    front = pareto_front(study)
+    if not front:
+        raise ValueError("no complete trial")
+    return front[0]
 
 
 def sweep_data(config: DictConfig) -> dict[str, Any]:
@@ -65,7 +82,7 @@ def best_config(
 ) -> dict[str, Any]:
     """A ``# @package _global_`` experiment config with the best trial's tuned values and the
     sweep's data (`sweep_data`), so that it trains on what the trial trained on."""
-    params = dict(study.best_trial.params)
+    params = dict(best_trial(study).params)
     defaults: list[dict[str, Any]] = [{"override /model": model_name}]
     if data and data.get("choice"):
         defaults.append({"override /data": data["choice"]})
@@ -87,19 +104,29 @@ def write_results(
     directory: Path,
     experiment_dir: Path,
     data: dict[str, Any] | None = None,
+    objectives: Sequence[str] = DEFAULT_OBJECTIVES,
 ) -> dict[str, Any]:
-    """Write trials.csv, best_<study>.yaml, history and importance PNGs, summary.json.
-    ``data``: the sweep's data (`sweep_data`), repeated in best_<study>.yaml."""
+    """Write trials.csv, best_<study>.yaml, history and importance PNGs, summary.json, and
+    with several ``objectives`` the Pareto front (pareto.csv, pareto.md, pareto.png); the
+    best config is then the front's lowest-error trial. ``data``: the sweep's data
+    (`sweep_data`), repeated in best_<study>.yaml."""
     directory.mkdir(parents=True, exist_ok=True)
+    objectives = list(objectives)
     trials = study.get_trials(deepcopy=False)
-    write_trials_csv(trials, directory / "trials.csv")
+    write_trials_csv(trials, directory / "trials.csv", objectives)
     summary: dict[str, Any] = {
         "study": study.study_name,
+        "objectives": objectives,
         "n_trials": sum(counted(t) for t in trials),
         "states": {s.name: sum(t.state == s and counted(t) for t in trials) for s in TrialState},
     }
+    if len(objectives) > 1:
+        front = write_front(study, directory, objectives)
+        summary["pareto_front"] = [
+            {"trial": t.number, "values": dict(zip(objectives, t.values, strict=True)),
+             "params": t.params} for t in front]
     try:
-        best = study.best_trial
+        best = best_trial(study)
     except ValueError:
         log.warning("no completed trial yet: nothing to report as best")
         (directory / "summary.json").write_text(json.dumps(summary, indent=2))
@@ -107,16 +134,18 @@ def write_results(
     experiment_dir.mkdir(parents=True, exist_ok=True)
     config_name = f"best_{study.study_name}"
     config_path = experiment_dir / f"{config_name}.yaml"
+    scores = ", ".join(f"{OBJECTIVES.get(name, name)} {value:.4e}"
+                       for name, value in zip(objectives, best.values, strict=True))
     header = (
         f"# @package _global_\n# Best of Optuna study '{study.study_name}' "
-        f"(trial {best.number}, validation MSE {best.value:.4e}).\n"
+        f"(trial {best.number}, {scores}).\n"
         "# It trains on the sweep's data: its data choice and data.* settings are below.\n"
     )
     config = best_config(study, model_name, data)
     config_path.write_text(header + yaml.safe_dump(config, sort_keys=False))
     summary.update(
         {
-            "best_value": best.value,
+            "best_value": best.values[0],
             "best_params": best.params,
             "best_trial": best.number,
             "first_reached_at_trial": first_best_trial(study),
@@ -124,11 +153,12 @@ def write_results(
             "use_it": f"hysteresis-lab-train experiment={config_name}",
         }
     )
-    _plot(study, directory)
+    _plot(study, directory, OBJECTIVES.get(objectives[0], objectives[0]))
     (directory / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
     log.info(
-        "best validation MSE %.4e at trial %d (first reached at trial %s); train it with: %s",
-        best.value,
+        "best %s %.4e at trial %d (first reached at trial %s); train it with: %s",
+        OBJECTIVES.get(objectives[0], objectives[0]),
+        best.values[0],
         best.number,
         summary["first_reached_at_trial"],
         summary["use_it"],
@@ -136,16 +166,21 @@ def write_results(
     return summary
 
 
-def write_trials_csv(trials: list[optuna.trial.FrozenTrial], path: Path) -> Path:
-    """One row per trial: number, state, value, parameters, timing, worker, discarded."""
+def write_trials_csv(
+    trials: list[optuna.trial.FrozenTrial], path: Path,
+    objectives: Sequence[str] = DEFAULT_OBJECTIVES,
+) -> Path:
+    """One row per trial: number, state, value (one column per objective when there are
+    several), parameters, timing, worker, discarded."""
     names = sorted({name for t in trials for name in t.params})
+    value_columns = ["value"] if len(objectives) == 1 else list(objectives)
     with path.open("w", newline="") as handle:
         writer = csv.writer(handle)
         writer.writerow(
             [
                 "number",
                 "state",
-                "value",
+                *value_columns,
                 *names,
                 "seconds",
                 "worker_host",
@@ -159,7 +194,7 @@ def write_trials_csv(trials: list[optuna.trial.FrozenTrial], path: Path) -> Path
                 [
                     t.number,
                     t.state.name,
-                    "" if t.value is None else t.value,
+                    *(t.values or [""] * len(value_columns)),
                     *[t.params.get(n, "") for n in names],
                     seconds,
                     t.user_attrs.get("worker_host", ""),
@@ -170,7 +205,8 @@ def write_trials_csv(trials: list[optuna.trial.FrozenTrial], path: Path) -> Path
     return path
 
 
-def _plot(study: optuna.Study, directory: Path) -> None:
+def _plot(study: optuna.Study, directory: Path, target_name: str) -> None:
+    """History and parameter importances of the first objective (the error)."""
     import matplotlib.pyplot as plt
     from optuna.visualization import matplotlib as ovm
 
@@ -178,9 +214,10 @@ def _plot(study: optuna.Study, directory: Path) -> None:
         "optimization_history.png": ovm.plot_optimization_history,
         "param_importances.png": ovm.plot_param_importances,
     }
+    target = None if len(study.directions) == 1 else (lambda t: t.values[0])
     for name, plot in plots.items():
         try:
-            axes = plot(study)
+            axes = plot(study, target=target, target_name=target_name)
         except (ValueError, RuntimeError) as exc:  # e.g. importances need >= 2 trials
             log.warning("could not draw %s: %s", name, exc)
             continue
