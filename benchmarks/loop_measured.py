@@ -180,7 +180,8 @@ def render(kept: dict[str, dict]) -> str:
         "data set, default settings: the start is `model=linear effects=[]` (on EMPS with "
         "the integrator its data set declares: its position integrates the force). The loop "
         "chooses on `loop.folds` folds of the identification record and reports the model "
-        "refitted on all of it; the test recordings are never used for a choice.",
+        "refitted on all of it; the test recordings are never used for a choice. Free runs "
+        "start from rest (`evaluation.initial_state=rest`).",
         "",
         "| data | start (round 0) free-run RMSE | result | change | rounds | result's effects "
         "| target | round 0 train / whole command (wall; CPU) |",
@@ -207,8 +208,14 @@ def main() -> None:
     parser.add_argument("--collect", metavar="COMMIT",
                         help="run nothing: take the rows of --data from the loops that "
                              "finished under --runs, measured at COMMIT")
+    parser.add_argument("--render", action="store_true",
+                        help="run nothing: rewrite the page from the kept rows")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
+    if args.render:
+        OUT.write_text(render(keep({})))
+        log.info("wrote %s", OUT)
+        return
     commit = args.collect or commit_stamp(REPO)
     runs = {}
     for name in args.data:

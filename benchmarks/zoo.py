@@ -349,7 +349,8 @@ def render(kept: dict[str, dict]) -> str:
         "30 plants; " + ("this run has them." if len(rows) >= 30 else "this run has fewer "
                          "(the machine was shared; rerun with more plants to extend it)."),
         "",
-        "Scores are the mean free-run RMSE over the twelve tests divided by the plant's "
+        "Scores are the mean free-run RMSE (from rest, `evaluation.initial_state=rest`) over "
+        "the twelve tests divided by the plant's "
         f"sensor noise σ. Target for each model: median ≤ {MEDIAN_TARGET} σ, 90th "
         f"percentile ≤ {P90_TARGET} σ, no plant diverging (a test not finite or with "
         "R² < 0).",
