@@ -71,3 +71,19 @@ def popen_app(
         env={**os.environ, **(env or {})},
         start_new_session=True,
     )
+
+
+def sweep_args(results: Path, n_trials: int, *extra: str, search: str = "ffnn") -> list[str]:
+    """A small tuning sweep (``-m hparams_search=<search>``) writing under ``results``."""
+    return [
+        "-m",
+        f"hparams_search={search}",
+        f"hydra.sweeper.results_dir={results}",
+        f"hydra.sweeper.n_trials={n_trials}",
+        "hydra.sweeper.n_startup_trials=2",
+        "trainer.max_epochs=2",
+        "trainer.enable_progress_bar=false",
+        f"hydra.sweep.dir={results}/runs",
+        "model.neurons=range(8,33)",
+        *extra,
+    ]

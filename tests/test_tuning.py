@@ -19,7 +19,7 @@ import yaml
 from optuna.trial import TrialState
 
 from conftest import optional_dependency
-from helpers import data_overrides, popen_app, run_app, small_dataset
+from helpers import data_overrides, popen_app, run_app, small_dataset, sweep_args
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.tuning.bookkeeping import DISCARDED, PID, counted, discard_stale
 from hysteresis_lab.tuning.storage import STORAGE_ENV, open_storage, redact, resolve_storage_url
@@ -32,21 +32,6 @@ def csv_data(tmp_path_factory) -> list[str]:
 
 
 PG_PASSWORD = "tuning-test-secret"
-
-
-def sweep_args(results: Path, n_trials: int, *extra: str) -> list[str]:
-    return [
-        "-m",
-        "hparams_search=ffnn",
-        f"hydra.sweeper.results_dir={results}",
-        f"hydra.sweeper.n_trials={n_trials}",
-        "hydra.sweeper.n_startup_trials=2",
-        "trainer.max_epochs=2",
-        "trainer.enable_progress_bar=false",
-        f"hydra.sweep.dir={results}/runs",
-        "model.neurons=range(8,33)",
-        *extra,
-    ]
 
 
 def trial_states(db: Path) -> list[tuple[int, str]]:

@@ -12,7 +12,7 @@ import pytest
 from optuna.distributions import FloatDistribution
 from optuna.trial import TrialState
 
-from helpers import data_overrides, run_app, small_dataset
+from helpers import data_overrides, run_app, small_dataset, sweep_args
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.tuning.bookkeeping import counted
 from hysteresis_lab.tuning.choices import make_pruner, resolve_pruner
@@ -34,18 +34,7 @@ def csv_data(tmp_path_factory) -> list[str]:
 
 
 def sweep(results: Path, n_trials: int, *extra: str, search: str = "ffnn_pareto") -> list[str]:
-    return [
-        "-m",
-        f"hparams_search={search}",
-        f"hydra.sweeper.results_dir={results}",
-        f"hydra.sweeper.n_trials={n_trials}",
-        "hydra.sweeper.n_startup_trials=2",
-        "trainer.max_epochs=2",
-        "trainer.enable_progress_bar=false",
-        f"hydra.sweep.dir={results}/runs",
-        "model.neurons=range(8,33)",
-        *extra,
-    ]
+    return sweep_args(results, n_trials, *extra, search=search)
 
 
 def dominates(a: list[float], b: list[float]) -> bool:
