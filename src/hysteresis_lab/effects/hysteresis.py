@@ -39,7 +39,6 @@ from hysteresis_lab.effects.base import (
 from hysteresis_lab.physics.bouc_wen import (
     bouc_wen_advance,
     bouc_wen_state,
-    bouc_wen_state_exponent,
 )
 from hysteresis_lab.physics.play import play_operators
 
@@ -252,11 +251,7 @@ class Hysteresis(Effect):
         alpha = np.full(len(v), cfg.alpha)
         if plant.alpha_factor is not None:
             alpha = alpha * plant.alpha_factor
-        if cfg.exponent == 1.0:  # the exact closed-form update
-            h = bouc_wen_state(v, cfg.d_um_per_v, alpha, cfg.beta, cfg.gamma)
-        else:
-            h = bouc_wen_state_exponent(v, cfg.d_um_per_v, alpha, cfg.beta, cfg.gamma,
-                                        cfg.exponent)
+        h = bouc_wen_state(v, cfg.d_um_per_v, alpha, cfg.beta, cfg.gamma, cfg.exponent)
         plant.x = cfg.d_um_per_v * v - h
 
     def simulate_disabled(self, plant: PlantSignals, cfg: HysteresisConfig) -> None:

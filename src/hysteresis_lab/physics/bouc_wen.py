@@ -13,8 +13,8 @@ there. The update is therefore exact for a piecewise-linear input, at any sampli
 while moving against the state's sign) and ``r2 = beta + gamma`` (moving with it);
 `advance_grad` also returns its partial derivatives, from which `bw_backward` runs the
 recursion in reverse (reverse-mode differentiation of the exact update, no smoothing).
-`bouc_wen_state` is the simulator's single element (`bouc_wen_state_exponent` the same with
-an exponent ``n != 1``, integrated numerically); `bw_states` / `bw_backward` run ``C``
+`bouc_wen_state` is the simulator's single element (with an exponent ``n != 1`` integrated
+numerically, `advance_exponent`); `bw_states` / `bw_backward` run ``C``
 parallel elements on a batch, with an optional per-sample factor ``m`` (B, T) of ``a``
 (rate-dependent hysteresis: the step into sample ``k`` runs with ``a * m[b, k]``; None: ``a``
 as it is, which numba compiles on its own without the factor's branches). `BoucWenStates`
@@ -55,28 +55,6 @@ def advance(h: float, x: float, s: float, a: float, r1: float, r2: float) -> flo
     return h_inf + (h - h_inf) * math.exp(-r2 * x)
 
 
-@numba.njit(cache=True)
-def bouc_wen_state(
-    v: np.ndarray, d: float, alpha: np.ndarray, beta: float, gamma: float
-) -> np.ndarray:
-    """Hysteretic state ``h`` (µm) for input ``v`` (V), starting at rest (v = 0, h = 0).
-
-    ``alpha`` is per sample (a constant array for rate-independent hysteresis).
-    """
-    n = v.shape[0]
-    h_out = np.empty(n)
-    h = 0.0
-    v_prev = 0.0
-    for k in range(n):
-        dv = v[k] - v_prev
-        if dv != 0.0:
-            s = 1.0 if dv > 0.0 else -1.0
-            h = advance(h, abs(dv), s, alpha[k] * d, beta - gamma, beta + gamma)
-        h_out[k] = h
-        v_prev = v[k]
-    return h_out
-
-
 @numba.njit(**JIT)
 def _exponent_slope(g: float, a: float, r1: float, r2: float, n: float) -> float:
     """``dg/dx`` of ``g = s h`` along the motion: ``a - r2 g^n`` with the state's sign,
@@ -105,14 +83,16 @@ def advance_exponent(
 
 
 @numba.njit(cache=True)
-def bouc_wen_state_exponent(
-    v: np.ndarray, d: float, alpha: np.ndarray, beta: float, gamma: float, n: float
+def bouc_wen_state(
+    v: np.ndarray, d: float, alpha: np.ndarray, beta: float, gamma: float, n: float = 1.0
 ) -> np.ndarray:
-    """`bouc_wen_state` with the exponent ``n`` (``dh/dt = alpha d v' - beta |v'| |h|^(n-1) h
-    - gamma v' |h|^n``, Bouc 1971; Wen 1976), starting at rest: each sample's input step is
-    integrated in sub-steps over which the state's slope changes by at most about 5 % (its
-    derivative is largest at the saturated state ``(alpha d / (beta + gamma))^(1/n)``).
-    ``n = 1`` has `bouc_wen_state`'s exact update."""
+    """Hysteretic state ``h`` (µm) for input ``v`` (V), starting at rest (v = 0, h = 0), of
+    exponent ``n`` (``dh/dt = alpha d v' - beta |v'| |h|^(n-1) h - gamma v' |h|^n``, Bouc
+    1971; Wen 1976). ``alpha`` is per sample (a constant array for rate-independent
+    hysteresis). ``n = 1`` takes the exact update (`advance`); any other exponent integrates
+    each sample's input step in sub-steps over which the state's slope changes by at most
+    about 5 % (its derivative is largest at the saturated state
+    ``(alpha d / (beta + gamma))^(1/n)``, `advance_exponent`)."""
     r1, r2 = beta - gamma, beta + gamma
     count = v.shape[0]
     h_out = np.empty(count)
@@ -123,12 +103,15 @@ def bouc_wen_state_exponent(
         if dv != 0.0:
             s = 1.0 if dv > 0.0 else -1.0
             a = alpha[k] * d
-            if a > 0.0:  # the slope's rate of change at saturation bounds the sub-step
-                h_sat = (a / r2) ** (1.0 / n)
-                x_max = 0.05 / (n * max(r1, r2) * h_sat ** (n - 1.0))
+            if n == 1.0:
+                h = advance(h, abs(dv), s, a, r1, r2)
             else:
-                x_max = abs(dv)
-            h = advance_exponent(h, abs(dv), s, a, r1, r2, n, x_max)
+                if a > 0.0:  # the slope's rate of change at saturation bounds the sub-step
+                    h_sat = (a / r2) ** (1.0 / n)
+                    x_max = 0.05 / (n * max(r1, r2) * h_sat ** (n - 1.0))
+                else:
+                    x_max = abs(dv)
+                h = advance_exponent(h, abs(dv), s, a, r1, r2, n, x_max)
         h_out[k] = h
         v_prev = v[k]
     return h_out
