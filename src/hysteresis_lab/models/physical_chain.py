@@ -233,9 +233,11 @@ class PhysicalChainModule(NarxModule):
         grid = [np.where(np.arange(len(first_input)) == i, value, first_input)
                 for i in range(len(first_input))
                 for value in np.linspace(lower[i], upper[i], HOLD_GRID_POINTS)]
-        start = min(grid, key=cost)
+        start_cost, start = min(((cost(level), level) for level in grid), key=lambda c: c[0])
         fitted = least_squares(start_error, start, bounds=(lower, upper), x_scale=reach).x
-        level = min([np.zeros_like(first_input), start, fitted], key=cost)  # rest: offset only
+        rest = np.zeros_like(first_input)  # rest: the offset only
+        _, level = min([(cost(rest), rest), (start_cost, start), (cost(fitted), fitted)],
+                       key=lambda c: c[0])
         with torch.inference_mode():
             x = self._after_hold(v, torch.as_tensor(level, dtype=torch.float64), n_hold)[0]
         offset = (measured[first:n_skip] - x[first:n_skip]).mean(dim=0)
