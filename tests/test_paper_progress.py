@@ -3,11 +3,15 @@ labelled line per update (model, epoch, time left), not as interleaved Lightning
 
 from __future__ import annotations
 
+import os
 import re
+import signal
+import time
+from pathlib import Path
 
 import pytest
 
-from helpers import run_app
+from helpers import popen_app, run_app
 
 MODELS = ("ffnn", "lstm", "cnn", "svm")
 NETWORKS = ("ffnn", "lstm", "cnn")
@@ -44,3 +48,39 @@ def test_paper_workers_report_one_labelled_progress_display(tmp_path):
     for key in NETWORKS:
         log = (tmp_path / key / "train.log").read_text()
         assert "GPU available" in log and f"[{key}]" in log
+
+
+def _worker_pids(parent: int) -> list[int]:
+    """The pool's worker processes of the app ``parent`` (not multiprocessing's tracker)."""
+    children = Path(f"/proc/{parent}/task/{parent}/children").read_text().split()
+    pids = []
+    for pid in map(int, children):
+        command = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ")
+        if b"spawn_main" in command and b"resource_tracker" not in command:
+            pids.append(pid)
+    return pids
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="reads /proc (Linux)")
+def test_a_stopped_paper_run_starts_no_further_model_in_its_workers(tmp_path):
+    proc = popen_app(
+        "train", "experiment=paper", "paper.workers=2", "trainer.max_epochs=200",
+        "~paper.models.svm", "~paper.models.greybox", "logger=none", "plots=false",
+        "+data.splits.n_train=2000", "+data.splits.test_frequencies=[1,50]",
+        "+data.splits.max_test_samples=1000", f"hydra.run.dir={tmp_path}", cwd=tmp_path,
+    )
+    deadline = time.monotonic() + 600
+    # the sequence models start first; both have trained an epoch once lstm's checkpoint is there
+    while not (tmp_path / "lstm" / "checkpoints" / "last.ckpt").exists():
+        assert proc.poll() is None, proc.stdout.read()[-3000:]
+        assert time.monotonic() < deadline, "the lstm never saved a checkpoint"
+        time.sleep(0.05)
+    workers = _worker_pids(proc.pid)
+    assert len(workers) == 2
+    os.kill(proc.pid, signal.SIGTERM)  # `kill` of the app: the parent stops its workers
+    output, _ = proc.communicate(timeout=300)
+    assert proc.returncode == 143, output[-3000:]
+    assert "[lstm] started" in output and "[cnn] started" in output
+    assert "[ffnn] started" not in output, output[-3000:]  # the freed worker took no new job
+    assert not (tmp_path / "ffnn" / "train.log").exists()

@@ -158,6 +158,8 @@ class _QueueLogHandler(logging.Handler):
 
 
 _progress_queue: Any = None  # the parent's progress queue, in a worker process
+#: the stop signal a worker process received (it then starts no further job)
+_worker_stopped_by: int | None = None
 
 
 def _init_worker(queue: Any) -> None:
@@ -172,6 +174,9 @@ def _run_job_in_worker(job: _Job) -> PaperEntry:
     """Entry point of a worker process: the full log goes to the model's own train.log only;
     Lightning's progress bar and model summary are off; the epoch progress, the pipeline's
     milestones and any warning go to the parent through the queue (one labelled line each)."""
+    global _worker_stopped_by
+    if _worker_stopped_by is not None:  # the pool hands a stopped worker the next job
+        raise RunInterrupted(_worker_stopped_by)
     output_dir = job.config.output_dir
     output_dir.mkdir(parents=True, exist_ok=True)
     job = replace(job, config=replace(job.config, trainer=job.config.trainer.with_changes(
@@ -202,8 +207,12 @@ def _run_job_in_worker(job: _Job) -> PaperEntry:
         if queue is not None:
             queue.put((job.key, f"started (log: {output_dir / 'train.log'})"))
         reporter = [EpochReporter(job.key, queue)] if queue is not None else None
-        with stopping_on_signals((signal.SIGTERM,)):  # the job stops where the parent asks
-            entry = _run_job(job, reporter)
+        try:
+            with stopping_on_signals((signal.SIGTERM,)):  # the job stops where the parent asks
+                entry = _run_job(job, reporter)
+        except RunInterrupted as stop:
+            _worker_stopped_by = stop.signum
+            raise
         if queue is not None:
             queue.put((job.key, f"done in {_duration(time.monotonic() - started)}"))
         return entry
