@@ -11,8 +11,7 @@ data set, alternately (the order swapped every round):
   ``conf/trainer/default.yaml`` (progress bar, model summary, best checkpoint, sanity check,
   learning-rate schedule), only ``max_epochs`` set;
 * **bare**: a plain PyTorch loop over the same network (a fresh copy with the same initial
-  weights), the same data tensors, batch size, shuffled batches, Adam (the same
-  implementation: `NarxModule.fused_adam`) and learning-rate
+  weights), the same data tensors, batch size, shuffled batches, Adam and learning-rate
   schedule (SUBNET: its gradient clipping, too), and one validation pass per epoch.
 
 An epoch's time is the CPU time (`CLOCK`) from one epoch's start to the next (the project's:
@@ -109,9 +108,7 @@ def bare_epochs(model: L.LightningModule, dm: Any, epochs: int) -> list[float]:
         train, val = dm._tensors["train"].tensors, dm._tensors["val"].tensors
         lr = model.training_settings.lr
     settings = model.training_settings
-    # the same Adam implementation as the project's (fused on the CPU for the study's networks)
-    optimizer = torch.optim.Adam(model.parameters(), lr=lr, weight_decay=settings.weight_decay,
-                                 **model._adam_implementation())
+    optimizer = torch.optim.Adam(model.parameters(), lr=lr, weight_decay=settings.weight_decay)
     schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=epochs,
                                                           eta_min=lr * 0.01)
     generator = torch.Generator().manual_seed(dm.seed)

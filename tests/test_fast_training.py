@@ -176,24 +176,3 @@ def test_steps_are_counted_and_step_hooks_still_run_where_overridden(splits):
     assert counter.calls == 2 * batches and trainer.global_step == 2 * batches
     for key, value in direct.state_dict().items():
         assert torch.allclose(value, hooked.state_dict()[key], rtol=0, atol=1e-7), key
-
-
-@pytest.mark.parametrize("name", ["ffnn", "lstm", "cnn"])
-def test_fused_adam_trains_as_the_plain_adam(splits, name):
-    """The study's networks step Adam as one fused kernel on the CPU: the weights after two
-    epochs match those of torch's default Adam to float32 rounding."""
-    dm = WindowDataModule(splits, layout="sequence" if name != "ffnn" else "flat",
-                          scaling="standard", batch_size=64)
-    torch.manual_seed(0)
-    start = build_model(CONFIGS[name], dm)
-    fused, plain = copy.deepcopy(start), copy.deepcopy(start)
-    plain.fused_adam = False
-    for model in (fused, plain):
-        _lightning(model, dm, epochs=2)
-    assert fused.trainer.optimizers[0].defaults["fused"] is True
-    assert not plain.trainer.optimizers[0].defaults.get("fused")
-    moved = 0.0
-    for key, value in plain.state_dict().items():
-        assert torch.allclose(fused.state_dict()[key], value, rtol=1e-5, atol=1e-6), key
-        moved = max(moved, float((value - start.state_dict()[key]).abs().max()))
-    assert moved > 1e-3  # it trained

@@ -75,10 +75,6 @@ class NarxModule(L.LightningModule, ModelContract, NetworkModel):
 
     layout: ClassVar[Layout] = "flat"
     is_network: ClassVar[bool] = True
-    #: Adam as one fused kernel per parameter on the CPU (`configure_optimizers`): the same
-    #: update to float rounding, without the ~10 small tensor operations per parameter and
-    #: step of the default loop (a large share of a small network's step)
-    fused_adam: ClassVar[bool] = False
     warm_starts: ClassVar[bool] = True
     #: the keywords ``__init__`` takes through ``**settings`` (`ModelContract.settings_keys`)
     shared_settings: ClassVar[tuple[str, ...]] = (*MODEL_SETTINGS, *TRAINING_SETTINGS)
@@ -568,20 +564,11 @@ class NarxModule(L.LightningModule, ModelContract, NetworkModel):
                    "lr": lr * self.new_block_lr_factor}]
         return [g for g in groups if g["params"]]
 
-    def _adam_implementation(self) -> dict[str, bool]:
-        """``fused=True`` where `fused_adam` holds and every parameter is a float32 tensor
-        on the CPU; else torch's default choice."""
-        if self.fused_adam and all(p.device.type == "cpu" and p.dtype == torch.float32
-                                   for p in self.parameters()):
-            return {"fused": True}
-        return {}
-
     def configure_optimizers(self) -> Any:
         settings = self.training_settings
         lr = self.stage_lr or settings.lr
         optimizer = torch.optim.Adam(self._parameter_groups(lr), lr=lr,
-                                     weight_decay=settings.weight_decay,
-                                     **self._adam_implementation())
+                                     weight_decay=settings.weight_decay)
         schedule = settings.lr_schedule
         if schedule == "cosine":
             epochs = max(1, int(self.trainer.max_epochs or 1))

@@ -36,7 +36,6 @@ class CNNNet(NarxModule):
     """``conv_layers`` Conv1d + ReLU, global max pooling, dense layers up to ``num_layers``."""
 
     layout = "sequence"
-    fused_adam = True
 
     def __init__(self, nu: int, ny: int, num_layers: int = 3, conv_layers: int = 2,
                  units: int = 83, kernel_size: int = 5, **kwargs: Any) -> None:

@@ -17,7 +17,6 @@ class FFNN(NarxModule):
     """``num_layers`` linear layers in total (ReLU between, linear output)."""
 
     layout = "flat"
-    fused_adam = True
 
     def __init__(
         self, nu: int, ny: int, num_layers: int = 4, neurons: int = 100, **kwargs: Any

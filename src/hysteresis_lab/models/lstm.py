@@ -30,7 +30,6 @@ class LSTMNet(NarxModule):
     """``lstm_layers`` LSTM layers, ``num_layers - lstm_layers - 1`` hidden dense, linear output."""
 
     layout = "sequence"
-    fused_adam = True
 
     def __init__(self, nu: int, ny: int, num_layers: int = 3, lstm_layers: int = 2,
                  units: int = 66, **kwargs: Any) -> None:
