@@ -166,7 +166,7 @@ def training_floor(summary: dict[str, Any]) -> list[dict[str, Any]]:
         # backward: the gradient of every weight and of every layer's input, twice the forward
         per_epoch = per_window * (3 * windows["train"] + windows["val"])
         rows.append({"network": name, "per_window": per_window, "per_run": per_epoch * epochs,
-                     "floor_s": per_epoch * epochs / peak})
+                     "floor_s": per_epoch * epochs / peak, "epochs": epochs})
     return rows
 
 
@@ -182,13 +182,14 @@ def write_page(page: Path, runs: dict[str, Path]) -> None:
         "Written by `benchmarks/paper_run.py` (do not edit by hand).",
         "",
         f"- page: `python benchmarks/paper_run.py --page {page} --runs "
-        + " ".join(f"{label}=<folder>" for label in runs) + "`",
+        + " ".join(f"'{label}=<folder>'" for label in runs) + "`",
         f"- date: {datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC",
         f"- machine: {_machine()}",
         "",
         "Each run: `hysteresis-lab-train experiment=paper` (the study's settings: 100 epochs, "
         "batch 128, Adam; FFNN, LSTM, CNN, SVM and the grey-box; two worker processes of one "
-        "torch thread each), timed by `benchmarks/paper_run.py --out <folder>` with "
+        "torch thread each; a run with fewer epochs or models says so), timed by "
+        "`benchmarks/paper_run.py --out <folder>` with "
         "`OMP_NUM_THREADS=1`. *CPU*: user + system seconds; *idle estimate*: the parent "
         "process's CPU seconds plus the busiest worker's (on an idle machine each worker has "
         "a core of its own and the parent's work comes before and after theirs). On a shared "
@@ -197,26 +198,28 @@ def write_page(page: Path, runs: dict[str, Path]) -> None:
         "of 9 on these 2 cores, against the 4.3 ms of `docs/results/speed.md` on a quiet "
         "one), so both are upper bounds for an idle machine.",
         "",
-        "| run | commit | load (1 min) before / after | wall [s] | CPU, all [s] | CPU, "
-        "parent [s] | CPU, workers [s] | idle estimate [s] |",
-        "|---|---|---|---|---|---|---|---|",
+        "| run | commit | epochs | models | load (1 min) before / after | wall [s] | CPU, "
+        "all [s] | CPU, parent [s] | CPU, workers [s] | idle estimate [s] |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for label, s in summaries.items():
         workers = " + ".join(f"{cpu:.0f}" for cpu in s["worker_cpu_s"])
         lines.append(
-            f"| {label} | {s.get('commit', '?')} | {s['load_before'][0]:.1f} / "
+            f"| {label} | {s.get('commit', '?')} | {s.get('epochs', 100)} | "
+            f"{', '.join(s['models'])} | {s['load_before'][0]:.1f} / "
             f"{s['load_after'][0]:.1f} | {s['wall_s']:.0f} | {s['total_cpu_s']:.0f} | "
             f"{s['parent_cpu_s']:.0f} | {workers} | {s['idle_estimate_s']:.0f} |")
     lines += [
         "",
         "## Table 2, mean over the twelve test sines",
         "",
-        "Free-run / one-step RMSE [µm] of each model, same seeds in every run.",
+        "Free-run / one-step RMSE [µm] of each model (the training seed as the run says; "
+        "nan: not in that run).",
         "",
         "| model | " + " | ".join(summaries) + " |",
         "|---|" + "---|" * len(summaries),
     ]
-    models = next(iter(summaries.values()))["models"]
+    models = dict.fromkeys(key for s in summaries.values() for key in s["models"])
     for key in models:
         cells = []
         for s in summaries.values():
@@ -235,12 +238,13 @@ def write_page(page: Path, runs: dict[str, Path]) -> None:
         "backward, a forward on each validation window, 100 epochs) against one core's "
         f"float32 peak ({peak / 1e9:.0f} G multiply-adds/s, both FMA units busy every cycle).",
         "",
-        "| network | multiply-adds per window | per run | seconds at peak on one core |",
-        "|---|---|---|---|",
+        "| network | multiply-adds per window | per run | seconds at peak on one core | "
+        "per epoch [s] (compare `docs/results/speed.md`) |",
+        "|---|---|---|---|---|",
     ]
     for r in floor:
         lines.append(f"| {r['network']} | {r['per_window']:,} | {r['per_run'] / 1e12:.1f} T | "
-                     f"{r['floor_s']:.0f} |")
+                     f"{r['floor_s']:.0f} | {r['floor_s'] / r['epochs']:.2f} |")
     lines += [
         "",
         f"Together {total:.0f} core-seconds at peak, {total / 2:.0f} s on two cores if both "
@@ -267,7 +271,7 @@ def main() -> None:
         summary = run_paper(args.out, args.src, args.override)
         log.info(json.dumps(summary, indent=2))
     if args.page is not None:
-        runs = dict(item.split("=", 1) for item in args.runs)
+        runs = dict(item.rsplit("=", 1) for item in args.runs)  # a label may hold "="
         write_page(args.page, {label: Path(folder) for label, folder in runs.items()})
 
 
