@@ -12,9 +12,10 @@ before and after, the CPU seconds of the parent and of each worker process, each
 ``train_seconds``, and Table 2's mean row per model.
 
 On a shared machine the wall clock counts the waits for a core; the estimate for an idle
-machine is the parent's own CPU seconds (data, scoring of the last model, Table 2 and Figure 1
-run there, not beside the workers) plus the busiest worker's CPU seconds: on an idle machine
-with at least as many cores as workers each worker runs on a core of its own.
+machine is the parent's own CPU seconds (the data before the workers start, Table 2 and
+Figure 1 after they end; each worker trains and scores its models) plus the busiest worker's
+CPU seconds: on an idle machine with at least as many cores as workers each worker runs on a
+core of its own.
 """
 
 from __future__ import annotations
