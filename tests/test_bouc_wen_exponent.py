@@ -106,8 +106,8 @@ def test_the_bound_lets_the_exponent_rise_only() -> None:
 
 
 def test_step_and_free_run_match_the_batched_update() -> None:
-    """At ``n != 1`` the one-sample torch step, the compiled free run and the simulator's
-    state run the batched update's scheme."""
+    """At ``n != 1`` the one-sample torch step and the compiled free run run the batched
+    update's scheme; the simulator's finer sub-steps give the same loop to 1e-4."""
     bw = BoucWen(d=1.0, alpha=0.32, beta=2.0, gamma=0.6, n_channels=2)
     with torch.no_grad():
         bw.raw_exponent.copy_(torch.tensor([0.7, 1.4], dtype=torch.float64))
@@ -128,7 +128,7 @@ def test_step_and_free_run_match_the_batched_update() -> None:
                             exponent=p["exponent"][0])
     sim = bouc_wen_state(v.numpy()[0], p["d"], np.full(v.shape[1], p["alpha"][0]),
                          p["beta"][0], p["gamma"][0], p["exponent"][0])
-    np.testing.assert_array_equal(one[0], p["d"] * v.numpy()[0] - sim)
+    np.testing.assert_allclose(one[0], p["d"] * v.numpy()[0] - sim, rtol=0, atol=1e-4)
 
 
 def test_the_exponent_keeps_the_saturated_state() -> None:

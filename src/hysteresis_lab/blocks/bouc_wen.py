@@ -6,7 +6,8 @@ Model::
     dh_c/dt = alpha_c d v' - beta_c |v'| |h_c|^(n_c-1) h_c - gamma_c v' |h_c|^(n_c)
 
 updated per sample as the simulator does (`hysteresis_lab.physics.bouc_wen`: the input moves
-linearly between samples; exactly at ``n = 1``, in Runge–Kutta sub-steps otherwise). The
+linearly between samples; exactly at ``n = 1``, otherwise in Runge–Kutta sub-steps ten times
+coarser than the simulator's, `MODEL_SLOPE_CHANGE`). The
 forward pass and its adjoint are the physics floor's numba kernels (float64) in a
 `torch.autograd.Function`; gradients are those of the update (w.r.t. the input, the initial
 state, ``d, alpha, beta, gamma`` and the exponent; zero-length steps carry no input gradient).
