@@ -239,7 +239,7 @@ class BoucWen(nn.Module):
         h = state.take(self.n_channels)
         d, a, r1, r2, n = frozen(self.d, *self.rates())
         a = a[None] if alpha_factor is None else a[None] * alpha_factor(v - v_prev)[:, None]
-        if self.raw_exponent is None:
+        if self.raw_exponent is None or bool((n == 1.0).all()):  # n: frozen while tracing
             h = bouc_wen_advance(h, (v - v_prev)[:, None], a, r1[None], r2[None])
         else:
             h = bouc_wen_advance_exponent(h, (v - v_prev)[:, None], a, r1[None], r2[None],
