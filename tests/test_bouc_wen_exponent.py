@@ -182,3 +182,17 @@ def test_a_state_saved_without_the_exponent_loads_at_one() -> None:
         bw.raw_exponent.fill_(0.5)
     bw.load_state_dict(old)
     assert float(bw.exponent[0]) == 1.0
+
+
+def test_the_derivative_at_one_is_the_schemes() -> None:
+    """The cheap exponent derivative at ``n = 1`` equals the full tangent's component."""
+    from hysteresis_lab.physics.bouc_wen import advance_exponent_grad, exponent_derivative_at_one
+
+    rng = np.random.default_rng(0)
+    work = np.empty((6, 6))
+    for _ in range(200):
+        h, x, s = rng.normal(0, 0.2), abs(rng.normal(0, 0.3)), float(rng.choice([-1.0, 1.0]))
+        r1, r2 = rng.uniform(0.2, 3.0), rng.uniform(0.5, 5.0)
+        full = advance_exponent_grad(h, x, s, 0.3, r1, r2, 1.0, 0.5 / max(r1, r2), work)[6]
+        cheap = exponent_derivative_at_one(h, x, s, 0.3, r1, r2, 0.5 / max(r1, r2))
+        assert cheap == pytest.approx(full, rel=1e-12, abs=1e-15)
