@@ -94,12 +94,19 @@ class HysteresisCell(nn.Module):
     is added (``A`` the training input's amplitude, so ``q`` is the rise at full drive over
     it; the simulator's ``c * stroke * (v / v_ref)^2``); ``q`` is learnable and starts at 0.
 
-    The Bouc–Wen exponent is learned from 1 (`hysteresis_lab.blocks.BoucWen`)."""
+    The Bouc–Wen cell starts with the simulator's loop shape, its ±100 V the input's
+    ``amplitude`` (scaled units: the training input's, `hysteresis_cell`), so that its loop
+    saturates at the same share of the drive whatever the input's scaling; its exponent is
+    learned from 1 (`hysteresis_lab.blocks.BoucWen`)."""
 
     def __init__(self, rate_step: float | None = None,
-                 square_amplitude: float | None = None) -> None:
+                 square_amplitude: float | None = None, amplitude: float = 1.0) -> None:
         super().__init__()
-        self.bouc_wen = BoucWen(**bouc_wen_scaled_params(1.0, 0.32, 0.02, 0.006, 100.0, 100.0))
+        if not amplitude > 0:
+            raise ValueError(f"amplitude must be > 0 (got {amplitude})")
+        # the simulator's loop shape with the input's amplitude (scaled units) as its ±100 V
+        volts = 100.0 / amplitude
+        self.bouc_wen = BoucWen(**bouc_wen_scaled_params(1.0, 0.32, 0.02, 0.006, volts, volts))
         self.weight = nn.Parameter(torch.zeros((), dtype=torch.float64))
         self.rate_gain: nn.Parameter | None = None
         if rate_step is not None:
@@ -234,7 +241,7 @@ def hysteresis_cell(ctx: LinearContext, j: int) -> HysteresisCell:
     asymmetric = any(getattr(e, "makes_cell_asymmetric", False) for e in ctx.declared)
     amplitude = ctx.input_amplitude(j)
     return HysteresisCell(HysteresisCell.rate_step_for(amplitude) if rate else None,
-                          amplitude if asymmetric else None)
+                          amplitude if asymmetric else None, amplitude)
 
 
 class Hysteresis(Effect):
