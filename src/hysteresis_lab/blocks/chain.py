@@ -96,6 +96,9 @@ def simulate_chain(u: np.ndarray, params: Mapping[str, Any]) -> np.ndarray:
     d, a, r1, r2 = 1.0, np.zeros(0), np.zeros(0), np.zeros(0)
     if "bouc_wen" in params:
         p = params["bouc_wen"]
+        if np.any(np.asarray(p.get("exponent", 1.0)) != 1.0):
+            raise ValueError("simulate_chain runs Bouc–Wen cells of exponent 1 only; simulate a "
+                             "cell of another exponent with BoucWen.numpy_kernel()")
         d = float(p["d"])
         alpha, beta, gamma = (np.atleast_1d(np.asarray(p[k], dtype=float))
                               for k in ("alpha", "beta", "gamma"))

@@ -88,11 +88,25 @@ class HysteresisCell(nn.Module):
     input's rate. ``k`` is learnable and starts at 0 (the plain cell); ``rate_step`` is fixed
     from the training input's scale: the steepest step of a sine of the training input's
     amplitude with 200 samples per period (at the simulator's 20 kHz and ±100 V: its
-    ``rate_ref``, 62,832 V/s, a 100 Hz sine)."""
+    ``rate_ref``, 62,832 V/s, a 100 Hz sine).
 
-    def __init__(self, rate_step: float | None = None) -> None:
+    With ``square_amplitude`` (effect ``asymmetry``) the loop is asymmetric: ``q A (v / A)^2``
+    is added (``A`` the training input's amplitude, so ``q`` is the rise at full drive over
+    it; the simulator's ``c * stroke * (v / v_ref)^2``); ``q`` is learnable and starts at 0.
+
+    The Bouc–Wen cell starts with the simulator's loop shape, its ±100 V the input's
+    ``amplitude`` (scaled units: the training input's, `hysteresis_cell`), so that its loop
+    saturates at the same share of the drive whatever the input's scaling; its exponent is
+    learned from 1 (`hysteresis_lab.blocks.BoucWen`)."""
+
+    def __init__(self, rate_step: float | None = None,
+                 square_amplitude: float | None = None, amplitude: float = 1.0) -> None:
         super().__init__()
-        self.bouc_wen = BoucWen(**bouc_wen_scaled_params(1.0, 0.32, 0.02, 0.006, 100.0, 100.0))
+        if not amplitude > 0:
+            raise ValueError(f"amplitude must be > 0 (got {amplitude})")
+        # the simulator's loop shape with the input's amplitude (scaled units) as its ±100 V
+        volts = 100.0 / amplitude
+        self.bouc_wen = BoucWen(**bouc_wen_scaled_params(1.0, 0.32, 0.02, 0.006, volts, volts))
         self.weight = nn.Parameter(torch.zeros((), dtype=torch.float64))
         self.rate_gain: nn.Parameter | None = None
         if rate_step is not None:
@@ -100,6 +114,18 @@ class HysteresisCell(nn.Module):
                 raise ValueError(f"rate_step must be > 0 (got {rate_step})")
             self.rate_gain = nn.Parameter(torch.zeros((), dtype=torch.float64))
             self.register_buffer("rate_step", torch.tensor(float(rate_step), dtype=torch.float64))
+        self.square_weight: nn.Parameter | None = None
+        if square_amplitude is not None:
+            if not square_amplitude > 0:
+                raise ValueError(f"square_amplitude must be > 0 (got {square_amplitude})")
+            self.square_weight = nn.Parameter(torch.zeros((), dtype=torch.float64))
+            self.register_buffer("square_amplitude",
+                                 torch.tensor(float(square_amplitude), dtype=torch.float64))
+
+    @staticmethod
+    def _square_law(v: torch.Tensor, q: torch.Tensor, amplitude: torch.Tensor) -> torch.Tensor:
+        """``q A (v / A)^2``."""
+        return q * v.square() / amplitude
 
     @staticmethod
     def rate_step_for(amplitude: float) -> float:
@@ -120,7 +146,10 @@ class HysteresisCell(nn.Module):
             factor = self._alpha_factor(dv, self.rate_gain, self.rate_step)
         x, _ = self.bouc_wen(v, alpha_factor=factor)
         h = self.bouc_wen.d * v - x
-        return v - self.weight * h
+        out = v - self.weight * h
+        if self.square_weight is not None:
+            out = out + self._square_law(v, self.square_weight, self.square_amplitude)
+        return out
 
     def state_names(self) -> list[str]:
         return self.bouc_wen.state_names()
@@ -135,7 +164,10 @@ class HysteresisCell(nn.Module):
             def factor(dv: torch.Tensor) -> torch.Tensor:
                 return self._alpha_factor(dv, gain, rate_step)
 
-        return v - weight * (d * v - self.bouc_wen.step(v, state, factor))
+        out = v - weight * (d * v - self.bouc_wen.step(v, state, factor))
+        if self.square_weight is not None:
+            out = out + self._square_law(v, *frozen(self.square_weight, self.square_amplitude))
+        return out
 
 
 class StateHysteresis(nn.Module):
@@ -152,8 +184,9 @@ class StateHysteresis(nn.Module):
 
     def __init__(self, width: float) -> None:
         super().__init__()
+        # the closed loop runs the exact update in its own kernel: exponent 1
         self.bouc_wen = BoucWen(d=1.0, alpha=1.0, beta=2.0 / max(width, 1e-6), gamma=0.0,
-                                n_channels=self.n_channels)
+                                n_channels=self.n_channels, learn_exponent=False)
         self.weight = nn.Parameter(torch.zeros((), dtype=torch.float64))
 
     def _coefficients(self, dynamics: StableSections) -> tuple[torch.Tensor, ...]:
@@ -202,11 +235,13 @@ class StateHysteresis(nn.Module):
 
 
 def hysteresis_cell(ctx: LinearContext, j: int) -> HysteresisCell:
-    """Input ``j``'s hysteresis cell, rate-dependent where an effect declared with it makes
-    it so (`Effect.makes_cell_rate_dependent`)."""
+    """Input ``j``'s hysteresis cell, rate-dependent or asymmetric where an effect declared
+    with it makes it so (``makes_cell_rate_dependent``, ``makes_cell_asymmetric``)."""
     rate = any(getattr(e, "makes_cell_rate_dependent", False) for e in ctx.declared)
+    asymmetric = any(getattr(e, "makes_cell_asymmetric", False) for e in ctx.declared)
     amplitude = ctx.input_amplitude(j)
-    return HysteresisCell(HysteresisCell.rate_step_for(amplitude) if rate else None)
+    return HysteresisCell(HysteresisCell.rate_step_for(amplitude) if rate else None,
+                          amplitude if asymmetric else None, amplitude)
 
 
 class Hysteresis(Effect):
