@@ -49,6 +49,7 @@ from hysteresis_lab.loop.diagnosis.excitation import operator_excitation
 from hysteresis_lab.loop.diagnosis.ranking import TESTS, EffectScore, diagnose, evidence_lags
 from hysteresis_lab.loop.diagnosis.residuals import diagnostics_figure, residual_analysis
 from hysteresis_lab.loop.figures import ResidualEvidence
+from hysteresis_lab.loop.plant import prefer_plant
 from hysteresis_lab.loop.report import (
     loop_markdown,
     result_line,
@@ -384,7 +385,8 @@ def _fit_round_and_decide(
     if standing is None:
         kept, reason = True, ""
     else:
-        kept, reason = keep_refit(best.check, standing.check, settings.min_refit_gain)
+        kept, reason = keep_refit(best.check, standing.check, settings.min_refit_gain,
+                                  start=state.kept[0].check)
     fitted_on = None
     if kept:
         final, samples = _fit_final(run, model, best, round_dir, standing if warm else None,
@@ -510,7 +512,8 @@ def _candidate_entry(candidate: _Candidate) -> dict[str, Any]:
 def _choose_next_effect(run: _LoopRun, state: _LoopState, entry: dict[str, Any]) -> bool:
     """Pick the effect the next round adds from the standing diagnosis (recorded in
     ``entry``); False when the loop ends here (nothing significant, or enough rounds)."""
-    uncarried = _not_carried(run.model, state.diagnosis, state.tried)
+    uncarried = _not_carried(run.model, state.diagnosis, state.tried,
+                             run.data.fit.output_integrates)
     if uncarried:
         entry["not_carried"] = uncarried
         log.info("model '%s' has no block for the significant effect(s) %s: not added",
@@ -527,22 +530,28 @@ def _choose_next_effect(run: _LoopRun, state: _LoopState, entry: dict[str, Any])
             "note", f"loop.max_rounds={run.settings.max_rounds} reached; next: {top.effect}"
         )
         return False
-    group = confounded(state.diagnosis, top, state.tried | set(uncarried),
-                       run.settings.confounded_margin, run.settings.max_alternatives)
-    entry["added"], state.trying = top.effect, group
+    plant = run.data_spec.plant
+    group = named_group(state.diagnosis, top, state.tried | set(uncarried),
+                        run.settings.confounded_margin, run.settings.max_alternatives, plant)
+    if group[0] != top.effect:
+        entry["named_for_plant"] = {"plant": plant, "top_score": top.effect}
+        log.info("'%s' scores highest, but the evidence does not tell it from '%s', whose "
+                 "physics fits the declared data.plant=%s: '%s' is named", top.effect,
+                 group[0], plant, group[0])
+    entry["added"], state.trying = group[0], group
     if len(group) > 1:
         entry["alternatives"] = group[1:]
         log.info("'%s' is confounded with %s (scores within loop.confounded_margin=%g of "
-                 "its): each is refitted and the folds keep the best", top.effect, group[1:],
+                 "its): each is refitted and the folds keep the best", group[0], group[1:],
                  run.settings.confounded_margin)
     state.tried |= set(group)
-    if get_effect(top.effect).block in MODEL_OUTPUT_BLOCKS:  # no input operators to compare
-        log.info("'%s' added (it acts on the model's output)", top.effect)
+    if get_effect(group[0]).block in MODEL_OUTPUT_BLOCKS:  # no input operators to compare
+        log.info("'%s' added (it acts on the model's output)", group[0])
         return True
     fit = run.data.fit
-    excitation = operator_excitation(top.effect, [*fit.train, *fit.val], fit.test, run.context)
+    excitation = operator_excitation(group[0], [*fit.train, *fit.val], fit.test, run.context)
     entry["added_excitation"] = excitation.to_dict()
-    log.info("'%s' added: %s", top.effect, excitation.reading())
+    log.info("'%s' added: %s", group[0], excitation.reading())
     return True
 
 
@@ -629,6 +638,14 @@ def confounded(diagnosis: Sequence[EffectScore], top: EffectScore, tried: set[st
     return [top.effect, *close][:most]
 
 
+def named_group(diagnosis: Sequence[EffectScore], top: EffectScore, tried: set[str],
+                margin: float, most: int, plant: str | None) -> list[str]:
+    """The effects the next round refits, the named one first: ``top`` and those the evidence
+    does not tell apart from it (`confounded`), those whose physics fits the declared kind of
+    ``plant`` first (`hysteresis_lab.loop.plant`; None: in the order of their scores)."""
+    return prefer_plant(confounded(diagnosis, top, tried, margin, most), plant)
+
+
 def compared_effects(candidates: Sequence[_Candidate]) -> list[dict[str, Any]]:
     """Per effect refitted in a round: its best place and rate on the folds, the pooled and
     per-fold held-out losses, and whether the folds tell it from the best one (lower on a
@@ -657,14 +674,22 @@ def held_effects(model: ModelSpec, effects: Sequence[str]) -> list[str]:
 
 
 def _not_carried(
-    model: ModelSpec, diagnosis: Sequence[EffectScore], tried: set[str]
+    model: ModelSpec, diagnosis: Sequence[EffectScore], tried: set[str],
+    output_integrates: bool = False,
 ) -> list[str]:
     """Significant, input-driven effects the start model's class cannot take (a grey-box
     carries only the effects it has physical blocks for; a network every effect that reaches
-    it through its inputs, none that acts on its output)."""
+    it through its inputs, none that acts on its output; ``model=linear`` a law of the
+    velocity, friction, only where its output integrates: ``model.integrator``, by default
+    ``output_integrates``, the data set's word)."""
     carried = model.cls.carried_effects
+    setting = model.settings.get("integrator")
+    integrates = output_integrates if setting is None else bool(setting)
 
     def carries(effect: str) -> bool:
+        if getattr(get_effect(effect), "linear_needs_integrator", False) and not integrates \
+                and model.name == "linear":
+            return False
         if carried is not None:
             return effect in carried
         return get_effect(effect).block not in MODEL_OUTPUT_BLOCKS

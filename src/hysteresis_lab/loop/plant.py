@@ -1,0 +1,36 @@
+"""The effects whose physics fits a declared kind of plant (``data.plant``).
+
+Where the diagnosis cannot tell effects apart (their scores within ``loop.confounded_margin``
+of each other, `hysteresis_lab.loop.driver.confounded`), the loop names first the one that
+fits the plant: a piezo positioner's residual that a tank's rim explains as well as
+hysteresis is named hysteresis. Undeclared (``data.plant=null``): no preference, the scores
+alone order them. The folds still refit every confounded effect and keep the best.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+#: per kind of plant (`hysteresis_lab.data.spec.PLANT_KINDS`), the effects its physics has
+PLANT_EFFECTS: dict[str, tuple[str, ...]] = {
+    # a piezo stack or mirror: a hysteretic, creeping actuator, its modes, its amplifier
+    "positioner": ("hysteresis", "creep", "rate", "resonance", "saturation", "drift"),
+    # a storage with an outflow law and a rim, fed by a pump
+    "tank": ("nonlinear_feedback", "overflow", "saturation"),
+    # a cart or a drive moved by a force: friction, play in its transmission, its drive
+    "motion": ("friction", "backlash", "dead_zone", "saturation", "resonance"),
+    # a mass on a nonlinear (hysteretic or hardening) spring
+    "oscillator": ("hysteresis", "nonlinear_feedback", "resonance"),
+}
+
+
+def fits_plant(effect: str, plant: str | None) -> bool:
+    """Whether ``effect``'s physics belongs to a plant of kind ``plant`` (None: no kind
+    declared, so none is preferred)."""
+    return plant is not None and effect in PLANT_EFFECTS.get(plant, ())
+
+
+def prefer_plant(effects: Sequence[str], plant: str | None) -> list[str]:
+    """``effects`` (tied on the evidence, best first) with those that fit ``plant`` first,
+    each part in its given order; unchanged where no plant is declared."""
+    return sorted(effects, key=lambda e: not fits_plant(e, plant))

@@ -1,0 +1,44 @@
+"""``data.plant``: the declared kind of plant breaks a tie between effects the evidence does
+not tell apart; undeclared, the scores alone decide."""
+
+from __future__ import annotations
+
+import pytest
+from hydra import compose, initialize_config_module
+
+from hysteresis_lab.data.spec import PLANT_KINDS, DataSpec
+from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.loop.diagnosis.ranking import EffectScore
+from hysteresis_lab.loop.driver import named_group
+from hysteresis_lab.loop.plant import PLANT_EFFECTS
+
+SCORES = [EffectScore("overflow", 0.95, 1e-6, True, ""),
+          EffectScore("hysteresis", 0.90, 1e-6, True, ""),
+          EffectScore("friction", 0.40, 1e-6, True, "")]
+
+
+def test_a_declared_plant_names_the_effect_that_fits_it_when_the_evidence_ties():
+    """Overflow scores highest, hysteresis within the margin: a positioner names hysteresis,
+    a tank keeps overflow, undeclared keeps the scores' order; friction, far below, is no
+    tie, so a motion plant does not name it."""
+    top = SCORES[0]
+    assert named_group(SCORES, top, set(), 0.2, 3, None) == ["overflow", "hysteresis"]
+    assert named_group(SCORES, top, set(), 0.2, 3, "positioner") == ["hysteresis", "overflow"]
+    assert named_group(SCORES, top, set(), 0.2, 3, "tank") == ["overflow", "hysteresis"]
+    assert named_group(SCORES, top, set(), 0.2, 3, "motion") == ["overflow", "hysteresis"]
+
+
+def test_data_plant_is_checked_and_every_bundled_data_set_declares_one():
+    assert set(PLANT_EFFECTS) == set(PLANT_KINDS)
+    assert DataSpec.from_config({"name": "x", "plant": "tank"}).plant == "tank"
+    assert DataSpec.from_config({"name": "x"}).plant is None
+    with pytest.raises(ConfigError, match="data.plant=one of"):
+        DataSpec.from_config({"name": "x", "plant": "piezo"})
+    declared = {}
+    with initialize_config_module("hysteresis_lab.conf", version_base=None):
+        for name in ("default", "emps", "cascaded_tanks", "bouc_wen", "fsm", "p885", "csv"):
+            cfg = compose("loop", overrides=[f"data={name}"])
+            declared[name] = cfg.data.plant
+    assert declared == {"default": "positioner", "emps": "motion", "cascaded_tanks": "tank",
+                        "bouc_wen": "oscillator", "fsm": "positioner", "p885": "positioner",
+                        "csv": None}
