@@ -45,7 +45,7 @@ from hysteresis_lab.lightning_trainer import TrainerSettings
 from hysteresis_lab.loop.advice import excitation_advice
 from hysteresis_lab.loop.crossval import FoldsCheck, HeldOut, held_out, keep_refit
 from hysteresis_lab.loop.data import LoopData, Stretch, loop_data
-from hysteresis_lab.loop.diagnosis.excitation import operator_excitation
+from hysteresis_lab.loop.diagnosis.excitation import operator_excitation, under_excited
 from hysteresis_lab.loop.diagnosis.ranking import TESTS, EffectScore, diagnose, evidence_lags
 from hysteresis_lab.loop.diagnosis.residuals import diagnostics_figure, residual_analysis
 from hysteresis_lab.loop.figures import ResidualEvidence
@@ -110,6 +110,10 @@ class LoopSettings:
     confounded_margin: float = 0.2
     #: at most this many effects refitted in one round (the top one included)
     max_alternatives: int = 3
+    #: add an effect whose operators the test recordings' inputs drive beyond twice (RMS)
+    #: what the identification data do (`loop.diagnosis.excitation`); false: such an effect
+    #: is reported with the recordings that would show it, and the next one is tried
+    add_under_excited: bool = False
     #: the diagnosis drops each residual's start transient and also reads the input-side
     #: effects through the model's own dynamics (`hysteresis_lab.loop.diagnosis.ranking`): a
     #: recording that starts with a jump from rest rings, and filters of the input started
@@ -518,7 +522,18 @@ def _choose_next_effect(run: _LoopRun, state: _LoopState, entry: dict[str, Any])
         entry["not_carried"] = uncarried
         log.info("model '%s' has no block for the significant effect(s) %s: not added",
                  run.model.name, uncarried)
-    top, reported = next_effect(state.diagnosis, state.tried | set(uncarried))
+    excluded = state.tried | set(uncarried)
+    top, reported = next_effect(state.diagnosis, excluded)
+    while top is not None and not run.settings.add_under_excited:
+        unseen = _beyond_identification(run, top.effect)
+        if unseen is None:
+            break
+        entry.setdefault("not_added_under_excited", []).append(unseen)
+        log.warning("'%s' not added: %s (loop.add_under_excited=false)", top.effect,
+                    unseen["reading"])
+        excluded.add(top.effect)
+        top, reported = next_effect(state.diagnosis, excluded)
+    uncarried = sorted(excluded - state.tried)
     if reported:
         entry["reported"] = reported
     if top is None:
@@ -553,6 +568,21 @@ def _choose_next_effect(run: _LoopRun, state: _LoopState, entry: dict[str, Any])
     entry["added_excitation"] = excitation.to_dict()
     log.info("'%s' added: %s", group[0], excitation.reading())
     return True
+
+
+def _beyond_identification(run: _LoopRun, effect: str) -> dict[str, Any] | None:
+    """Where the test recordings' inputs (never their outputs) drive an operator of
+    ``effect`` more than `UNDER_EXCITED_RATIO` times as hard as the identification data do:
+    the ratios and a reading; None where they do not, or the effect has no input operators.
+    A refit learns such an effect from data that show little of it, and the folds, cut
+    from those data, cannot see the extrapolation."""
+    if get_effect(effect).block in MODEL_OUTPUT_BLOCKS:
+        return None
+    fit = run.data.fit
+    excitation = operator_excitation(effect, [*fit.train, *fit.val], fit.test, run.context)
+    if not under_excited(excitation):
+        return None
+    return {**excitation.to_dict(), "reading": excitation.reading()}
 
 
 def _write_report(run: _LoopRun, state: _LoopState, report: dict[str, Any]) -> None:
