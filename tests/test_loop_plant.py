@@ -42,3 +42,22 @@ def test_data_plant_is_checked_and_every_bundled_data_set_declares_one():
     assert declared == {"default": "positioner", "emps": "motion", "cascaded_tanks": "tank",
                         "bouc_wen": "oscillator", "fsm": "positioner", "p885": "positioner",
                         "csv": None}
+
+
+def test_an_effect_the_tests_drive_beyond_the_identification_data_is_held_back():
+    """Tests whose input is three times the identification data's drive the hysteresis
+    operators beyond what the data taught: held back, with a reading; at the same amplitude,
+    or for an effect without input operators (overflow), nothing is held back."""
+    from hysteresis_lab.data.recording import Recording
+    from hysteresis_lab.loop.driver import beyond_identification
+    from hysteresis_lab.models.augment import feature_context
+    from hysteresis_lab.signals import multisine
+
+    u = multisine(2000, fs=100.0, n_components=10, f_max=2.0, seed=1)
+    ident = [Recording(u=u, y=u, fs=100.0, name="ident")]
+    context = feature_context(ident)
+    louder = [Recording(u=3.0 * u, y=u, fs=100.0, name="test")]
+    held = beyond_identification("hysteresis", ident, louder, context)
+    assert held is not None and held["worst_ratio"] > 2.0 and "less (RMS)" in held["reading"]
+    assert beyond_identification("hysteresis", ident, ident, context) is None
+    assert beyond_identification("overflow", ident, louder, context) is None

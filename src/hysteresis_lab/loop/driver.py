@@ -111,7 +111,7 @@ class LoopSettings:
     #: at most this many effects refitted in one round (the top one included)
     max_alternatives: int = 3
     #: add an effect whose operators the test recordings' inputs drive beyond twice (RMS)
-    #: what the identification data do (`loop.diagnosis.excitation`); false: such an effect
+    #: what the identification data do (`beyond_identification`); false: such an effect
     #: is reported with the recordings that would show it, and the next one is tried
     add_under_excited: bool = False
     #: the diagnosis drops each residual's start transient and also reads the input-side
@@ -525,7 +525,8 @@ def _choose_next_effect(run: _LoopRun, state: _LoopState, entry: dict[str, Any])
     excluded = state.tried | set(uncarried)
     top, reported = next_effect(state.diagnosis, excluded)
     while top is not None and not run.settings.add_under_excited:
-        unseen = _beyond_identification(run, top.effect)
+        unseen = beyond_identification(top.effect, [*run.data.fit.train, *run.data.fit.val],
+                                       run.data.fit.test, run.context)
         if unseen is None:
             break
         entry.setdefault("not_added_under_excited", []).append(unseen)
@@ -570,16 +571,17 @@ def _choose_next_effect(run: _LoopRun, state: _LoopState, entry: dict[str, Any])
     return True
 
 
-def _beyond_identification(run: _LoopRun, effect: str) -> dict[str, Any] | None:
-    """Where the test recordings' inputs (never their outputs) drive an operator of
-    ``effect`` more than `UNDER_EXCITED_RATIO` times as hard as the identification data do:
-    the ratios and a reading; None where they do not, or the effect has no input operators.
-    A refit learns such an effect from data that show little of it, and the folds, cut
-    from those data, cannot see the extrapolation."""
+def beyond_identification(effect: str, identification: Sequence[Recording],
+                          tests: Sequence[Recording],
+                          context: FeatureContext) -> dict[str, Any] | None:
+    """Where the ``tests``' inputs (never their outputs) drive an operator of ``effect`` more
+    than `UNDER_EXCITED_RATIO` times as hard (RMS) as the ``identification`` data do: the
+    ratios and a reading; None where they do not, or the effect has no input operators. A
+    refit learns such an effect from data that show little of it, and the folds, cut from
+    those data, cannot see the extrapolation."""
     if get_effect(effect).block in MODEL_OUTPUT_BLOCKS:
         return None
-    fit = run.data.fit
-    excitation = operator_excitation(effect, [*fit.train, *fit.val], fit.test, run.context)
+    excitation = operator_excitation(effect, identification, tests, context)
     if not under_excited(excitation):
         return None
     return {**excitation.to_dict(), "reading": excitation.reading()}
