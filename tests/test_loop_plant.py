@@ -3,6 +3,7 @@ not tell apart; undeclared, the scores alone decide."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 from hydra import compose, initialize_config_module
 
@@ -61,3 +62,38 @@ def test_an_effect_the_tests_drive_beyond_the_identification_data_is_held_back()
     assert held is not None and held["worst_ratio"] > 2.0 and "less (RMS)" in held["reading"]
     assert beyond_identification("hysteresis", ident, ident, context) is None
     assert beyond_identification("overflow", ident, louder, context) is None
+
+
+def test_only_an_effect_foreign_to_the_declared_plant_is_held_back_for_excitation(tmp_path):
+    """A loop on data whose tests drive the operators three times as hard: declared a tank,
+    the significant input effects (foreign to it) are held back and named in the report;
+    undeclared, the top one is added as before."""
+    from scipy import signal
+
+    from hysteresis_lab.data.recording import Recording
+    from hysteresis_lab.data.splits import DatasetSplits
+    from hysteresis_lab.lightning_trainer import TrainerSettings
+    from hysteresis_lab.loop.driver import LoopSettings, run_loop
+    from hysteresis_lab.signals import multisine
+
+    def rec(seed: int, gain: float, name: str) -> Recording:
+        u = gain * multisine(1500, fs=100.0, n_components=20, f_max=2.0, seed=seed)
+        b, a = signal.butter(2, 1.0, fs=100.0)
+        x = signal.lfilter(b, a, np.clip(u, -0.5, 0.5))  # a clipped drive: saturation
+        return Recording(u=u, y=x + 0.005 * np.random.default_rng(seed).standard_normal(1500),
+                         fs=100.0, name=name)
+
+    splits = DatasetSplits("clip", train=[rec(1, 1.0, "train")], test=[rec(3, 3.0, "test")])
+    trainer = TrainerSettings(max_epochs=3, accelerator="cpu", devices=1,
+                              enable_progress_bar=False, enable_model_summary=False)
+    model = {"name": "linear", "order": 2, "effects": [], "lr": 0.01}
+    settings = LoopSettings(max_rounds=0, refit_lr_factors=(1.0,))
+    tank = run_loop(model, DataSpec.from_config({"name": "clip", "plant": "tank",
+                                                 "scaling": {"mode": "standard"}}),
+                    trainer, splits, tmp_path / "tank", settings, use_tensorboard=False)
+    held = tank["rounds"][0].get("not_added_under_excited", [])
+    assert held and all(h["plant"] == "tank" and h["worst_ratio"] > 2.0 for h in held)
+    assert "foreign to data.plant=tank" in (tmp_path / "tank" / "loop_report.md").read_text()
+    free = run_loop(model, DataSpec.from_config({"name": "clip", "scaling": {"mode": "standard"}}),
+                    trainer, splits, tmp_path / "free", settings, use_tensorboard=False)
+    assert "not_added_under_excited" not in free["rounds"][0]

@@ -49,7 +49,7 @@ from hysteresis_lab.loop.diagnosis.excitation import operator_excitation, under_
 from hysteresis_lab.loop.diagnosis.ranking import TESTS, EffectScore, diagnose, evidence_lags
 from hysteresis_lab.loop.diagnosis.residuals import diagnostics_figure, residual_analysis
 from hysteresis_lab.loop.figures import ResidualEvidence
-from hysteresis_lab.loop.plant import prefer_plant
+from hysteresis_lab.loop.plant import fits_plant, prefer_plant
 from hysteresis_lab.loop.report import (
     loop_markdown,
     result_line,
@@ -110,9 +110,11 @@ class LoopSettings:
     confounded_margin: float = 0.2
     #: at most this many effects refitted in one round (the top one included)
     max_alternatives: int = 3
-    #: add an effect whose operators the test recordings' inputs drive beyond twice (RMS)
-    #: what the identification data do (`beyond_identification`); false: such an effect
-    #: is reported with the recordings that would show it, and the next one is tried
+    #: add an effect foreign to the declared ``data.plant`` (`hysteresis_lab.loop.plant`)
+    #: whose operators the test recordings' inputs drive beyond twice (RMS) what the
+    #: identification data do (`beyond_identification`); false: such an effect is reported
+    #: with the recordings that would show it, and the next one is tried (an effect that
+    #: fits the plant, or any effect where no plant is declared, is added as before)
     add_under_excited: bool = False
     #: the diagnosis drops each residual's start transient and also reads the input-side
     #: effects through the model's own dynamics (`hysteresis_lab.loop.diagnosis.ranking`): a
@@ -524,14 +526,18 @@ def _choose_next_effect(run: _LoopRun, state: _LoopState, entry: dict[str, Any])
                  run.model.name, uncarried)
     excluded = state.tried | set(uncarried)
     top, reported = next_effect(state.diagnosis, excluded)
+    plant = run.data_spec.plant
     while top is not None and not run.settings.add_under_excited:
+        if plant is None or fits_plant(top.effect, plant):
+            break  # only an effect foreign to the declared plant must show on the data
         unseen = beyond_identification(top.effect, [*run.data.fit.train, *run.data.fit.val],
                                        run.data.fit.test, run.context)
         if unseen is None:
             break
+        unseen["plant"] = plant
         entry.setdefault("not_added_under_excited", []).append(unseen)
-        log.warning("'%s' not added: %s (loop.add_under_excited=false)", top.effect,
-                    unseen["reading"])
+        log.warning("'%s' not added: its physics is foreign to data.plant=%s and %s "
+                    "(loop.add_under_excited=false)", top.effect, plant, unseen["reading"])
         excluded.add(top.effect)
         top, reported = next_effect(state.diagnosis, excluded)
     uncarried = sorted(excluded - state.tried)
@@ -546,7 +552,6 @@ def _choose_next_effect(run: _LoopRun, state: _LoopState, entry: dict[str, Any])
             "note", f"loop.max_rounds={run.settings.max_rounds} reached; next: {top.effect}"
         )
         return False
-    plant = run.data_spec.plant
     group = named_group(state.diagnosis, top, state.tried | set(uncarried),
                         run.settings.confounded_margin, run.settings.max_alternatives, plant)
     if group[0] != top.effect:
