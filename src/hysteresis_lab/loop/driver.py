@@ -49,7 +49,7 @@ from hysteresis_lab.loop.diagnosis.excitation import operator_excitation, under_
 from hysteresis_lab.loop.diagnosis.ranking import TESTS, EffectScore, diagnose, evidence_lags
 from hysteresis_lab.loop.diagnosis.residuals import diagnostics_figure, residual_analysis
 from hysteresis_lab.loop.figures import ResidualEvidence
-from hysteresis_lab.loop.plant import fits_plant, prefer_plant
+from hysteresis_lab.loop.plant import fits_plant, prefer_plant, with_plant_prior
 from hysteresis_lab.loop.report import (
     loop_markdown,
     result_line,
@@ -116,6 +116,9 @@ class LoopSettings:
     #: with the recordings that would show it, and the next one is tried (an effect that
     #: fits the plant, or any effect where no plant is declared, is added as before)
     add_under_excited: bool = False
+    #: significance level of the effects whose physics fits the declared ``data.plant``
+    #: (`hysteresis_lab.loop.plant.with_plant_prior`); None: ``alpha``, as every effect
+    plant_alpha: float | None = None
     #: the diagnosis drops each residual's start transient and also reads the input-side
     #: effects through the model's own dynamics (`hysteresis_lab.loop.diagnosis.ranking`): a
     #: recording that starts with a jump from rest rings, and filters of the input started
@@ -129,6 +132,11 @@ class LoopSettings:
                 f"loop.confounded_margin={self.confounded_margin} must lie in [0, 1) and "
                 f"loop.max_alternatives={self.max_alternatives} be at least 1. Fix: e.g. "
                 "loop.confounded_margin=0.2 loop.max_alternatives=3."
+            )
+        if self.plant_alpha is not None and not 0.0 < self.plant_alpha < 1.0:
+            raise ConfigError(
+                f"loop.plant_alpha={self.plant_alpha} must lie in (0, 1), or be null (loop.alpha "
+                "for every effect). Fix: e.g. loop.plant_alpha=0.05."
             )
         if self.folds < 2:
             raise ConfigError(
@@ -811,6 +819,9 @@ def _diagnose_round(
         predictions=kept,
         through_dynamics=settings.diagnosis_through_dynamics,
     )
+    if settings.plant_alpha is not None:
+        diagnosis = with_plant_prior(diagnosis, run.data_spec.plant, settings.plant_alpha,
+                                     settings.min_score)
     write_json(residual_analysis(shown, shown_predictions, 0),
                round_dir / "residual_analysis.json")
     figure = diagnostics_figure(shown, shown_predictions, 0)

@@ -9,7 +9,10 @@ alone order them. The folds still refit every confounded effect and keep the bes
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
+
+from hysteresis_lab.loop.diagnosis.ranking import EffectScore
 
 #: per kind of plant (`hysteresis_lab.data.spec.PLANT_KINDS`), the effects its physics has
 PLANT_EFFECTS: dict[str, tuple[str, ...]] = {
@@ -34,3 +37,22 @@ def prefer_plant(effects: Sequence[str], plant: str | None) -> list[str]:
     """``effects`` (tied on the evidence, best first) with those that fit ``plant`` first,
     each part in its given order; unchanged where no plant is declared."""
     return sorted(effects, key=lambda e: not fits_plant(e, plant))
+
+
+def with_plant_prior(diagnosis: Sequence[EffectScore], plant: str | None, alpha: float,
+                     min_score: float) -> list[EffectScore]:
+    """``diagnosis`` with each effect that fits the declared ``plant`` significant where it
+    reaches ``min_score`` at the significance level ``alpha`` (``loop.plant_alpha``, the
+    prior the declared kind gives its own physics); best first again. Unchanged where no
+    plant is declared."""
+    if plant is None:
+        return list(diagnosis)
+    marked = [
+        dataclasses.replace(d, significant=True,
+                            evidence=d.evidence + f" (significant at loop.plant_alpha={alpha:g}: "
+                            f"its physics fits data.plant={plant})")
+        if (not d.significant and d.tested and fits_plant(d.effect, plant)
+            and d.score >= min_score and d.p_value <= alpha) else d
+        for d in diagnosis
+    ]
+    return sorted(marked, key=lambda d: (-d.significant, -d.score))
