@@ -97,3 +97,20 @@ def test_only_an_effect_foreign_to_the_declared_plant_is_held_back_for_excitatio
     free = run_loop(model, DataSpec.from_config({"name": "clip", "scaling": {"mode": "standard"}}),
                     trainer, splits, tmp_path / "free", settings, use_tensorboard=False)
     assert "not_added_under_excited" not in free["rounds"][0]
+
+
+def test_the_plant_prior_makes_only_the_plants_own_effects_significant_at_its_level():
+    """At loop.plant_alpha=0.05 a tank's outflow law at p 0.015 is significant and named
+    first; hysteresis at the same p (foreign to a tank) is not; undeclared, nothing
+    changes."""
+    from hysteresis_lab.loop.plant import with_plant_prior
+
+    scores = [EffectScore("hysteresis", 0.62, 1e-5, True, ""),
+              EffectScore("saturation", 0.29, 0.02, False, ""),
+              EffectScore("nonlinear_feedback", 0.31, 0.015, False, ""),
+              EffectScore("backlash", 0.30, 0.015, False, ""),
+              EffectScore("overflow", 0.03, 0.001, False, "")]  # below loop.min_score
+    marked = {d.effect: d.significant for d in with_plant_prior(scores, "tank", 0.05, 0.05)}
+    assert marked == {"hysteresis": True, "saturation": True, "nonlinear_feedback": True,
+                      "backlash": False, "overflow": False}
+    assert with_plant_prior(scores, None, 0.05, 0.05) == scores
