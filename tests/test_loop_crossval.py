@@ -67,6 +67,18 @@ def test_an_effect_that_helps_one_held_out_stretch_and_hurts_the_others_is_not_k
     assert not keep_refit(_fold([0.9, 0.95, 1.3]), standing, 0.0)[0]  # pooled higher
 
 
+def test_a_refit_that_beats_the_standing_model_but_not_the_start_is_not_kept():
+    """Each kept round beat the one before on a majority of folds, yet a chain of them can
+    end worse than the start on most folds: the refit must beat the start too."""
+    start = _fold([1.0, 1.0, 1.0])
+    standing = _fold([0.2, 1.05, 1.05])  # kept: pooled lower, better on one ... (a majority
+    refit = _fold([0.15, 1.02, 1.02])  # of two folds over the start fails here)
+    assert keep_refit(refit, standing, 0.0)[0]
+    kept, reason = keep_refit(refit, standing, 0.0, start=start)
+    assert not kept and "against the start" in reason
+    assert keep_refit(_fold([0.15, 0.9, 1.02]), standing, 0.0, start=start)[0]
+
+
 def test_the_pooled_loss_weighs_folds_by_their_held_out_samples():
     check = FoldsCheck([HeldOut(1.0, {}, [], [], 300), HeldOut(0.0, {}, [], [], 100)])
     assert check.loss == pytest.approx(0.75)

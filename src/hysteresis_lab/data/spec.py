@@ -22,6 +22,10 @@ from hysteresis_lab.data.scaling import ScalingSettings
 from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.errors import ConfigError
 
+#: the kinds of plant a data set may declare (``data.plant``): the loop prefers the effect whose
+#: physics fits the kind when the evidence does not tell effects apart
+PLANT_KINDS = ("positioner", "tank", "motion", "oscillator")
+
 #: the ``data.columns`` keys that `hysteresis_lab.data.readers.read_recording` takes
 _COLUMN_OPTIONS = ("time", "inputs", "outputs")
 
@@ -43,6 +47,8 @@ class DataSpec:
     batch_size: int = 128
     num_workers: int = 0
     diagnose: tuple[str, ...] = ()
+    #: the declared kind of plant (one of `PLANT_KINDS`); None: undeclared, no preference
+    plant: str | None = None
     recording_options: Mapping[str, Any] = field(default_factory=dict)
 
     @classmethod
@@ -62,12 +68,23 @@ class DataSpec:
             batch_size=config.get("batch_size", 128),
             num_workers=config.get("num_workers", 0),
             diagnose=tuple(map(str, config.get("diagnose") or ())),
+            plant=plant_kind(config.get("plant")),
             recording_options=_recording_options(config),
         )
 
     def to_config(self) -> dict[str, Any]:
         """The resolved ``data`` config (a copy): what a fit record fingerprints."""
         return copy.deepcopy(dict(self.config))
+
+
+def plant_kind(value: Any) -> str | None:
+    """``data.plant`` checked: one of `PLANT_KINDS`, or None (undeclared)."""
+    if value is None or value in PLANT_KINDS:
+        return value
+    raise ConfigError(
+        f"data.plant={value!r} is not a kind of plant this project knows. Fix: data.plant=one "
+        f"of {list(PLANT_KINDS)}, or data.plant=null (no preference)."
+    )
 
 
 def window_spec(data_cfg: Mapping[str, Any]) -> WindowSpec:

@@ -113,19 +113,34 @@ class FoldsCheck:
                 "folds": self.fold_losses()}
 
 
-def keep_refit(refit: FoldsCheck, standing: FoldsCheck, min_gain: float) -> tuple[bool, str]:
+def keep_refit(refit: FoldsCheck, standing: FoldsCheck, min_gain: float,
+               start: FoldsCheck | None = None) -> tuple[bool, str]:
     """Whether a refit stands, and why: stable on every fold, a pooled held-out loss lower
     than the standing model's by more than the share ``min_gain``, and lower on a majority of
-    the folds."""
+    the folds; and, given the loop's ``start``, also better than the start on its pooled
+    loss and a majority of its folds (a chain of small gains cannot end below the start on
+    the folds that chose it)."""
     if refit.diverging:
         return False, f"the refit's free run diverges on {', '.join(refit.diverging)}"
+    kept, reason = _beats(refit, standing, min_gain, "the standing model's")
+    if kept and start is not None and start is not standing:
+        kept, against_start = _beats(refit, start, 0.0, "the start's")
+        if not kept:
+            reason += f"; but against the start: {against_start}"
+    return kept, reason
+
+
+def _beats(refit: FoldsCheck, other: FoldsCheck, min_gain: float,
+           whose: str) -> tuple[bool, str]:
+    """Whether ``refit``'s pooled held-out loss is below ``other``'s by more than the share
+    ``min_gain`` and lower on a majority of the folds, and the reason in words."""
     k = len(refit.folds)
-    wins = sum(r < s for r, s in zip(refit.fold_losses(), standing.fold_losses(), strict=True))
+    wins = sum(r < s for r, s in zip(refit.fold_losses(), other.fold_losses(), strict=True))
     gain = f" by more than loop.min_refit_gain={min_gain:g} of it" if min_gain else ""
-    pooled = refit.loss < (1.0 - min_gain) * standing.loss
+    pooled = refit.loss < (1.0 - min_gain) * other.loss
     verb = "beats" if pooled else "does not beat"
-    reason = (f"the refit's pooled held-out loss over {k} folds {refit.loss:.4g} {verb} the "
-              f"standing model's {standing.loss:.4g}{gain}; it is lower on {wins} of {k} folds")
+    reason = (f"the refit's pooled held-out loss over {k} folds {refit.loss:.4g} {verb} "
+              f"{whose} {other.loss:.4g}{gain}; it is lower on {wins} of {k} folds")
     if pooled and 2 * wins <= k:
         reason += " (no majority)"
     return pooled and 2 * wins > k, reason

@@ -45,10 +45,11 @@ from hysteresis_lab.lightning_trainer import TrainerSettings
 from hysteresis_lab.loop.advice import excitation_advice
 from hysteresis_lab.loop.crossval import FoldsCheck, HeldOut, held_out, keep_refit
 from hysteresis_lab.loop.data import LoopData, Stretch, loop_data
-from hysteresis_lab.loop.diagnosis.excitation import operator_excitation
+from hysteresis_lab.loop.diagnosis.excitation import operator_excitation, under_excited
 from hysteresis_lab.loop.diagnosis.ranking import TESTS, EffectScore, diagnose, evidence_lags
 from hysteresis_lab.loop.diagnosis.residuals import diagnostics_figure, residual_analysis
 from hysteresis_lab.loop.figures import ResidualEvidence
+from hysteresis_lab.loop.plant import fits_plant, prefer_plant, with_plant_prior
 from hysteresis_lab.loop.report import (
     loop_markdown,
     result_line,
@@ -109,6 +110,15 @@ class LoopSettings:
     confounded_margin: float = 0.2
     #: at most this many effects refitted in one round (the top one included)
     max_alternatives: int = 3
+    #: add an effect foreign to the declared ``data.plant`` (`hysteresis_lab.loop.plant`)
+    #: whose operators the test recordings' inputs drive beyond twice (RMS) what the
+    #: identification data do (`beyond_identification`); false: such an effect is reported
+    #: with the recordings that would show it, and the next one is tried (an effect that
+    #: fits the plant, or any effect where no plant is declared, is added as before)
+    add_under_excited: bool = False
+    #: significance level of the effects whose physics fits the declared ``data.plant``
+    #: (`hysteresis_lab.loop.plant.with_plant_prior`); None: ``alpha``, as every effect
+    plant_alpha: float | None = None
     #: the diagnosis drops each residual's start transient and also reads the input-side
     #: effects through the model's own dynamics (`hysteresis_lab.loop.diagnosis.ranking`): a
     #: recording that starts with a jump from rest rings, and filters of the input started
@@ -122,6 +132,11 @@ class LoopSettings:
                 f"loop.confounded_margin={self.confounded_margin} must lie in [0, 1) and "
                 f"loop.max_alternatives={self.max_alternatives} be at least 1. Fix: e.g. "
                 "loop.confounded_margin=0.2 loop.max_alternatives=3."
+            )
+        if self.plant_alpha is not None and not 0.0 < self.plant_alpha < 1.0:
+            raise ConfigError(
+                f"loop.plant_alpha={self.plant_alpha} must lie in (0, 1), or be null (loop.alpha "
+                "for every effect). Fix: e.g. loop.plant_alpha=0.05."
             )
         if self.folds < 2:
             raise ConfigError(
@@ -384,7 +399,8 @@ def _fit_round_and_decide(
     if standing is None:
         kept, reason = True, ""
     else:
-        kept, reason = keep_refit(best.check, standing.check, settings.min_refit_gain)
+        kept, reason = keep_refit(best.check, standing.check, settings.min_refit_gain,
+                                  start=state.kept[0].check)
     fitted_on = None
     if kept:
         final, samples = _fit_final(run, model, best, round_dir, standing if warm else None,
@@ -510,12 +526,29 @@ def _candidate_entry(candidate: _Candidate) -> dict[str, Any]:
 def _choose_next_effect(run: _LoopRun, state: _LoopState, entry: dict[str, Any]) -> bool:
     """Pick the effect the next round adds from the standing diagnosis (recorded in
     ``entry``); False when the loop ends here (nothing significant, or enough rounds)."""
-    uncarried = _not_carried(run.model, state.diagnosis, state.tried)
+    uncarried = _not_carried(run.model, state.diagnosis, state.tried,
+                             run.data.fit.output_integrates)
     if uncarried:
         entry["not_carried"] = uncarried
         log.info("model '%s' has no block for the significant effect(s) %s: not added",
                  run.model.name, uncarried)
-    top, reported = next_effect(state.diagnosis, state.tried | set(uncarried))
+    excluded = state.tried | set(uncarried)
+    top, reported = next_effect(state.diagnosis, excluded)
+    plant = run.data_spec.plant
+    while top is not None and not run.settings.add_under_excited:
+        if plant is None or fits_plant(top.effect, plant):
+            break  # only an effect foreign to the declared plant must show on the data
+        unseen = beyond_identification(top.effect, [*run.data.fit.train, *run.data.fit.val],
+                                       run.data.fit.test, run.context)
+        if unseen is None:
+            break
+        unseen["plant"] = plant
+        entry.setdefault("not_added_under_excited", []).append(unseen)
+        log.warning("'%s' not added: its physics is foreign to data.plant=%s and %s "
+                    "(loop.add_under_excited=false)", top.effect, plant, unseen["reading"])
+        excluded.add(top.effect)
+        top, reported = next_effect(state.diagnosis, excluded)
+    uncarried = sorted(excluded - state.tried)
     if reported:
         entry["reported"] = reported
     if top is None:
@@ -527,23 +560,44 @@ def _choose_next_effect(run: _LoopRun, state: _LoopState, entry: dict[str, Any])
             "note", f"loop.max_rounds={run.settings.max_rounds} reached; next: {top.effect}"
         )
         return False
-    group = confounded(state.diagnosis, top, state.tried | set(uncarried),
-                       run.settings.confounded_margin, run.settings.max_alternatives)
-    entry["added"], state.trying = top.effect, group
+    group = named_group(state.diagnosis, top, state.tried | set(uncarried),
+                        run.settings.confounded_margin, run.settings.max_alternatives, plant)
+    if group[0] != top.effect:
+        entry["named_for_plant"] = {"plant": plant, "top_score": top.effect}
+        log.info("'%s' scores highest, but the evidence does not tell it from '%s', whose "
+                 "physics fits the declared data.plant=%s: '%s' is named", top.effect,
+                 group[0], plant, group[0])
+    entry["added"], state.trying = group[0], group
     if len(group) > 1:
         entry["alternatives"] = group[1:]
         log.info("'%s' is confounded with %s (scores within loop.confounded_margin=%g of "
-                 "its): each is refitted and the folds keep the best", top.effect, group[1:],
+                 "its): each is refitted and the folds keep the best", group[0], group[1:],
                  run.settings.confounded_margin)
     state.tried |= set(group)
-    if get_effect(top.effect).block in MODEL_OUTPUT_BLOCKS:  # no input operators to compare
-        log.info("'%s' added (it acts on the model's output)", top.effect)
+    if get_effect(group[0]).block in MODEL_OUTPUT_BLOCKS:  # no input operators to compare
+        log.info("'%s' added (it acts on the model's output)", group[0])
         return True
     fit = run.data.fit
-    excitation = operator_excitation(top.effect, [*fit.train, *fit.val], fit.test, run.context)
+    excitation = operator_excitation(group[0], [*fit.train, *fit.val], fit.test, run.context)
     entry["added_excitation"] = excitation.to_dict()
-    log.info("'%s' added: %s", top.effect, excitation.reading())
+    log.info("'%s' added: %s", group[0], excitation.reading())
     return True
+
+
+def beyond_identification(effect: str, identification: Sequence[Recording],
+                          tests: Sequence[Recording],
+                          context: FeatureContext) -> dict[str, Any] | None:
+    """Where the ``tests``' inputs (never their outputs) drive an operator of ``effect`` more
+    than `UNDER_EXCITED_RATIO` times as hard (RMS) as the ``identification`` data do: the
+    ratios and a reading; None where they do not, or the effect has no input operators. A
+    refit learns such an effect from data that show little of it, and the folds, cut from
+    those data, cannot see the extrapolation."""
+    if get_effect(effect).block in MODEL_OUTPUT_BLOCKS:
+        return None
+    excitation = operator_excitation(effect, identification, tests, context)
+    if not under_excited(excitation):
+        return None
+    return {**excitation.to_dict(), "reading": excitation.reading()}
 
 
 def _write_report(run: _LoopRun, state: _LoopState, report: dict[str, Any]) -> None:
@@ -629,6 +683,14 @@ def confounded(diagnosis: Sequence[EffectScore], top: EffectScore, tried: set[st
     return [top.effect, *close][:most]
 
 
+def named_group(diagnosis: Sequence[EffectScore], top: EffectScore, tried: set[str],
+                margin: float, most: int, plant: str | None) -> list[str]:
+    """The effects the next round refits, the named one first: ``top`` and those the evidence
+    does not tell apart from it (`confounded`), those whose physics fits the declared kind of
+    ``plant`` first (`hysteresis_lab.loop.plant`; None: in the order of their scores)."""
+    return prefer_plant(confounded(diagnosis, top, tried, margin, most), plant)
+
+
 def compared_effects(candidates: Sequence[_Candidate]) -> list[dict[str, Any]]:
     """Per effect refitted in a round: its best place and rate on the folds, the pooled and
     per-fold held-out losses, and whether the folds tell it from the best one (lower on a
@@ -657,14 +719,22 @@ def held_effects(model: ModelSpec, effects: Sequence[str]) -> list[str]:
 
 
 def _not_carried(
-    model: ModelSpec, diagnosis: Sequence[EffectScore], tried: set[str]
+    model: ModelSpec, diagnosis: Sequence[EffectScore], tried: set[str],
+    output_integrates: bool = False,
 ) -> list[str]:
     """Significant, input-driven effects the start model's class cannot take (a grey-box
     carries only the effects it has physical blocks for; a network every effect that reaches
-    it through its inputs, none that acts on its output)."""
+    it through its inputs, none that acts on its output; ``model=linear`` a law of the
+    velocity, friction, only where its output integrates: ``model.integrator``, by default
+    ``output_integrates``, the data set's word)."""
     carried = model.cls.carried_effects
+    setting = model.settings.get("integrator")
+    integrates = output_integrates if setting is None else bool(setting)
 
     def carries(effect: str) -> bool:
+        if getattr(get_effect(effect), "linear_needs_integrator", False) and not integrates \
+                and model.name == "linear":
+            return False
         if carried is not None:
             return effect in carried
         return get_effect(effect).block not in MODEL_OUTPUT_BLOCKS
@@ -749,6 +819,9 @@ def _diagnose_round(
         predictions=kept,
         through_dynamics=settings.diagnosis_through_dynamics,
     )
+    if settings.plant_alpha is not None:
+        diagnosis = with_plant_prior(diagnosis, run.data_spec.plant, settings.plant_alpha,
+                                     settings.min_score)
     write_json(residual_analysis(shown, shown_predictions, 0),
                round_dir / "residual_analysis.json")
     figure = diagnostics_figure(shown, shown_predictions, 0)

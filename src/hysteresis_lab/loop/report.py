@@ -308,6 +308,9 @@ def _evidence_lines(r: Mapping[str, Any], roles: Mapping[str, Sequence[str]]) ->
     if r.get("not_carried"):
         lines.append(f"- significant, but model '{r['effects']}' has no block for: "
                      f"{', '.join(r['not_carried'])}")
+    for held in r.get("not_added_under_excited", []):
+        lines.append(f"- significant, not added (foreign to data.plant={held.get('plant')}, "
+                     f"loop.add_under_excited=false): {held['reading']}")
     return lines
 
 

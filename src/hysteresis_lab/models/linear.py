@@ -208,7 +208,8 @@ class LinearModel(PhysicalChainModule):
             fs=fs, n_inputs=n_in, n_outputs=ny, input_amplitude=self._input_amplitude,
             output_extremes=extremes, forced_extremes=forced, declared=declared,
             settings={"creep_time_constants_s": creep_time_constants_s,
-                      "feedback_knots": feedback_knots, "order": order})
+                      "feedback_knots": feedback_knots, "order": order,
+                      "integrator": integrator})
         sites = self._sites(declared, context)
         #: the containers of the effects' blocks per site (attribute names)
         self.effect_sites: dict[str, list[str]] = {site: [] for site in SITES}
