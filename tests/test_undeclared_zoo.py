@@ -120,3 +120,12 @@ def test_a_tiny_cell_is_judged_by_the_rule_on_the_effect_s_own_output(zoo, tmp_p
     assert f"| dead_zone | {BOUC_WEN} |" in page
     if not good:
         assert "| FAIL" in page or "| n/a" in page or "| named" in page
+
+
+def test_a_kept_cell_is_reused_only_with_the_same_settings(zoo, tmp_path):
+    """Resuming: a row kept from a run with other added overrides (``--quick`` or not) is
+    run again, not mixed into the table."""
+    path = tmp_path / "row.json"
+    path.write_text(json.dumps({"extra": []}))
+    assert zoo._kept(path, ()) and not zoo._kept(path, zoo.QUICK)
+    assert not zoo._kept(tmp_path / "missing.json", ())
