@@ -26,8 +26,7 @@ SMALL = {"n_train": 4000, "test_frequencies": [10, 100], "max_test_samples": 200
          "val_samples": 2000}
 TINY = ("+data.splits.n_train=4000", "+data.splits.test_frequencies=[10,100]",
         "+data.splits.max_test_samples=2000", "data.splits.val_samples=2000",
-        "trainer.max_epochs=2", "training.simulation_epochs=1", "loop.folds=2",
-        "loop.refit_lr_factors=[1.0]")
+        "trainer.max_epochs=2", "training.simulation_epochs=1", "training.refit_lr=0.002")
 
 
 @pytest.fixture(scope="module")
