@@ -238,6 +238,16 @@ def diverged(row: dict[str, Any]) -> list[str]:
                    if not math.isfinite(v)})
 
 
+def judged(row: dict[str, Any], base: dict[str, Any]) -> dict[str, Any]:
+    """A cell's row with what the zoo adds to the rule: the start's misfit over the effect
+    (`masking`), the tests that diverged, and no pass where the loop diagnosed nothing (its
+    start diverged on a fold): the rule has nothing to judge there."""
+    row = {**row, "masking": masking(row, base), "diverged": diverged(row)}
+    if row["top"] is None:
+        row["verdict"] = f"no diagnosis: {row.get('why_not_refitted', 'none')}"
+    return row
+
+
 def run_cell(seed: int, effect: str, root: Path, rounds: int = 1,
              extra: tuple[str, ...] = ()) -> dict[str, Any]:
     """One plant × effect cell (kept: read back), judged by the bundled rule (``extra``:
@@ -260,10 +270,7 @@ def run_cell(seed: int, effect: str, root: Path, rounds: int = 1,
            "exponent_gap_over_sigma": exponent_gap(seed),
            "plant": describe(PositionerConfig.from_dict(base_effects(seed)))}
     if "failed" not in row:
-        row["masking"] = masking(row, base)
-        row["diverged"] = diverged(row)
-        if row["top"] is None:  # the rule has nothing to judge: not a pass
-            row["verdict"] = f"no diagnosis: {row.get('why_not_refitted', 'none')}"
+        row = judged(row, base)
     path.write_text(json.dumps(row, indent=1))
     log.info("plant %d + %s: %s", seed, effect, row.get("verdict", row.get("failed")))
     return row

@@ -128,3 +128,19 @@ def test_a_kept_cell_is_reused_only_with_the_same_settings(zoo, tmp_path):
     path.write_text(json.dumps({"extra": []}))
     assert zoo._kept(path, ()) and not zoo._kept(path, zoo.QUICK)
     assert not zoo._kept(tmp_path / "missing.json", ())
+
+
+def test_a_cell_whose_loop_diagnosed_nothing_is_no_pass(zoo):
+    """The start diverged on a fold: the loop diagnosed nothing, and the bundled rule, which
+    reads an unnamed effect below min_score as held by the start, must not count it."""
+    note = "the start model's free run diverges on ['fold 1']"
+    row = {"top": None, "top_score": None, "significant": False, "expected": ["creep"],
+           "effect_share_max": 0.01, "ceiling_pct": {"sine_0.1Hz": 8.0},
+           "effect_size_um": {"sine_0.1Hz": 1.0}, "predictable": True,
+           "before": {"sine_0.1Hz": 10.0}, "why_not_refitted": note}
+    row["verdict"] = sys.modules["undeclared_effects"].verdict(row)
+    assert row["verdict"].startswith("PASS")  # what the rule alone says
+    cell = zoo.judged(row, {"tests": {"sine_0.1Hz": 5.0}})
+    assert cell["verdict"] == f"no diagnosis: {note}" and not zoo.passed(cell)
+    assert cell["masking"] == {"sine_0.1Hz": 5.0}
+    assert zoo.statistics([cell, {**cell, "verdict": "PASS"}]) == (1, 2)
