@@ -443,8 +443,8 @@ def render(rows: dict[str, dict], skipped: list[str]) -> str:
         "plant × effect cells with at least 5 plants per effect. Of these, "
         f"{sum(found(r) for r in values)} named the effect (and met the rule's cut where it "
         "predicts it); the others pass because the effect holds < 5 % of the round-0 "
-        "residual and < 10 % of every test's error, which on these plants means hidden under "
-        "the start's misfit (see *why*).",
+        "residual and < 10 % of every test's error (the *why* column says where the start's "
+        "misfit hides it).",
         "",
         f"{sum(r.get('extra') == list(QUICK) for r in values)} of {len(values)} cells (and "
         f"their base runs) ran with `--quick` (`{' '.join(QUICK)}`: the declared start grown "
