@@ -382,6 +382,10 @@ def why_cell(row: dict[str, Any]) -> str:
     share = row.get("effect_share_max")
     if share is not None and share < 0.05:
         reasons.append(f"the effect holds {100 * share:.1f} % of the round-0 residual")
+    if row.get("verdict", "").startswith("n/a") and not row.get("recommends"):
+        top = max(row["ceiling_pct"].values(), default=0.0)
+        reasons.append(f"no excitation advice, though taking the effect off would cut a "
+                       f"test's error by up to {top:.0f} %")
     if row.get("diverged"):
         reasons.append(f"diverged on {row['diverged']}")
     if row.get("top") and row["top"] not in row.get("expected", []):
