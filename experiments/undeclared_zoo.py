@@ -40,6 +40,7 @@ import json
 import logging
 import math
 import multiprocessing
+import os
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -238,6 +239,22 @@ def diverged(row: dict[str, Any]) -> list[str]:
                    if not math.isfinite(v)})
 
 
+def _claim(lock: Path) -> bool:
+    """Take ``lock`` for this process (False: a live process holds it)."""
+    lock.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        with lock.open("x") as handle:
+            handle.write(str(os.getpid()))
+        return True
+    except FileExistsError:
+        try:
+            os.kill(int(lock.read_text()), 0)
+            return False
+        except (ProcessLookupError, ValueError):  # a stopped run's lock
+            lock.write_text(str(os.getpid()))
+            return True
+
+
 def judged(row: dict[str, Any], base: dict[str, Any]) -> dict[str, Any]:
     """A cell's row with what the zoo adds to the rule: the start's misfit over the effect
     (`masking`), the tests that diverged, and no pass where the loop diagnosed nothing (its
@@ -256,6 +273,11 @@ def run_cell(seed: int, effect: str, root: Path, rounds: int = 1,
     if _kept(path, extra):
         return json.loads(path.read_text())
     base = run_base(seed, root, extra)
+    lock = root / str(seed) / f"{effect}.running"
+    if not _claim(lock):  # another invocation runs this cell: its folder is not ours to empty
+        log.info("plant %d + %s runs in process %s: left to it", seed, effect,
+                 lock.read_text())
+        return {}
     log.info("plant %d + %s ...", seed, effect)
     try:
         row = case_row(command(seed, effect, rounds, extra), path.parent, effect,
@@ -263,6 +285,8 @@ def run_cell(seed: int, effect: str, root: Path, rounds: int = 1,
     except RuntimeError as exc:  # a data or config error: the cell says so
         path.parent.mkdir(parents=True, exist_ok=True)
         row = {"failed": str(exc).splitlines()[-1][:300]}
+    finally:
+        lock.unlink(missing_ok=True)
     row = {"seed": seed, "effect": effect, **row, "extra": list(extra),
            "loop_command": " ".join(command(seed, effect, rounds, extra)),
            "command": shown_command(seed, effect, rounds, extra),

@@ -144,3 +144,12 @@ def test_a_cell_whose_loop_diagnosed_nothing_is_no_pass(zoo):
     assert cell["verdict"] == f"no diagnosis: {note}" and not zoo.passed(cell)
     assert cell["masking"] == {"sine_0.1Hz": 5.0}
     assert zoo.statistics([cell, {**cell, "verdict": "PASS"}]) == (1, 2)
+
+
+def test_a_cell_another_process_runs_is_left_to_it(zoo, tmp_path):
+    """Two invocations over the same cells: the second must not empty the first's folder."""
+    lock = tmp_path / "creep.running"
+    assert zoo._claim(lock)  # this process holds it now
+    assert not zoo._claim(lock)  # a live holder
+    lock.write_text("999999999")  # a stopped run's lock
+    assert zoo._claim(lock)
