@@ -413,7 +413,11 @@ def why_cell(row: dict[str, Any]) -> str:
     if row.get("diverged"):
         reasons.append(f"diverged on {row['diverged']}")
     if row.get("top") and row["top"] not in row.get("expected", []):
-        reasons.append(f"named {row['top']} ({100 * (row.get('top_score') or 0):.1f} %)")
+        named = "named" if row.get("significant") else "top, not significant:"
+        reasons.append(f"{named} {row['top']} ({100 * (row.get('top_score') or 0):.1f} %)")
+    if row.get("effect") == "asymmetry" and "asymmetry" not in row.get("expected", []):
+        reasons.append(f"the catalogue has no asymmetry effect (stand-ins "
+                       f"{'/'.join(row['expected'])})")
     return "; ".join(reasons)
 
 
