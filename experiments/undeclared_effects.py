@@ -160,19 +160,30 @@ def run_case(name: str, root: Path, rounds: int, extra: tuple[str, ...] = ()) ->
     by its first run (their row is the case's ``+recommended`` one)."""
     block, _, expected = CASES[name]
     folder = root / (f"{name}+recommended" if extra else name)
-    command = command_for(name, rounds, extra)
     try:
-        report, seconds = run_fresh_loop(command[1:], folder)
+        row = case_row(command_for(name, rounds, extra), folder, block, expected)
     except RuntimeError as exc:
         raise SystemExit(str(exc)) from None
+    row = {"case": f"{name} + recommended recordings" if extra else name,
+           "added_recordings": list(extra), **row}
+    if extra:
+        row["verdict"] = _with_recommended(row["verdict"])
+    return row
+
+
+def case_row(command: list[str], folder: Path, block: str, expected: tuple[str, ...]) -> dict:
+    """Run the loop of ``command`` (fresh, into ``folder``) whose data switch simulator
+    ``block`` on, undeclared, and judge round 0 by the rule (``expected``: the catalogue
+    effects that name the block): the row the table shows. A config or data error is a
+    RuntimeError (`run_fresh_loop`)."""
+    report, seconds = run_fresh_loop(command[1:], folder)
     first = report["rounds"][0]
     significant = [d for d in first["diagnosis"] if d["significant"]]
     top = significant[0] if significant else (first["diagnosis"] or [{}])[0]
     scores = {d["effect"]: d["score"] for d in first["diagnosis"]}
     shares = effect_share(folder, block, 0)
     row = {
-        "case": f"{name} + recommended recordings" if extra else name,
-        "block": block, "expected": list(expected), "added_recordings": list(extra),
+        "block": block, "expected": list(expected),
         "recommends": recommended_recordings(report, expected),
         "command": " ".join(command),
         "commit": commit_stamp(REPO, ("src", "experiments")),
@@ -204,8 +215,6 @@ def run_case(name: str, root: Path, rounds: int, extra: tuple[str, ...] = ()) ->
     row["ceiling_pct"] = {r["test"]: r["max_cut_pct"] for r in acting}
     row["effect_size_um"] = {r["test"]: r["effect_size_um"] for r in acting}
     row["verdict"] = verdict(row)
-    if extra:
-        row["verdict"] = _with_recommended(row["verdict"])
     return row
 
 
