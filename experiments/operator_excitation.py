@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 import logging
 
-from undeclared_effects import CASE_DATA, CASES, TEST_HOLD, TRAIN_SINES  # the script beside
+from undeclared_effects import CASE_DATA, CASES  # the script beside
 
 from hysteresis_lab.api import compose
 from hysteresis_lab.data.factory import build_splits
@@ -30,8 +30,6 @@ def data_overrides() -> dict[str, list[str]]:
     cases = {
         name: [
             f"data.effects.{block}.enabled=true",
-            f"data.splits.train_sines={TRAIN_SINES}",
-            TEST_HOLD,
             *CASE_DATA.get(name, []),
         ]
         for name, (block, _, _) in CASES.items()
