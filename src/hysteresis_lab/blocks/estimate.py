@@ -415,22 +415,32 @@ def _checked_delay(
 ) -> int:
     """The delay the recording itself says near the one the best linear approximation
     picked: a hysteresis loop lags the response by about the same phase at every frequency,
-    which at the band's top passes for a sample more delay. So the delays from two below
-    ``picked`` to one above it are fitted on the recording (`_time_domain_misfit`, with plays
-    of the input standing in for the hysteresis, from the response's fit ``start(d)``) and
-    the last before the misfit jumps (`_last_before_jump`) is taken; where it does not jump
-    (what the stand-in misses hides the delay), ``picked`` stays."""
-    tried = [d for d in fitted if picked - 2 <= d <= picked + 1]
+    which at the band's top passes for a sample or two more delay. So the delays from one
+    below ``picked`` to one above it are fitted on the recording (`_time_domain_misfit`, with
+    plays of the input standing in for the hysteresis, from the response's fit
+    ``start(d)``), and shorter ones while the shortest tried is the one taken; the last
+    before the misfit jumps (`_last_before_jump`) is taken. Where it does not jump (what the
+    stand-in misses hides the delay), ``picked`` stays."""
     n = min(len(u), CHECK_SAMPLES)
     v = (u[:n] - np.mean(u[:n])) / max(float(np.std(u[:n])), 1e-12)
     x = _plays(v, CHECK_PLAY_THRESHOLDS)
-    misfits = [_time_domain_misfit(x, y[:n], fs, d, np.r_[start(d)[0], start(d)[2:]])[0]
-               for d in tried]
-    jumps = any(b > DELAY_JUMP * a for a, b in zip(misfits, misfits[1:], strict=False))
-    checked = tried[_last_before_jump(misfits)] if jumps else picked
+    misfits: dict[int, float] = {}
+    tried = [d for d in fitted if picked - 1 <= d <= picked + 1]
+    while True:
+        for d in tried:
+            if d not in misfits:
+                misfits[d] = _time_domain_misfit(x, y[:n], fs, d,
+                                                 np.r_[start(d)[0], start(d)[2:]])[0]
+        curve = [misfits[d] for d in tried]
+        checked = tried[_last_before_jump(curve)]
+        if checked != tried[0] or tried[0] - 1 not in fitted:
+            break
+        tried = [tried[0] - 1, *tried]
+    jumps = any(b > DELAY_JUMP * a for a, b in zip(curve, curve[1:], strict=False))
+    checked = checked if jumps else picked
     log.info("delay checked on the recording with plays standing in for the hysteresis: "
              "misfit %s for delays %s: %d samples (the response alone: %d)",
-             np.round(misfits, 5).tolist(), tried, checked, picked)
+             np.round(curve, 5).tolist(), tried, checked, picked)
     return checked
 
 
@@ -476,7 +486,8 @@ def select_chain_structure(
     amp = (np.log(0.01 * fs), np.log(0.45 * fs))
     first_mode = ([np.log(max(0.5 * float(f[0]), 1e-3 * fs)), np.log(DAMPING_RANGE[0])],
                   [np.log(fmax), np.log(DAMPING_RANGE[1])])
-    if f1 > float(f[-1]):  # above the excited band: its peak in the output spectrum places
+    above_band = f1 > float(f[-1])
+    if above_band:  # above the excited band: its peak in the output spectrum places
         # it; the band's response only bends towards it, which a misplaced mode and another
         # delay can mimic
         first_mode = ([np.log(f1 / ABOVE_BAND_SPREAD), np.log(z1 / ABOVE_BAND_SPREAD ** 4)],
@@ -525,6 +536,8 @@ def select_chain_structure(
         picked = _checked_delay(u, y, fs, picked, [d for d in delays if (chosen, d) in fits],
                                 lambda d: fits[(chosen, d)][0])
     theta, coef = fits[(chosen, picked)]
+    if above_band:  # the fit only bends it within its bounds; the spectrum's peak places it
+        theta = np.r_[theta[:2], np.log(f1), np.log(z1), theta[4:]]
     gain = float(np.sum(coef))
     weights = coef / gain if gain > 1e-12 else np.full(chosen, 1.0 / chosen)
     order = np.argsort(theta[2::2])

@@ -43,6 +43,7 @@ amplitudes beyond the training data as its physics does.
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import math
 import re
@@ -112,6 +113,28 @@ def _hysteresis_cell(hysteresis: str, operators: int, alpha: float = 0.2) -> nn.
     if hysteresis == "prandtl_ishlinskii":
         return PlayOperators(n_operators=operators, max_threshold=0.8)
     return None
+
+
+#: the structures chosen for the last few training recordings (`_chain_structure`)
+_CHOSEN: dict[tuple[Any, ...], ChainStructure] = {}
+_CHOSEN_KEPT = 4
+
+
+def _chain_structure(
+    u: np.ndarray, y: np.ndarray, fs: float, delay: int | None, n_modes: int | None
+) -> ChainStructure:
+    """`select_chain_structure` of a training recording, remembered for the process: the
+    stages of a grown model and the fit at once (``model.grow=best``) start from the same
+    recording and choose alike."""
+    key = (hashlib.sha1(np.ascontiguousarray(u, dtype=float).tobytes()).hexdigest(),
+           hashlib.sha1(np.ascontiguousarray(y, dtype=float).tobytes()).hexdigest(),
+           float(fs), delay, n_modes)
+    if key not in _CHOSEN:
+        if len(_CHOSEN) >= _CHOSEN_KEPT:
+            _CHOSEN.pop(next(iter(_CHOSEN)))
+        _CHOSEN[key] = select_chain_structure(u, y, fs, delay=delay, n_modes=n_modes,
+                                              fmin=min(50.0, 0.01 * fs))
+    return _CHOSEN[key]
 
 
 def _whole(value: Any) -> bool:
@@ -186,7 +209,7 @@ class GreyBox(PhysicalChainModule):
         most_modes = MAX_MIMO_MODES if self.mimo else 3
         if not (n_modes == AUTO or _whole(n_modes) and 0 <= n_modes <= most_modes):
             problems.append(f"model.n_modes={n_modes!r} (0-{most_modes}"
-                            + (", or auto)" if self.mimo else
+                            + (")" if self.mimo else
                                "; more for MIMO data; or auto: 1-3 chosen from the data)"))
         if not (delay == AUTO or _whole(delay) and delay >= 0):
             problems.append(f"model.delay={delay!r} (whole samples >= 0, or auto: 0-"
@@ -500,10 +523,8 @@ class GreyBox(PhysicalChainModule):
         say nothing (the placeholders stay: one sample, one mode)."""
         delay, n_modes = self.hparams.get("delay"), self.hparams.get("n_modes")
         try:
-            structure = select_chain_structure(
-                u, y, fs, delay=None if delay == AUTO else int(delay),
-                n_modes=None if n_modes == AUTO else max(int(n_modes), 1),
-                fmin=min(50.0, 0.01 * fs))
+            structure = _chain_structure(u, y, fs, None if delay == AUTO else int(delay),
+                                         None if n_modes == AUTO else max(int(n_modes), 1))
         except ValueError as exc:
             log.warning("the delay and modes cannot be read off the training data (%s): %s",
                         exc, ", ".join(f"model.{name}={value}" for name, value in
@@ -533,13 +554,10 @@ class GreyBox(PhysicalChainModule):
         self.auto_settings = ()
 
     def _start_from_structure(self, structure: ChainStructure, fs: float) -> None:
-        """The amplifier's cutoff and the modes (those not set by ``model.amplifier_hz`` /
-        ``model.mode_hz``) from the chain fitted to the best linear approximation; a
-        declared effect's extra modes start above them at a small weight, as by default."""
-        if self.hparams.get("amplifier_hz") is None:
-            cutoff = float(np.clip(structure.amplifier_hz, 2.0 * self.f_floor, 0.45 * fs))
-            self.amplifier.load_state_dict(
-                FirstOrderLag(fs, cutoff, min_cutoff_hz=self.f_floor).state_dict())
+        """The modes (unless ``model.mode_hz`` sets them) from the chain fitted to the best
+        linear approximation; a declared effect's extra modes start above them at a small
+        weight, as by default. The amplifier starts as before: the fit's cutoff shares the
+        phase lag with the hysteresis loop's stand-in, which the model's cell carries."""
         if self.mode is None or self.hparams.get("mode_hz") is not None:
             return
         n_fitted = min(len(structure.frequencies_hz), self.mode.n_modes)
