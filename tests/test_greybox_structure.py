@@ -105,3 +105,11 @@ def test_a_grown_stage_takes_the_structure_of_the_model_it_grows_from():
     assert grown.delay.samples == fitted.delay.samples == 3
     assert grown.mode.n_modes == fitted.mode.n_modes
     assert grown.hparams["delay"] == 3
+
+
+def test_data_that_do_not_show_a_delay_keep_the_former_default():
+    """Where the misfit jumps at no delay tried (an output unrelated to the input), nothing
+    says the delay: one sample, as before ``auto``, not the longest tried."""
+    rng = np.random.default_rng(0)
+    u, y = rng.standard_normal(20_000), rng.standard_normal(20_000)
+    assert select_chain_structure(u, y, FS).delay == 1

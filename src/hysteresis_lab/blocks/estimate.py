@@ -266,6 +266,8 @@ MAX_AUTO_MODES = 3
 #: delay is made up by the lag, the misfit barely moves), so the chosen delay is the last
 #: one before the first such rise
 DELAY_JUMP = 1.15
+#: the delay where the misfit jumps at none tried (the data do not show it): the former default
+UNSEEN_DELAY = 1
 #: one more mode is kept only where it brings the response's misfit below this share
 MODE_GAIN = 0.9
 #: starting frequencies of a further mode, as multiples of the first mode's frequency
@@ -400,6 +402,11 @@ def _time_domain_misfit(
     return (misfit if np.isfinite(misfit) else np.inf), refined
 
 
+def _jumps(misfits: Sequence[float]) -> bool:
+    """Whether the misfit rises by more than `DELAY_JUMP` from one delay to the next."""
+    return any(b > DELAY_JUMP * a for a, b in zip(misfits, misfits[1:], strict=False))
+
+
 def _last_before_jump(misfits: Sequence[float]) -> int:
     """The delay before the first rise of the misfit by more than `DELAY_JUMP` (the last
     delay tried when there is none)."""
@@ -436,8 +443,7 @@ def _checked_delay(
         if checked != tried[0] or tried[0] - 1 not in fitted:
             break
         tried = [tried[0] - 1, *tried]
-    jumps = any(b > DELAY_JUMP * a for a, b in zip(curve, curve[1:], strict=False))
-    checked = checked if jumps else picked
+    checked = checked if _jumps(curve) else picked
     log.info("delay checked on the recording with plays standing in for the hysteresis: "
              "misfit %s for delays %s: %d samples (the response alone: %d)",
              np.round(curve, 5).tolist(), tried, checked, picked)
@@ -460,7 +466,8 @@ def select_chain_structure(
     * delay: the amplifier lag makes up for a delay shorter than the plant's (the misfit
       barely moves) but not for a longer one, so the delay is the last before the misfit
       first rises by more than `DELAY_JUMP` from one delay to the next (the scan stops
-      there, or at ``max_delay``);
+      there; `UNSEEN_DELAY` where it rises so at none up to ``max_delay``), then checked on
+      the recording (`_checked_delay`);
     * modes: one more mode is kept where it lowers the best misfit below `MODE_GAIN` of the
       fewer modes'; it starts at the fewer modes' fit with the new mode at the best of
       `EXTRA_MODE_STARTS` (no lower than half the first mode's frequency).
@@ -532,7 +539,11 @@ def select_chain_structure(
             chosen = m
     assert chosen is not None
     picked = delays[_last_before_jump(curves[chosen])]
-    if delay is None:
+    if delay is None and not _jumps(curves[chosen]):
+        picked = min(UNSEEN_DELAY, delays[-1])
+        log.info("the misfit does not jump at any delay up to %d samples: the data do not "
+                 "show the delay, %d sample(s) as by default", delays[-1], picked)
+    elif delay is None:
         picked = _checked_delay(u, y, fs, picked, [d for d in delays if (chosen, d) in fits],
                                 lambda d: fits[(chosen, d)][0])
     theta, coef = fits[(chosen, picked)]
