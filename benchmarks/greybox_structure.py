@@ -97,7 +97,9 @@ def render(rows: list[dict[str, Any]], command: str) -> str:
         "# The grey-box's delay and modes from the data, on zoo plants", "",
         f"Command: `{command}`; commit `{stamp}`; "
         f"{datetime.date.today().isoformat()}; shared 2-core CPU, one core per fit "
-        "(`OMP_NUM_THREADS=1`; CPU seconds of the whole `hysteresis-lab-train` process).", "",
+        "(`OMP_NUM_THREADS=1`; CPU seconds of the whole `hysteresis-lab-train` process). "
+        "Fits found in the root are reused: the commit is the page's, a reused fit's may be "
+        "older.", "",
         "Each plant fitted through `data=csv` with `model=greybox`: *fixed* is the former "
         "default structure (`model.delay=1 model.n_modes=1`), *auto* the default now "
         "(delay and modes chosen from the training data). Score: mean free-run RMSE over "
