@@ -19,10 +19,15 @@ whole frequency response (residues by least squares for each candidate set of mo
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy import signal
-from scipy.optimize import least_squares
+from scipy.optimize import least_squares, nnls
+
+from hysteresis_lab.physics.filters import mode_coefficients_np
 
 log = logging.getLogger(__name__)
 
@@ -249,3 +254,312 @@ def fit_modes(
         return freqs, damps
     order = np.argsort(sol.x[:n])
     return sol.x[:n][order], sol.x[n:][order]
+
+
+# ------------------------------------------------------------------ structure from data
+#: most samples of input delay `select_chain_structure` tries
+MAX_AUTO_DELAY = 10
+#: most modes it tries (one input and output)
+MAX_AUTO_MODES = 3
+#: a delay one sample longer than the plant's cannot be made up by the amplifier lag: the
+#: response's misfit rises by more than this factor from one delay to the next (a shorter
+#: delay is made up by the lag, the misfit barely moves), so the chosen delay is the last
+#: one before the first such rise
+DELAY_JUMP = 1.15
+#: the delay where the misfit jumps at none tried (the data do not show it): the former default
+UNSEEN_DELAY = 1
+#: one more mode is kept only where it brings the response's misfit below this share
+MODE_GAIN = 0.9
+#: starting frequencies of a further mode, as multiples of the first mode's frequency
+#: (a mode above the excited band is placed by its share of the static gain and its phase)
+EXTRA_MODE_STARTS = (0.5, 1.5, 2.5, 4.0, 7.0)
+#: most frequency bins of the response the structure is fitted to, and most evaluations
+#: of each fit (the fits run for every delay and mode count tried: a few seconds in all)
+FIT_BINS = 256
+#: most phase lag (rad) the fitted response carries at every frequency: a hysteresis loop's
+#: lag, which a delay too long would otherwise hide in (it lags the band's top by about a
+#: sample at 500 Hz and 20 kHz)
+MAX_HYSTERESIS_LAG = 0.5
+#: play operators' thresholds (over the input's standard deviation) of the hysteresis
+#: stand-in with which `select_chain_structure` checks the delay on the recording itself
+CHECK_PLAY_THRESHOLDS = (0.3, 0.8, 1.5)
+#: most samples of the recording, and evaluations of each fit, of that check
+CHECK_SAMPLES = 40_000
+CHECK_EVALUATIONS = 20
+#: a first mode above the excited band stays within this factor of the frequency its peak
+#: in the output spectrum shows (its damping within the factor's fourth power)
+ABOVE_BAND_SPREAD = 1.02
+FIT_EVALUATIONS = 100
+
+
+@dataclass(frozen=True)
+class ChainStructure:
+    """The linear dynamics of a grey-box chain read off its best linear approximation
+    (`select_chain_structure`): the input delay (samples), the amplifier's cutoff, the
+    modes (frequencies, dampings, their shares of the static gain, summing to one), the
+    static gain, and the response's misfit per (modes, delay) tried."""
+
+    delay: int
+    amplifier_hz: float
+    frequencies_hz: np.ndarray
+    dampings: np.ndarray
+    weights: np.ndarray
+    gain: float
+    misfits: dict[tuple[int, int], float]
+
+    @property
+    def n_modes(self) -> int:
+        return len(self.frequencies_hz)
+
+
+def chain_response(
+    f: np.ndarray, fs: float, amplifier_hz: float, delay: int, freqs: np.ndarray,
+    damps: np.ndarray,
+) -> np.ndarray:
+    """Frequency responses (F, modes) of the grey-box's linear chain, one column per mode:
+    the amplifier lag (`FirstOrderLag`'s step-invariant pole), ``delay`` samples and the
+    unit-DC-gain mode (`mode_coefficients`' bilinear filter)."""
+    z1 = np.exp(-2j * np.pi * f / fs)
+    pole = np.exp(-2.0 * np.pi * amplifier_hz / fs)
+    path = (1.0 - pole) / (1.0 - pole * z1) * z1 ** delay
+    return modal_basis(f, fs, np.asarray(freqs, float), np.asarray(damps, float))[
+        :, : len(freqs)] * path[:, None]
+
+
+def _fit_chain(
+    f: np.ndarray, h: np.ndarray, fs: float, delay: int, start: np.ndarray,
+    bounds: tuple[np.ndarray, np.ndarray],
+) -> tuple[float, np.ndarray, np.ndarray]:
+    """The chain's response fitted to ``h`` (F,) at ``delay``: the amplifier's cutoff, a
+    phase lag the same at every frequency (a hysteresis loop's, which lags and does not lead)
+    and the modes by `scipy.optimize.least_squares` from ``start`` (``[log f_c, lag, log f_1,
+    log zeta_1, ...]``), the modes' weights by non-negative least squares for
+    each candidate (a positioner's modes share its static gain; weights of both signs let
+    two modes cancel into a shape no structure has). Returns the RMS misfit, the parameters
+    and the weights."""
+    target = np.r_[h.real, h.imag]
+
+    def solve(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        basis = chain_response(f, fs, np.exp(theta[0]), delay, np.exp(theta[2::2]),
+                               np.exp(theta[3::2])) * np.exp(-1j * theta[1])
+        a = np.vstack([basis.real, basis.imag])
+        coef, _ = nnls(a, target)
+        return coef, a @ coef - target
+
+    start = np.clip(start, bounds[0] + 1e-9, bounds[1] - 1e-9)
+    try:
+        theta = least_squares(lambda t: solve(t)[1], start, bounds=bounds,
+                              max_nfev=FIT_EVALUATIONS).x
+    except (ValueError, np.linalg.LinAlgError, RuntimeError):  # pragma: no cover - degenerate
+        theta = start
+    coef, residuals = solve(theta)
+    misfit = float(np.sqrt(np.mean(residuals ** 2)))
+    return (misfit if np.isfinite(misfit) else np.inf), theta, coef
+
+
+def _plays(v: np.ndarray, thresholds: Sequence[float]) -> np.ndarray:
+    """``v`` (T,) and its play operators' outputs (T, 1 + thresholds), from rest."""
+    out = np.empty((len(v), len(thresholds) + 1))
+    out[:, 0] = v
+    for i, r in enumerate(thresholds, start=1):
+        state = 0.0
+        column = out[:, i]
+        for k, x in enumerate(v):
+            state = min(max(state, x - r), x + r)
+            column[k] = state
+    return out
+
+
+def _time_domain_misfit(
+    x: np.ndarray, y: np.ndarray, fs: float, delay: int, theta: np.ndarray,
+) -> tuple[float, np.ndarray]:
+    """The chain at ``delay`` (amplifier and modes from ``theta``, ``[log f_c, log f_1,
+    log zeta_1, ...]``, refined by `scipy.optimize.least_squares`) on the recording: each
+    column of ``x`` (the input and its plays, a stand-in for the hysteresis) through it, the
+    weights of every column and mode and a constant by least squares. The RMS misfit and
+    the refined parameters."""
+    n_modes = (len(theta) - 1) // 2
+
+    def residuals(t: np.ndarray) -> np.ndarray:
+        pole = np.exp(-2.0 * np.pi * np.exp(t[0]) / fs)
+        z = signal.lfilter([1.0 - pole], [1.0, -pole], x, axis=0)
+        z = np.vstack([np.zeros((delay, z.shape[1])), z[: len(z) - delay]])
+        columns = [signal.lfilter(*mode_coefficients_np(np.exp(t[1 + 2 * m]),
+                                                        np.exp(t[2 + 2 * m]), fs), z, axis=0)
+                   for m in range(n_modes)]
+        a = np.hstack([*columns, np.ones((len(z), 1))])
+        coef, *_ = np.linalg.lstsq(a, y, rcond=None)
+        return a @ coef - y
+
+    lo = np.r_[np.log(0.01 * fs), [np.log(1e-3 * fs), np.log(DAMPING_RANGE[0])] * n_modes]
+    hi = np.r_[np.log(0.45 * fs), [np.log(0.44 * fs), np.log(DAMPING_RANGE[1])] * n_modes]
+    start = np.clip(theta, lo + 1e-9, hi - 1e-9)
+    try:
+        sol = least_squares(residuals, start, bounds=(lo, hi), max_nfev=CHECK_EVALUATIONS)
+        refined, misfit = sol.x, float(np.sqrt(np.mean(sol.fun ** 2)))
+    except (ValueError, np.linalg.LinAlgError):  # pragma: no cover - degenerate recordings
+        refined, misfit = start, np.inf
+    return (misfit if np.isfinite(misfit) else np.inf), refined
+
+
+def _jumps(misfits: Sequence[float]) -> bool:
+    """Whether the misfit rises by more than `DELAY_JUMP` from one delay to the next."""
+    return any(b > DELAY_JUMP * a for a, b in zip(misfits, misfits[1:], strict=False))
+
+
+def _last_before_jump(misfits: Sequence[float]) -> int:
+    """The delay before the first rise of the misfit by more than `DELAY_JUMP` (the last
+    delay tried when there is none)."""
+    for d in range(len(misfits) - 1):
+        if misfits[d + 1] > DELAY_JUMP * misfits[d]:
+            return d
+    return len(misfits) - 1
+
+
+def _checked_delay(
+    u: np.ndarray, y: np.ndarray, fs: float, picked: int, fitted: Sequence[int],
+    start: Any,
+) -> int:
+    """The delay the recording itself says near the one the best linear approximation
+    picked: a hysteresis loop lags the response by about the same phase at every frequency,
+    which at the band's top passes for a sample or two more delay. So the delays from one
+    below ``picked`` to one above it are fitted on the recording (`_time_domain_misfit`, with
+    plays of the input standing in for the hysteresis, from the response's fit
+    ``start(d)``), and shorter ones while the shortest tried is the one taken; the last
+    before the misfit jumps (`_last_before_jump`) is taken. Where it does not jump (what the
+    stand-in misses hides the delay), ``picked`` stays."""
+    n = min(len(u), CHECK_SAMPLES)
+    v = (u[:n] - np.mean(u[:n])) / max(float(np.std(u[:n])), 1e-12)
+    x = _plays(v, CHECK_PLAY_THRESHOLDS)
+    misfits: dict[int, float] = {}
+    tried = [d for d in fitted if picked - 1 <= d <= picked + 1]
+    while True:
+        for d in tried:
+            if d not in misfits:
+                misfits[d] = _time_domain_misfit(x, y[:n], fs, d,
+                                                 np.r_[start(d)[0], start(d)[2:]])[0]
+        curve = [misfits[d] for d in tried]
+        checked = tried[_last_before_jump(curve)]
+        if checked != tried[0] or tried[0] - 1 not in fitted:
+            break
+        tried = [tried[0] - 1, *tried]
+    checked = checked if _jumps(curve) else picked
+    log.info("delay checked on the recording with plays standing in for the hysteresis: "
+             "misfit %s for delays %s: %d samples (the response alone: %d)",
+             np.round(curve, 5).tolist(), tried, checked, picked)
+    return checked
+
+
+def select_chain_structure(
+    u: np.ndarray, y: np.ndarray, fs: float, *, delay: int | None = None,
+    n_modes: int | None = None, max_delay: int = MAX_AUTO_DELAY,
+    max_modes: int = MAX_AUTO_MODES, fmin: float = 50.0,
+) -> ChainStructure:
+    """The input delay and the number of modes of a grey-box chain (amplifier lag, delay,
+    modes; one input and output) from recordings ``u`` -> ``y`` (1-D), where not given.
+
+    Its best linear approximation (`mimo_frequency_response`, ~1 Hz bins where the input has
+    power, at most `FIT_BINS` of them) is fitted by the chain's response (`chain_response`:
+    the amplifier's cutoff and the modes by least squares, their weights by non-negative
+    least squares) at each delay from 0 up, with 1 to ``max_modes`` modes:
+
+    * delay: the amplifier lag makes up for a delay shorter than the plant's (the misfit
+      barely moves) but not for a longer one, so the delay is the last before the misfit
+      first rises by more than `DELAY_JUMP` from one delay to the next (the scan stops
+      there; `UNSEEN_DELAY` where it rises so at none up to ``max_delay``), then checked on
+      the recording (`_checked_delay`);
+    * modes: one more mode is kept where it lowers the best misfit below `MODE_GAIN` of the
+      fewer modes'; it starts at the fewer modes' fit with the new mode at the best of
+      `EXTRA_MODE_STARTS` (no lower than half the first mode's frequency).
+
+    The first mode starts from `estimate_mode`.
+    """
+    u = np.asarray(u, dtype=float).reshape(-1)
+    y = np.asarray(y, dtype=float).reshape(-1)
+    f_all, h_all, power = mimo_frequency_response(
+        [u[:, None]], [y[:, None]], fs, nperseg=int(min(len(u), 2 ** int(np.ceil(np.log2(fs))))))
+    fmax = 0.44 * fs
+    band = np.flatnonzero((f_all > 0) & (f_all < fmax)
+                          & (power > EXCITED_FRACTION * power.max()))
+    if len(band) < 8:
+        raise ValueError(f"the input excites fewer than 8 frequency bins below {fmax:g} Hz")
+    band = band[np.unique(np.linspace(0, len(band) - 1, min(len(band), FIT_BINS)).astype(int))]
+    f, h = f_all[band], h_all[band, 0, 0]
+    try:
+        f1, z1 = estimate_mode(u, y, fs, fmin=min(fmin, 0.1 * float(f[-1])))
+    except ValueError:
+        f1, z1 = float(np.sqrt(f[0] * f[-1])), 0.05
+    f1 = float(np.clip(f1, 0.6 * float(f[0]), 0.9 * fmax))
+    amp = (np.log(0.01 * fs), np.log(0.45 * fs))
+    first_mode = ([np.log(max(0.5 * float(f[0]), 1e-3 * fs)), np.log(DAMPING_RANGE[0])],
+                  [np.log(fmax), np.log(DAMPING_RANGE[1])])
+    above_band = f1 > float(f[-1])
+    if above_band:  # above the excited band: its peak in the output spectrum places
+        # it; the band's response only bends towards it, which a misplaced mode and another
+        # delay can mimic
+        first_mode = ([np.log(f1 / ABOVE_BAND_SPREAD), np.log(z1 / ABOVE_BAND_SPREAD ** 4)],
+                      [np.log(f1 * ABOVE_BAND_SPREAD), np.log(z1 * ABOVE_BAND_SPREAD ** 4)])
+    extra_mode = ([max(first_mode[0][0], np.log(0.5 * f1)), first_mode[0][1]], first_mode[1])
+
+    def bounds(m: int) -> tuple[np.ndarray, np.ndarray]:
+        return (np.r_[amp[0], 0.0, first_mode[0], extra_mode[0] * (m - 1)],
+                np.r_[amp[1], MAX_HYSTERESIS_LAG, first_mode[1], extra_mode[1] * (m - 1)])
+
+    delays = list(range(max_delay + 1)) if delay is None else [delay]
+    counts = list(range(1, max_modes + 1)) if n_modes is None else [n_modes]
+    misfits: dict[tuple[int, int], float] = {}
+    fits: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+
+    def scan(m: int, start: np.ndarray) -> list[float]:
+        """``m`` modes at each delay, from ``start`` and the last delay's fit, up to the
+        first jump of the misfit; the misfits."""
+        curve: list[float] = []
+        previous = None
+        for d in delays:
+            tries = [start] if previous is None else [start, previous]
+            best = min((_fit_chain(f, h, fs, d, s, bounds(m)) for s in tries),
+                       key=lambda fit: fit[0])
+            misfits[(m, d)], fits[(m, d)] = best[0], best[1:]
+            curve.append(best[0])
+            previous = best[1]
+            if len(curve) > 1 and curve[-1] > DELAY_JUMP * curve[-2]:
+                break
+        return curve
+
+    curves = {1: scan(1, np.r_[np.log(0.25 * fs), 0.05, np.log(f1), np.log(z1)])}
+    chosen = 1 if 1 in counts else None
+    for m in range(2, max(counts) + 1):
+        d_prev = delays[_last_before_jump(curves[m - 1])]
+        last = fits[(m - 1, d_prev)][0]
+        starts = [np.r_[last, np.log(min(k * f1, 0.9 * fmax)), np.log(0.05)]
+                  for k in EXTRA_MODE_STARTS]
+        best_start = min(starts, key=lambda s: _fit_chain(f, h, fs, d_prev, s, bounds(m))[0])
+        curves[m] = scan(m, best_start)
+        if m in counts and (chosen is None or min(curves[m]) < MODE_GAIN * min(curves[chosen])):
+            chosen = m
+    assert chosen is not None
+    picked = delays[_last_before_jump(curves[chosen])]
+    if delay is None and not _jumps(curves[chosen]):
+        picked = min(UNSEEN_DELAY, delays[-1])
+        log.info("the misfit does not jump at any delay up to %d samples: the data do not "
+                 "show the delay, %d sample(s) as by default", delays[-1], picked)
+    elif delay is None:
+        picked = _checked_delay(u, y, fs, picked, [d for d in delays if (chosen, d) in fits],
+                                lambda d: fits[(chosen, d)][0])
+    theta, coef = fits[(chosen, picked)]
+    if above_band:  # the fit only bends it within its bounds; the spectrum's peak places it
+        theta = np.r_[theta[:2], np.log(f1), np.log(z1), theta[4:]]
+    gain = float(np.sum(coef))
+    weights = coef / gain if gain > 1e-12 else np.full(chosen, 1.0 / chosen)
+    order = np.argsort(theta[2::2])
+    structure = ChainStructure(
+        delay=int(picked), amplifier_hz=float(np.exp(theta[0])),
+        frequencies_hz=np.exp(theta[2::2])[order], dampings=np.exp(theta[3::2])[order],
+        weights=np.asarray(weights)[order], gain=gain, misfits=misfits)
+    log.info("chain structure from the best linear approximation (%d bins, %.3g-%.3g Hz): "
+             "%d mode(s) at %s Hz, damping %s, delay %d samples, amplifier %.0f Hz; misfit per "
+             "delay from 0 for 1..%d modes: %s", len(f), f[0], f[-1], chosen,
+             np.round(structure.frequencies_hz, 1).tolist(),
+             np.round(structure.dampings, 4).tolist(), picked, structure.amplifier_hz,
+             max(counts), {m: np.round(c, 5).tolist() for m, c in curves.items()})
+    return structure

@@ -43,6 +43,7 @@ amplitudes beyond the training data as its physics does.
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import math
 import re
@@ -64,7 +65,12 @@ from hysteresis_lab.blocks import (
     estimate_static_gain,
 )
 from hysteresis_lab.blocks._util import inv_softplus
-from hysteresis_lab.blocks.estimate import estimate_modes
+from hysteresis_lab.blocks.estimate import (
+    MAX_AUTO_DELAY,
+    ChainStructure,
+    estimate_modes,
+    select_chain_structure,
+)
 from hysteresis_lab.blocks.modal import ModalDynamics
 from hysteresis_lab.blocks.step import StepState, frozen
 from hysteresis_lab.data.recording import Recording
@@ -89,6 +95,12 @@ MIMO_BOUC_WEN_ALPHA = 0.05
 GROWN_CELL_SHARE = 1e-3
 #: the MIMO modes' frequencies learn at this share of ``training.lr`` (`configure_optimizers`)
 MODE_FREQUENCY_LR_FACTOR = 0.02
+#: ``model.delay`` / ``model.n_modes``: chosen from the training data
+#: (`select_chain_structure`: its best linear approximation)
+AUTO = "auto"
+#: what ``auto`` is on MIMO data (not chosen there: the MIMO structure's delay and modes are
+#: set, e.g. ``model.n_modes=14`` for data=fsm)
+AUTO_MIMO = {"delay": 1, "n_modes": 1}
 
 
 def _hysteresis_cell(hysteresis: str, operators: int, alpha: float = 0.2) -> nn.Module | None:
@@ -101,6 +113,32 @@ def _hysteresis_cell(hysteresis: str, operators: int, alpha: float = 0.2) -> nn.
     if hysteresis == "prandtl_ishlinskii":
         return PlayOperators(n_operators=operators, max_threshold=0.8)
     return None
+
+
+#: the structures chosen for the last few training recordings (`_chain_structure`)
+_CHOSEN: dict[tuple[Any, ...], ChainStructure] = {}
+_CHOSEN_KEPT = 4
+
+
+def _chain_structure(
+    u: np.ndarray, y: np.ndarray, fs: float, delay: int | None, n_modes: int | None
+) -> ChainStructure:
+    """`select_chain_structure` of a training recording, remembered for the process: the
+    stages of a grown model and the fit at once (``model.grow=best``) start from the same
+    recording and choose alike."""
+    key = (hashlib.sha1(np.ascontiguousarray(u, dtype=float).tobytes()).hexdigest(),
+           hashlib.sha1(np.ascontiguousarray(y, dtype=float).tobytes()).hexdigest(),
+           float(fs), delay, n_modes)
+    if key not in _CHOSEN:
+        if len(_CHOSEN) >= _CHOSEN_KEPT:
+            _CHOSEN.pop(next(iter(_CHOSEN)))
+        _CHOSEN[key] = select_chain_structure(u, y, fs, delay=delay, n_modes=n_modes,
+                                              fmin=min(50.0, 0.01 * fs))
+    return _CHOSEN[key]
+
+
+def _whole(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
 
 
 def _part(effect: Effect) -> GreyBoxPart | None:
@@ -135,11 +173,11 @@ class GreyBox(PhysicalChainModule):
         ny: int,
         fs: float = 20_000.0,
         hysteresis: str = "bouc_wen",
-        n_modes: int = 1,
+        n_modes: int | str = AUTO,
         mode_hz: float | None = None,
         mode_damping: float | None = None,
         amplifier_hz: float | None = None,
-        delay: int = 1,
+        delay: int | str = AUTO,
         creep_time_constants_s: Sequence[float] = (0.1, 1.0, 10.0, 100.0),
         operators: int = 8,
         residual_neurons: int = 0,
@@ -169,11 +207,13 @@ class GreyBox(PhysicalChainModule):
             problems.append(f"training.objective='{objective}' (it is fitted on the simulation "
                             "error only)")
         most_modes = MAX_MIMO_MODES if self.mimo else 3
-        if not (isinstance(n_modes, int) and 0 <= n_modes <= most_modes):
+        if not (n_modes == AUTO or _whole(n_modes) and 0 <= n_modes <= most_modes):
             problems.append(f"model.n_modes={n_modes!r} (0-{most_modes}"
-                            + (")" if self.mimo else "; more for MIMO data)"))
-        if not (isinstance(delay, int) and delay >= 0):
-            problems.append(f"model.delay={delay!r} (whole samples >= 0)")
+                            + (")" if self.mimo else
+                               "; more for MIMO data; or auto: 1-3 chosen from the data)"))
+        if not (delay == AUTO or _whole(delay) and delay >= 0):
+            problems.append(f"model.delay={delay!r} (whole samples >= 0, or auto: 0-"
+                            f"{MAX_AUTO_DELAY} chosen from the data)")
         if not (isinstance(residual_neurons, int) and residual_neurons >= 0
                 and isinstance(residual_layers, int) and residual_layers >= 1):
             problems.append(f"model.residual_neurons={residual_neurons!r} / residual_layers="
@@ -187,7 +227,21 @@ class GreyBox(PhysicalChainModule):
             )
         # the blocks' 1 Hz floors scaled down for slow data (cascaded tanks: fs = 0.25 Hz)
         self.f_floor = min(1.0, 1e-3 * fs)
-        modes = n_modes + sum(part.extra_modes for part in parts)
+        #: the settings chosen from the data (`select_chain_structure`, one input and output;
+        #: MIMO data: `AUTO_MIMO`) when the model is initialised from them
+        self.auto_settings = tuple(name for name, value in (("delay", delay),
+                                                            ("n_modes", n_modes))
+                                   if value == AUTO)
+        if self.mimo:
+            delay = AUTO_MIMO["delay"] if delay == AUTO else delay
+            n_modes = AUTO_MIMO["n_modes"] if n_modes == AUTO else n_modes
+            self.auto_settings = ()
+            self.hparams.update(delay=delay, n_modes=n_modes)
+        #: modes the declared effects add (``resonance``)
+        self.extra_modes = sum(part.extra_modes for part in parts)
+        delay = 1 if delay == AUTO else int(delay)  # placeholders until the data are read
+        n_modes = 1 if n_modes == AUTO else int(n_modes)
+        modes = n_modes + self.extra_modes
         settings = {"creep_time_constants_s": creep_time_constants_s}
         #: the effects' blocks after the gain: (label, attribute) of each
         self.series_blocks: list[tuple[str, str]] = []
@@ -436,8 +490,11 @@ class GreyBox(PhysicalChainModule):
         u_s = u / float(self.u_scale[0])
         y_s = y / float(self.y_scale[0])
         gain = estimate_static_gain(u_s - u_s.mean(), y_s - y_s.mean())
+        structure = self._choose_structure(u, y, fs) if self.auto_settings else None
         with torch.no_grad():
-            if self.mode is not None and self.hparams.get("mode_hz") is None:
+            if structure is not None:
+                self._start_from_structure(structure, fs)
+            elif self.mode is not None and self.hparams.get("mode_hz") is None:
                 try:
                     frequency, damping = estimate_mode(u, y, fs)
                 except ValueError as exc:
@@ -454,10 +511,85 @@ class GreyBox(PhysicalChainModule):
             self.gain.fill_(float(scale))
             fitted = scale * base
             self.offset.fill_(float(np.mean(y_s - fitted)))
-        log.info("grey-box start: gain %.4g, mode %s Hz, offset %.4g (scaled)",
-                 float(self.gain.detach()),
+        log.info("grey-box start: gain %.4g, delay %d, mode %s Hz, offset %.4g (scaled)",
+                 float(self.gain.detach()), self.delay.samples,
                  None if self.mode is None else np.round(self.mode.export()["frequency_hz"], 1),
                  float(self.offset.detach()))
+
+    def _choose_structure(self, u: np.ndarray, y: np.ndarray, fs: float) -> ChainStructure | None:
+        """The delay and mode count the data say (``auto`` settings, `select_chain_structure`
+        on a training recording in physical units), set in the model (its blocks rebuilt,
+        ``hparams`` updated so that a saved model is rebuilt with them); None where the data
+        say nothing (the placeholders stay: one sample, one mode)."""
+        delay, n_modes = self.hparams.get("delay"), self.hparams.get("n_modes")
+        try:
+            structure = _chain_structure(u, y, fs, None if delay == AUTO else int(delay),
+                                         None if n_modes == AUTO else max(int(n_modes), 1))
+        except ValueError as exc:
+            log.warning("the delay and modes cannot be read off the training data (%s): %s",
+                        exc, ", ".join(f"model.{name}={value}" for name, value in
+                                       (("delay", 1), ("n_modes", 1))
+                                       if name in self.auto_settings))
+            self._set_structure(1 if delay == AUTO else int(delay),
+                                1 if n_modes == AUTO else int(n_modes), fs)
+            return None
+        chosen_modes = structure.n_modes if n_modes == AUTO else int(n_modes)
+        chosen = self.auto_settings
+        self._set_structure(structure.delay, chosen_modes, fs)
+        log.info("grey-box structure from the data: %s",
+                 ", ".join(f"model.{name}={self.hparams[name]}" for name in chosen))
+        return structure
+
+    def _set_structure(self, delay: int, n_modes: int, fs: float) -> None:
+        """Rebuild the delay and the modes (placeholders) for ``delay`` samples and
+        ``n_modes`` modes (plus the declared effects'), recorded in ``hparams``."""
+        self.delay = Delay(delay)
+        modes = n_modes + self.extra_modes
+        if self.mode is None or self.mode.n_modes != modes:
+            self.mode = (SecondOrderMode(fs, self.hparams.get("mode_hz") or 0.05 * fs,
+                                         self.hparams.get("mode_damping") or 0.05,
+                                         n_modes=modes, fmin=self.f_floor).to(self.offset.device)
+                         if modes else None)
+        self.hparams.update(delay=int(delay), n_modes=int(n_modes))
+        self.auto_settings = ()
+
+    def _start_from_structure(self, structure: ChainStructure, fs: float) -> None:
+        """The modes (unless ``model.mode_hz`` sets them) from the chain fitted to the best
+        linear approximation; a declared effect's extra modes start above them at a small
+        weight, as by default. The amplifier starts as before: the fit's cutoff shares the
+        phase lag with the hysteresis loop's stand-in, which the model's cell carries."""
+        if self.mode is None or self.hparams.get("mode_hz") is not None:
+            return
+        n_fitted = min(len(structure.frequencies_hz), self.mode.n_modes)
+        freqs = list(structure.frequencies_hz[:n_fitted])
+        damps = list(structure.dampings[:n_fitted])
+        weights = list(structure.weights[:n_fitted])
+        for _ in range(self.mode.n_modes - n_fitted):
+            freqs.append(min(3.0 * freqs[-1], 0.4 * fs) if freqs else 0.05 * fs)
+            damps.append(0.05)
+            weights.append(0.05)
+        ceiling = 0.98 * self.mode.fmax
+        freqs = [float(np.clip(f, 1.01 * self.f_floor, ceiling)) for f in freqs]
+        damps = [float(np.clip(z, 2e-4, 3.0)) for z in damps]
+        weights = np.asarray(weights) / max(float(np.sum(weights[:n_fitted])), 1e-12)
+        fresh = SecondOrderMode(fs, freqs, damps, n_modes=self.mode.n_modes,
+                                weights=weights, fmin=self.f_floor)
+        self.mode.load_state_dict(fresh.state_dict())
+
+    def warm_start_from(self, previous: NarxModule) -> None:
+        """`PhysicalChainModule.warm_start_from`; a setting left to the data (``auto``)
+        takes the value the fitted model chose (its delay, its modes without the declared
+        effects' extra ones)."""
+        if self.auto_settings and isinstance(previous, GreyBox) and not self.mimo:
+            delay = previous.hparams.get("delay")
+            n_modes = previous.hparams.get("n_modes")
+            if isinstance(delay, int) and isinstance(n_modes, int):
+                fs = self.amplifier.fs
+                self._set_structure(delay if "delay" in self.auto_settings
+                                    else int(self.hparams["delay"]),
+                                    n_modes if "n_modes" in self.auto_settings
+                                    else int(self.hparams["n_modes"]), fs)
+        super().warm_start_from(previous)
 
     def _initialise_mimo(
         self, us: Sequence[np.ndarray], ys: Sequence[np.ndarray], fs: float
