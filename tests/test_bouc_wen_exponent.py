@@ -45,7 +45,7 @@ def test_exponent_gradcheck_includes_zero_crossings() -> None:
 def test_module_exponent_gradient_matches_finite_differences() -> None:
     """d loss / d raw exponent of the module (the rates rescaled with it) against a central
     difference, above the bound."""
-    bw = BoucWen(d=1.0, alpha=0.32, beta=2.0, gamma=0.6)
+    bw = BoucWen(d=1.0, alpha=0.32, beta=2.0, gamma=0.6, learn_exponent=True)
     v = _sine()
     with torch.no_grad():
         bw.raw_exponent.fill_(0.8)
@@ -65,7 +65,7 @@ def test_n_equal_one_is_the_exact_update_to_the_last_bit() -> None:
     """A learnable exponent at 1 runs the exact update: the same states as the simulator's
     and the same gradients for every other parameter as a cell without the exponent."""
     v = _sine()
-    learned = BoucWen(d=1.0, alpha=0.32, beta=2.0, gamma=0.6)
+    learned = BoucWen(d=1.0, alpha=0.32, beta=2.0, gamma=0.6, learn_exponent=True)
     fixed = BoucWen(d=1.0, alpha=0.32, beta=2.0, gamma=0.6, learn_exponent=False)
     x_learned, _ = learned(v)
     x_fixed, _ = fixed(v)
@@ -84,7 +84,7 @@ def test_the_bound_lets_the_exponent_rise_only() -> None:
     """At ``n = 1`` the raw exponent gets a gradient only where raising ``n`` lowers the
     loss; below the bound the exponent stays exactly 1 and climbs back where it pays."""
     v = _sine()
-    bw = BoucWen(d=1.0, alpha=0.32, beta=2.0, gamma=0.6)
+    bw = BoucWen(d=1.0, alpha=0.32, beta=2.0, gamma=0.6, learn_exponent=True)
     with torch.no_grad():
         sharp = bw(v)[0]  # n = 1
         bw.raw_exponent.fill_(1.0)
@@ -108,7 +108,7 @@ def test_the_bound_lets_the_exponent_rise_only() -> None:
 def test_step_and_free_run_match_the_batched_update() -> None:
     """At ``n != 1`` the one-sample torch step and the compiled free run run the batched
     update's scheme; the simulator's finer sub-steps give the same loop to 1e-4."""
-    bw = BoucWen(d=1.0, alpha=0.32, beta=2.0, gamma=0.6, n_channels=2)
+    bw = BoucWen(d=1.0, alpha=0.32, beta=2.0, gamma=0.6, n_channels=2, learn_exponent=True)
     with torch.no_grad():
         bw.raw_exponent.copy_(torch.tensor([0.7, 1.4], dtype=torch.float64))
     v = _walk(300, 6, step=0.05)
@@ -133,7 +133,7 @@ def test_step_and_free_run_match_the_batched_update() -> None:
 
 def test_the_exponent_keeps_the_saturated_state() -> None:
     """Raising ``n`` rescales the rates so the state saturates where it did at ``n = 1``."""
-    bw = BoucWen(d=1.0, alpha=0.32, beta=2.0, gamma=0.6)
+    bw = BoucWen(d=1.0, alpha=0.32, beta=2.0, gamma=0.6, learn_exponent=True)
     ramp = torch.linspace(0.0, 5.0, 2000, dtype=torch.float64)[None]
     saturated = []
     for raw in (0.0, 1.5):
@@ -149,7 +149,7 @@ def test_a_fit_recovers_the_exponent() -> None:
     """Data of an ``n = 2`` cell: fitted from ``n = 1`` (every parameter free), the exponent
     comes back near 2 and the error falls far below that of the best ``n = 1`` cell."""
     v = _sine(800)
-    target_cell = BoucWen(d=1.0, alpha=0.32, beta=2.0, gamma=0.6)
+    target_cell = BoucWen(d=1.0, alpha=0.32, beta=2.0, gamma=0.6, learn_exponent=True)
     with torch.no_grad():
         target_cell.raw_exponent.fill_(1.0)
         target = target_cell(v)[0]
@@ -177,7 +177,7 @@ def test_a_fit_recovers_the_exponent() -> None:
 
 def test_a_state_saved_without_the_exponent_loads_at_one() -> None:
     old = BoucWen(learn_exponent=False).state_dict()
-    bw = BoucWen()
+    bw = BoucWen(learn_exponent=True)
     with torch.no_grad():
         bw.raw_exponent.fill_(0.5)
     bw.load_state_dict(old)
@@ -196,3 +196,18 @@ def test_the_derivative_at_one_is_the_schemes() -> None:
         full = advance_exponent_grad(h, x, s, 0.3, r1, r2, 1.0, 0.5 / max(r1, r2), work)[6]
         cheap = exponent_derivative_at_one(h, x, s, 0.3, r1, r2, 0.5 / max(r1, r2))
         assert cheap == pytest.approx(full, rel=1e-12, abs=1e-15)
+
+
+def test_a_cell_whose_exponent_left_1_refuses_onnx_tracing_with_the_fix():
+    bw = BoucWen(d=1.0, alpha=0.32, beta=2.0, gamma=0.6, learn_exponent=True)
+    bw.requires_grad_(False)  # traced as constants, as an export freezes them
+    bw.raw_exponent.fill_(0.5)
+    state0 = torch.zeros(1, len(bw.state_names()), dtype=torch.float64)
+
+    def one_step(v: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
+        return bw.step(v, StepState(state.clone()))
+
+    with pytest.raises(ValueError, match="model.hysteresis=bouc_wen"):
+        torch.jit.trace(one_step, (torch.tensor([0.3], dtype=torch.float64), state0))
+    bw.raw_exponent.fill_(0.0)  # back at 1: the exact update traces
+    torch.jit.trace(one_step, (torch.tensor([0.3], dtype=torch.float64), state0))

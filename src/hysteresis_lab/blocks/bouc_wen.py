@@ -12,7 +12,8 @@ forward pass and its adjoint are the physics floor's numba kernels (float64) in 
 `torch.autograd.Function`; gradients are those of the update (w.r.t. the input, the initial
 state, ``d, alpha, beta, gamma`` and the exponent; zero-length steps carry no input gradient).
 
-The exponent ``n >= 1`` is learnable and starts at 1, where the update is the exact one: it
+The exponent ``n >= 1`` is fixed at 1 unless ``learn_exponent``; learned, it starts at 1,
+where the update is the exact one: it
 leaves 1 only when the loss falls as it grows (`ExponentAboveOne`: a bound held by
 projection). While it changes, the saturated state ``(alpha d / (beta + gamma))^(1/n)``
 stays that of ``n = 1`` (the rates are scaled with it, `BoucWen.rates`), so the exponent
@@ -126,7 +127,7 @@ class BoucWen(nn.Module):
         beta: float = 0.02,
         gamma: float = 0.006,
         n_channels: int = 1,
-        learn_exponent: bool = True,
+        learn_exponent: bool = False,
     ) -> None:
         super().__init__()
         if min(d, alpha, beta) <= 0 or abs(gamma) >= GAMMA_RATIO_MAX * beta or n_channels < 1:
@@ -241,6 +242,12 @@ class BoucWen(nn.Module):
         a = a[None] if alpha_factor is None else a[None] * alpha_factor(v - v_prev)[:, None]
         if self.raw_exponent is None or bool((n == 1.0).all()):  # n: frozen while tracing
             h = bouc_wen_advance(h, (v - v_prev)[:, None], a, r1[None], r2[None])
+        elif torch.jit.is_tracing():
+            raise ValueError(
+                "a Bouc-Wen cell whose learned exponent is not 1 cannot be exported: its step "
+                "takes as many sub-steps as each input step needs, which a traced graph cannot "
+                "hold. Fix: fit with the exponent fixed at 1 (model.hysteresis=bouc_wen) to "
+                "export, or simulate the model in Python.")
         else:
             h = bouc_wen_advance_exponent(h, (v - v_prev)[:, None], a, r1[None], r2[None],
                                           n[None])

@@ -96,8 +96,8 @@ class HysteresisCell(nn.Module):
 
     The Bouc–Wen cell starts with the simulator's loop shape, its ±100 V the input's
     ``amplitude`` (scaled units: the training input's, `hysteresis_cell`), so that its loop
-    saturates at the same share of the drive whatever the input's scaling; its exponent is
-    learned from 1 (`hysteresis_lab.blocks.BoucWen`)."""
+    saturates at the same share of the drive whatever the input's scaling; its exponent is 1
+    (`hysteresis_lab.blocks.BoucWen`)."""
 
     def __init__(self, rate_step: float | None = None,
                  square_amplitude: float | None = None, amplitude: float = 1.0) -> None:
@@ -186,7 +186,7 @@ class StateHysteresis(nn.Module):
         super().__init__()
         # the closed loop runs the exact update in its own kernel: exponent 1
         self.bouc_wen = BoucWen(d=1.0, alpha=1.0, beta=2.0 / max(width, 1e-6), gamma=0.0,
-                                n_channels=self.n_channels, learn_exponent=False)
+                                n_channels=self.n_channels)
         self.weight = nn.Parameter(torch.zeros((), dtype=torch.float64))
 
     def _coefficients(self, dynamics: StableSections) -> tuple[torch.Tensor, ...]:

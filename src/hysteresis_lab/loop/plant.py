@@ -16,8 +16,10 @@ from hysteresis_lab.loop.diagnosis.ranking import EffectScore
 
 #: per kind of plant (`hysteresis_lab.data.spec.PLANT_KINDS`), the effects its physics has
 PLANT_EFFECTS: dict[str, tuple[str, ...]] = {
-    # a piezo stack or mirror: a hysteretic, creeping actuator, its modes, its amplifier
-    "positioner": ("hysteresis", "creep", "rate", "resonance", "saturation", "drift"),
+    # a piezo stack or mirror: a hysteretic, creeping actuator (its loop may be asymmetric),
+    # its modes, its amplifier (clipping, a dead band) and a lever's or flexure's play
+    "positioner": ("hysteresis", "creep", "rate", "asymmetry", "resonance", "saturation",
+                   "dead_zone", "backlash", "drift"),
     # a storage with an outflow law and a rim, fed by a pump
     "tank": ("nonlinear_feedback", "overflow", "saturation"),
     # a cart or a drive moved by a force: friction, play in its transmission, its drive

@@ -82,7 +82,7 @@ from hysteresis_lab.models.physical_chain import FromEffects, PhysicalChainModul
 
 log = logging.getLogger(__name__)
 
-HYSTERESIS = ("bouc_wen", "prandtl_ishlinskii", "none")
+HYSTERESIS = ("bouc_wen", "bouc_wen_exponent", "prandtl_ishlinskii", "none")
 #: most shared modes of the MIMO dynamics
 MAX_MIMO_MODES = 32
 #: the MIMO Bouc–Wen cells' starting hysteretic share (one axis: 0.2); with the residues
@@ -106,10 +106,11 @@ AUTO_MIMO = {"delay": 1, "n_modes": 1}
 def _hysteresis_cell(hysteresis: str, operators: int, alpha: float = 0.2) -> nn.Module | None:
     """One input channel's hysteresis cell (None for ``hysteresis='none'``); ``alpha``: the
     Bouc–Wen cell's hysteretic share."""
-    if hysteresis == "bouc_wen":
+    if hysteresis in ("bouc_wen", "bouc_wen_exponent"):
         # a generic loop shape for an input of unit amplitude (not the simulator's values);
         # the gain after the cell is read off the data
-        return BoucWen(**bouc_wen_scaled_params(1.0, alpha, 0.015, 0.003, 100.0, 100.0))
+        return BoucWen(**bouc_wen_scaled_params(1.0, alpha, 0.015, 0.003, 100.0, 100.0),
+                       learn_exponent=hysteresis == "bouc_wen_exponent")
     if hysteresis == "prandtl_ishlinskii":
         return PlayOperators(n_operators=operators, max_threshold=0.8)
     return None
