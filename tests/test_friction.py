@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import torch
 
+from cart import FS, cart_data
 from hysteresis_lab.data.datamodules import WindowDataModule
-from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.effects.friction import FrictionLaw
 from hysteresis_lab.evaluation.predict import free_run
@@ -20,40 +20,8 @@ from hysteresis_lab.models.augment import augment_splits, context_to_dict, featu
 
 TRAINER = TrainerSettings(max_epochs=20, accelerator="cpu", enable_progress_bar=False,
                           enable_model_summary=False)
-FS = 1000.0
 COULOMB = 1.0  # the friction force, against forces of 1-3
 
-
-def _cart(u: np.ndarray, coulomb: float = COULOMB) -> np.ndarray:
-    """A mass pushed by ``u`` against viscous and Coulomb friction (smoothed over a small
-    velocity); its position in mm."""
-    position, velocity = np.zeros(len(u)), 0.0
-    for k in range(1, len(u)):
-        force = u[k - 1] - 2.0 * velocity - coulomb * np.clip(velocity / 0.002, -1.0, 1.0)
-        velocity += force / FS * 20.0
-        position[k] = position[k - 1] + velocity / FS
-    return 1000.0 * position
-
-
-def _pushes(rng: np.random.Generator, n: int) -> np.ndarray:
-    """Back-and-forth pushes of random size and length, some below the friction force."""
-    u, k = np.zeros(n), 0
-    while k < n:
-        length = int(rng.integers(100, 400))
-        u[k:k + length] = rng.uniform(0.5, 3.0) * (1 if (k // 250) % 2 == 0 else -1)
-        k += length
-    return u
-
-
-def _cart_data() -> DatasetSplits:
-    rng = np.random.default_rng(0)
-    recordings = []
-    for name, n in (("train", 6000), ("val", 2000), ("test", 3000)):
-        u = _pushes(rng, n)
-        y = _cart(u) + 1e-3 * rng.standard_normal(n)
-        recordings.append(Recording(u=u[:, None], y=y[:, None], fs=FS, name=name))
-    return DatasetSplits("cart", train=recordings[:1], val=recordings[1:2],
-                         test=recordings[2:])
 
 
 def _fitted(data: DatasetSplits, effects: list[str], tmp_path):
@@ -91,7 +59,7 @@ def test_friction_is_named_on_a_coulomb_cart_and_its_law_fits_it(tmp_path):
     stops: its free-run residual names friction (the direction of its own motion explains
     it), and with the friction law it learns a level against the motion and simulates the
     test record better."""
-    data = _cart_data()
+    data = cart_data(COULOMB, smallest_push=0.5)
     plain, without = _fitted(data, [], tmp_path / "plain")
     recordings = [data.val[0], data.test[0]]
     window = WindowDataModule(data, scaling="standard").window
@@ -109,7 +77,7 @@ def test_friction_is_named_on_a_coulomb_cart_and_its_law_fits_it(tmp_path):
 def test_model_linear_has_no_friction_block_without_an_integrator():
     """A law of the output's level is no friction: without an integrator the model is
     built without it (and the loop does not add it, `loop.driver._not_carried`)."""
-    data = _cart_data()
+    data = cart_data(COULOMB, smallest_push=0.5)
     augmented, context = augment_splits(data, ["friction"])
     dm = WindowDataModule(augmented, scaling="standard")
     model = build_model({"name": "linear", "integrator": False, "effects": ["friction"]}, dm,

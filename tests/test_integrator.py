@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from cart import FS, cart_data
 from hysteresis_lab.api import compose, train
 from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.data.recording import Recording
@@ -21,38 +22,7 @@ from hysteresis_lab.models.linear import LinearModel
 
 TRAINER = TrainerSettings(max_epochs=20, accelerator="cpu", enable_progress_bar=False,
                           enable_model_summary=False)
-FS = 1000.0
 
-
-def _cart(u: np.ndarray) -> np.ndarray:
-    """A mass pushed by ``u`` against viscous friction; its position."""
-    position, velocity = np.zeros(len(u)), 0.0
-    for k in range(1, len(u)):
-        force = u[k - 1] - 2.0 * velocity
-        velocity += force / FS * 20.0
-        position[k] = position[k - 1] + velocity / FS
-    return 1000.0 * position  # mm
-
-
-def _pushes(rng: np.random.Generator, n: int) -> np.ndarray:
-    """Back-and-forth pushes of random size and length, as a positioning trajectory."""
-    u, k = np.zeros(n), 0
-    while k < n:
-        length = int(rng.integers(100, 400))
-        u[k:k + length] = rng.uniform(1.0, 3.0) * (1 if (k // 250) % 2 == 0 else -1)
-        k += length
-    return u
-
-
-def _cart_data() -> DatasetSplits:
-    rng = np.random.default_rng(0)
-    recordings = []
-    for name, n in (("train", 6000), ("val", 2000), ("test", 3000)):
-        u = _pushes(rng, n)
-        y = _cart(u) + 1e-3 * rng.standard_normal(n)
-        recordings.append(Recording(u=u[:, None], y=y[:, None], fs=FS, name=name))
-    return DatasetSplits("cart", train=recordings[:1], val=recordings[1:2],
-                         test=recordings[2:])
 
 
 def _fitted(data: DatasetSplits, config: dict, tmp_path) -> tuple[LinearModel, float]:
@@ -72,7 +42,7 @@ def _fitted(data: DatasetSplits, config: dict, tmp_path) -> tuple[LinearModel, f
 def test_an_integrating_plant_is_simulated_with_an_integrator_and_not_without(tmp_path):
     """A cart's position: stable dynamics alone cannot follow it; with the integrator the
     linear model simulates it to a small share of its range."""
-    data = _cart_data()
+    data = cart_data()
     spread = float(np.std(data.test[0].y))
     with_integrator, error = _fitted(data, {"integrator": True}, tmp_path / "integrator")
     _, without = _fitted(data, {}, tmp_path / "plain")
@@ -85,7 +55,7 @@ def test_a_law_in_the_feedback_of_an_integrator_reads_the_integrand():
     """Friction is a law of the velocity, the integrand: the nonlinear feedback's knots
     spread over the output's steps in the integrand's unit (around zero, not over the
     output's levels) and read no output offset; weighted, the law changes the free run."""
-    data = _cart_data()
+    data = cart_data()
     augmented, context = augment_splits(data, ["nonlinear_feedback"])
     dm = WindowDataModule(augmented, scaling="standard")
     model = build_model({"name": "linear", "integrator": True, "effects": ["nonlinear_feedback"],
@@ -113,7 +83,7 @@ def test_a_law_in_the_feedback_of_an_integrator_reads_the_integrand():
 def test_the_integrand_unit_is_the_largest_step_of_the_training_output():
     """Built as the pipeline builds a model without effects (no feature context), the
     integrand's unit comes from the training recording at the start: its largest step."""
-    data = _cart_data()
+    data = cart_data()
     dm = WindowDataModule(data, scaling="standard")
     model = build_model({"name": "linear", "integrator": True}, dm, trained_on={"fs": FS})
     rec = data.train[0]
@@ -126,7 +96,7 @@ def test_a_grown_integrator_model_starts_where_the_fitted_one_ended(tmp_path):
     """The loop grows a fitted model by an effect: the grown model keeps the integrand's unit
     of the fitted one (here its context spans other recordings, whose steps are larger) and
     simulates exactly what the fitted one did."""
-    data = _cart_data()
+    data = cart_data()
     fitted, _ = _fitted(data, {"integrator": True}, tmp_path)
     wider = DatasetSplits("cart", train=[*data.train, *data.test], val=data.val, test=data.test)
     augmented, context = augment_splits(wider, ["nonlinear_feedback"])
@@ -159,14 +129,14 @@ def test_the_steps_of_the_output_are_kept_with_the_model():
     ({"integrator": True, "feedback_on": "output_stage"}, "feedback_on=output_stage"),
 ])
 def test_bad_integrator_settings_are_refused(settings, message):
-    data = _cart_data()
+    data = cart_data()
     dm = WindowDataModule(data, scaling="standard")
     with pytest.raises(ConfigError, match=message):
         build_model({"name": "linear", **settings}, dm, trained_on={"fs": FS})
 
 
 def test_an_integrator_is_refused_where_recordings_share_an_unknown_start():
-    data = _cart_data()
+    data = cart_data()
     dm = WindowDataModule(data, scaling="standard")
     with pytest.raises(ConfigError, match="never settles"):
         build_model({"name": "linear", "integrator": True}, dm,
@@ -176,7 +146,7 @@ def test_an_integrator_is_refused_where_recordings_share_an_unknown_start():
 def test_the_loop_keeps_the_forces_on_the_integrand():
     """A loop refit that adds a storage's law to a fitted model tries the output stage too,
     but not with an integrator: its forces read the integrand."""
-    data = _cart_data()
+    data = cart_data()
     dm = WindowDataModule(data, scaling="standard")
     for integrator, places in ((False, ["dynamics", "output_stage"]), (True, ["dynamics"])):
         previous = build_model({"name": "linear", "integrator": integrator}, dm,
@@ -203,7 +173,7 @@ def test_on_emps_the_data_set_says_its_output_integrates_and_the_model_follows(t
 
 
 def test_other_data_keep_the_stable_model_by_default():
-    data = _cart_data()
+    data = cart_data()
     assert not data.output_integrates
     dm = WindowDataModule(data, scaling="standard")
     assert not build_model({"name": "linear"}, dm, trained_on={"fs": FS}).integrator
