@@ -548,7 +548,6 @@ def _choose_next_effect(run: _LoopRun, state: _LoopState, entry: dict[str, Any])
                     "(loop.add_under_excited=false)", top.effect, plant, unseen["reading"])
         excluded.add(top.effect)
         top, reported = next_effect(state.diagnosis, excluded)
-    uncarried = sorted(excluded - state.tried)
     if reported:
         entry["reported"] = reported
     if top is None:
@@ -560,8 +559,8 @@ def _choose_next_effect(run: _LoopRun, state: _LoopState, entry: dict[str, Any])
             "note", f"loop.max_rounds={run.settings.max_rounds} reached; next: {top.effect}"
         )
         return False
-    group = named_group(state.diagnosis, top, state.tried | set(uncarried),
-                        run.settings.confounded_margin, run.settings.max_alternatives, plant)
+    group = named_group(state.diagnosis, top, excluded, run.settings.confounded_margin,
+                        run.settings.max_alternatives, plant)
     if group[0] != top.effect:
         entry["named_for_plant"] = {"plant": plant, "top_score": top.effect}
         log.info("'%s' scores highest, but the evidence does not tell it from '%s', whose "
