@@ -71,18 +71,25 @@ def test_a_stopped_paper_run_starts_no_further_model_in_its_workers(tmp_path):
         "+data.splits.max_test_samples=1000", f"hydra.run.dir={tmp_path}", cwd=tmp_path,
     )
     deadline = time.monotonic() + 600
-    # the sequence models start first; both have trained an epoch once lstm's checkpoint is there
-    while not (tmp_path / "lstm" / "checkpoints" / "last.ckpt").exists():
+    # both workers are busy: two jobs have opened their train.log and lstm has trained an epoch
+    lstm_checkpoint = tmp_path / "lstm" / "checkpoints" / "last.ckpt"
+    while not (len(_started_jobs(tmp_path)) >= 2 and lstm_checkpoint.exists()):
         assert proc.poll() is None, proc.stdout.read()[-3000:]
-        assert time.monotonic() < deadline, "the lstm never saved a checkpoint"
+        assert time.monotonic() < deadline, "the two workers never both started a job"
         time.sleep(0.05)
+    started_before_stop = _started_jobs(tmp_path)
     workers = _worker_pids(proc.pid)
     assert len(workers) == 2
     os.kill(proc.pid, signal.SIGTERM)  # `kill` of the app: the parent stops its workers
     output, _ = proc.communicate(timeout=300)
     assert proc.returncode == 143, output[-3000:]
     # a job's train.log opens as it starts (its "started" line reaches the terminal through
-    # a queue that a stop may cut short, so the files are the evidence)
-    assert (tmp_path / "lstm" / "train.log").exists() and (tmp_path / "cnn" / "train.log").exists()
-    assert not (tmp_path / "ffnn" / "train.log").exists(), output[-3000:]  # no new job taken
-    assert "[ffnn] started" not in output
+    # a queue that a stop may cut short, so the files are the evidence): no new job was taken
+    assert _started_jobs(tmp_path) == started_before_stop, output[-3000:]
+    for key in set(NETWORKS) - started_before_stop:
+        assert f"[{key}] started" not in output
+
+
+def _started_jobs(run_dir: Path) -> set[str]:
+    """The paper run's jobs that have started: each opens ``<model>/train.log`` first."""
+    return {key for key in NETWORKS if (run_dir / key / "train.log").exists()}
