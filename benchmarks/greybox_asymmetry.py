@@ -8,11 +8,14 @@ default simulator.
 Each zoo plant (`hysteresis_lab.sim.zoo.export_zoo_plant`) is fitted through ``data=csv``
 with ``model=greybox`` twice: with its defaults (*symmetric*) and with
 ``model.effects=[asymmetry]`` (the square law on its hysteresis cell, grown from zero weight);
-so is the bundled default simulator (``data=default``). A fit done before (its
-``metrics.json`` in ``<root>/<case>/<setting>``) is reused, and so is a plant's exported data
-(``<root>/plant_<seed>/data``). The page, ``docs/results/greybox_asymmetry.md``, gives the
-mean free-run RMSE over the twelve test sines (over the plant's noise σ for the zoo), the
-learned square-law weight and the process's CPU seconds (one core: ``OMP_NUM_THREADS=1``).
+so is the bundled default simulator (``data=default``), as it is (*default*) and with
+``creep`` declared in both settings (*default_creep*, the accuracy table's grey-box). A fit
+done before (its ``metrics.json`` in ``<root>/<case>/<setting>``) is reused, and so is a
+plant's exported data (``<root>/plant_<seed>/data``). The page,
+``docs/results/greybox_asymmetry.md``, gives the mean free-run RMSE over the twelve test
+sines (over the plant's noise σ for the zoo), the square law's share of the cell's response
+in the plant and in the fit, the process's CPU seconds (one core: ``OMP_NUM_THREADS=1``) and
+whether the square law belongs in the defaults (`verdict`).
 """
 
 from __future__ import annotations
@@ -32,10 +35,23 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 OUT = REPO / "docs" / "results" / "greybox_asymmetry.md"
-#: the two settings compared: name -> model overrides
-SETTINGS = {"symmetric": [], "asymmetry": ["model.effects=[asymmetry]"]}
-#: the bundled simulator's case folder
-DEFAULT = "default"
+#: the two settings compared: name -> the effects added to the case's
+SETTINGS = {"symmetric": [], "asymmetry": ["asymmetry"]}
+#: the bundled simulator's cases: name -> the effects declared in both settings (the
+#: accuracy table's grey-box declares creep, which the bundled plant has)
+DEFAULTS = {"default": [], "default_creep": ["creep"]}
+#: the other bundled data sets the accuracy table fits the grey-box on: name -> its settings
+#: there (`benchmarks/accuracy.py`); the default would reach them too
+BUNDLED = {
+    "bouc_wen": ["data=bouc_wen"],
+    "cascaded_tanks": ["data=cascaded_tanks"],
+    "emps": ["data=emps"],
+    "p885": ["data=p885"],
+    "fsm": ["data=fsm", "model.n_modes=14", "training.lr=5e-4", "model.recording_repeats=2",
+            "trainer.max_epochs=10"],
+}
+#: the simulator's stroke in its asymmetry law (``c * 40 µm * (v / v_ref)^2``)
+STROKE_UM = 40.0
 #: a cost above this share on a plant without a strong asymmetric loop keeps it opt-in
 COST_LIMIT = 0.03
 QUIET = ["logger=none", "trainer.enable_progress_bar=false"]
@@ -45,8 +61,10 @@ log = logging.getLogger("greybox_asymmetry")
 
 def data_overrides(case: str, root: Path) -> list[str]:
     """The data settings of a case: the default simulator, or a zoo plant's CSV files."""
-    if case == DEFAULT:
+    if case in DEFAULTS:
         return ["data=default"]
+    if case in BUNDLED:
+        return BUNDLED[case]
     from hysteresis_lab.sim.zoo import export_zoo_plant
 
     seed = int(case.removeprefix("plant_"))
@@ -66,9 +84,11 @@ def fit(case: str, setting: str, root: Path) -> Path:
     if (folder / "metrics.json").is_file():
         return folder
     data = data_overrides(case, root)
+    effects = [*DEFAULTS.get(case, []), *SETTINGS[setting]]
     folder.mkdir(parents=True, exist_ok=True)
     command = [str(Path(sys.executable).parent / "hysteresis-lab-train"), "model=greybox",
-               *SETTINGS[setting], *data, *QUIET, f"hydra.run.dir={folder}"]
+               *([f"model.effects=[{','.join(effects)}]"] if effects else []), *data, *QUIET,
+               f"hydra.run.dir={folder}"]
     env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     with (folder / "fit.log").open("w") as handle:
@@ -80,30 +100,40 @@ def fit(case: str, setting: str, root: Path) -> Path:
     return folder
 
 
-def _square_weight(folder: Path) -> float | None:
-    """The fitted square-law weight (None: the model has none)."""
+def _square_share(folder: Path) -> float | None:
+    """The fitted square law over the cell's linear slope, ``q / d`` (the square term's
+    share of the cell's linear response at the training amplitude); None: none fitted."""
     from hysteresis_lab.models.io import load_model
 
     params = load_model(folder / "model.ckpt").physical_parameters()
-    return params["asymmetry"]["weight"] if "asymmetry" in params else None
+    if "asymmetry" not in params:
+        return None
+    return params["asymmetry"]["weight"] / params["hysteresis"]["d"]
 
 
 def row(case: str, root: Path) -> dict[str, Any]:
     """A case's plant facts and, per setting, its mean RMSE, weight and CPU seconds."""
     out: dict[str, Any] = {"case": case}
-    if case == DEFAULT:
-        out.update(sigma=None, asymmetry=0.0, plant="bundled default simulator")
+    if case in DEFAULTS:
+        declared = "".join(f", `model.effects=[{e}]`" for e in DEFAULTS[case])
+        out.update(sigma=None, coefficient=0.0, share=0.0,
+                   plant=f"bundled simulator{declared}")
+    elif case in BUNDLED:
+        out.update(sigma=None, coefficient=None, share=None, plant="bundled data set")
     else:
         plant = json.loads((root / case / "data" / "plant.json").read_text())
         effect = plant["effects"].get("asymmetry", {})
-        out.update(sigma=plant["effects"]["noise"]["rms_um"],
-                   asymmetry=effect.get("coefficient", 0.0) if effect.get("enabled") else 0.0,
-                   plant=plant["description"]["cell"])
+        coefficient = effect.get("coefficient", 0.0) if effect.get("enabled") else 0.0
+        # the simulator's square term over the cell's linear response at v_ref
+        share = coefficient * STROKE_UM / (plant["description"]["d_um_per_v"]
+                                           * effect.get("v_ref", 100.0))
+        out.update(sigma=plant["effects"]["noise"]["rms_um"], coefficient=coefficient,
+                   share=share, plant=plant["description"]["cell"])
     for setting in SETTINGS:
         folder = root / case / setting
         metrics = json.loads((folder / "metrics.json").read_text())
         rmse = float(np.mean([m["rmse_free_run"] for m in metrics["tests"].values()]))
-        out[setting] = {"rmse": rmse, "weight": _square_weight(folder),
+        out[setting] = {"rmse": rmse, "share": _square_share(folder),
                         "cpu_s": float((folder / "cputime").read_text().split()[0])}
     return out
 
@@ -120,25 +150,29 @@ def render(rows: list[dict[str, Any]], command: str) -> str:
         "Fits found in the root are reused: the commit is the page's, a reused fit's may be "
         "older.", "",
         "Each case fitted with `model=greybox` (zoo plants through `data=csv`, the bundled "
-        "simulator through `data=default`): *symmetric* with its defaults, *asymmetry* with "
-        "`model.effects=[asymmetry]` (a square law `q A (v / A)^2` of the hysteresis cell's "
+        "simulator through `data=default`): *symmetric* with its defaults (the bundled "
+        "simulator also with `creep` declared, as in the accuracy table), *asymmetry* with "
+        "`asymmetry` declared too (a square law `q A (v / A)^2` of the hysteresis cell's "
         "input added to its output, grown from `q = 0`). Score: mean free-run RMSE over the "
-        "twelve ±100 V test sines, over the plant's noise σ for the zoo. Plant asymmetry: "
-        "the simulator's coefficient `c` (`c · 40 µm · (v / 100 V)^2` added to the "
-        "displacement; 0: none).", "",
-        "| case | plant cell | plant asymmetry c | symmetric | asymmetry | change "
-        "| learned q | CPU s sym. | CPU s asym. |",
+        "twelve ±100 V test sines, over the plant's noise σ for the zoo. Square law: its "
+        "share of the cell's linear response at full drive, the plant's `40 µm · c / "
+        "(d · v_ref)` (the simulator adds `c · 40 µm · (v / v_ref)^2` to `d v`; 0: none) "
+        "and the fit's `q / d`.", "",
+        "| case | plant cell | square law: plant | learned | symmetric | asymmetry | change "
+        "| CPU s sym. | CPU s asym. |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         sym, asym = r["symmetric"], r["asymmetry"]
-        unit = (lambda x: f"{x:.4g} µm") if r["sigma"] is None else \
+        unit = (lambda x: f"{x:.4g}") if r["coefficient"] is None else \
+            (lambda x: f"{x:.4g} µm") if r["sigma"] is None else \
             (lambda x, s=r["sigma"]: f"{x / s:.3g} σ")
+        plant = "" if r["share"] is None else f"{r['share']:+.3f}"
         change = asym["rmse"] / sym["rmse"] - 1.0
-        weight = "" if asym["weight"] is None else f"{asym['weight']:.3g}"
+        learned = "" if asym["share"] is None else f"{asym['share']:+.3f}"
         lines.append(
-            f"| {r['case']} | {r['plant']} | {r['asymmetry']:.3g} | {unit(sym['rmse'])} "
-            f"| {unit(asym['rmse'])} | {100 * change:+.1f} % | {weight} "
+            f"| {r['case']} | {r['plant']} | {plant} | {learned} "
+            f"| {unit(sym['rmse'])} | {unit(asym['rmse'])} | {100 * change:+.1f} % "
             f"| {sym['cpu_s']:.0f} | {asym['cpu_s']:.0f} |")
     lines += ["", verdict(rows), ""]
     return "\n".join(lines)
@@ -149,14 +183,18 @@ def verdict(rows: list[dict[str, Any]]) -> str:
     asymmetric loop and cost the default simulator and the plants without one no more than
     `COST_LIMIT`."""
     change = {r["case"]: r["asymmetry"]["rmse"] / r["symmetric"]["rmse"] - 1.0 for r in rows}
-    asymmetric = [r["case"] for r in rows if abs(r["asymmetry"]) > 0]
-    symmetric = [r["case"] for r in rows if r["asymmetry"] == 0]
+    asymmetric = [r["case"] for r in rows if r["coefficient"] not in (None, 0)]
+    symmetric = [r["case"] for r in rows if r["coefficient"] == 0]
+    others = [r["case"] for r in rows if r["coefficient"] is None]
     helps = all(change[c] < 0 for c in asymmetric)
-    costs = max((change[c] for c in symmetric), default=0.0)
+    costs = max((change[c] for c in symmetric + others), default=0.0)
     default = helps and costs <= COST_LIMIT
-    return (f"Asymmetric plants: {', '.join(f'{c} {100 * change[c]:+.1f} %' for c in asymmetric)}"
-            f"; without an asymmetric loop: "
-            f"{', '.join(f'{c} {100 * change[c]:+.1f} %' for c in symmetric)}. "
+
+    def listed(cases: list[str]) -> str:
+        return ", ".join(f"{c} {100 * change[c]:+.1f} %" for c in cases) or "none"
+
+    return (f"Asymmetric plants: {listed(asymmetric)}; without an asymmetric loop: "
+            f"{listed(symmetric)}; other bundled data sets: {listed(others)}. "
             + ("It helps every asymmetric plant and costs the others at most "
                f"{100 * COST_LIMIT:.0f} %: a default." if default else
                "Not a default (it must help every asymmetric plant and cost the others at "
@@ -166,8 +204,10 @@ def verdict(rows: list[dict[str, Any]]) -> str:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", default="0,1,4,6,7")
-    parser.add_argument("--cases", default="plants,default",
-                        help="which to fit: plants (the seeds), default (the simulator)")
+    parser.add_argument("--cases", default=",".join(["plants", *DEFAULTS]),
+                        help="which to fit: plants (the seeds), default, default_creep (the "
+                             f"bundled simulator without and with creep declared), "
+                             f"{', '.join(BUNDLED)}")
     parser.add_argument("--root", type=Path, default=Path("outputs/greybox_asymmetry"))
     parser.add_argument("--settings", default=",".join(SETTINGS),
                         help="the settings to fit (the page needs both)")
@@ -177,12 +217,14 @@ def main(argv: list[str] | None = None) -> None:
     plants = [f"plant_{int(s)}" for s in args.seeds.split(",")]
     if not args.render:
         chosen = args.cases.split(",")
-        cases = (plants if "plants" in chosen else []) + ([DEFAULT] if DEFAULT in chosen
-                                                          else [])
+        cases = (plants if "plants" in chosen else []) + [c for c in [*DEFAULTS, *BUNDLED]
+                                                          if c in chosen]
         for case in cases:
             for setting in args.settings.split(","):
                 log.info("%s: %s -> %s", case, setting, fit(case, setting, args.root))
-    rows = [row(case, args.root) for case in [*plants, DEFAULT]]
+    done = [c for c in BUNDLED if (args.root / c / "asymmetry" / "metrics.json").is_file()
+            and (args.root / c / "symmetric" / "metrics.json").is_file()]
+    rows = [row(case, args.root) for case in [*plants, *DEFAULTS, *done]]
     OUT.write_text(render(rows, "python benchmarks/greybox_asymmetry.py --seeds "
                           f"{args.seeds} --root <root>") + "\n")
     log.info("wrote %s", OUT)

@@ -24,8 +24,9 @@ parameters and fits exactly as before MIMO.
   ``none`` (a static gain);
 * the declared effects' grey-box parts (`hysteresis_lab.effects.base.GreyBoxPart`): a block
   per input after the gain (``creep``: a first-order filter bank, fixed time constants,
-  learnable weights), more modes (``resonance``: one), or the model's own cell
-  (``hysteresis``);
+  learnable weights), more modes (``resonance``: one), the model's own cell
+  (``hysteresis``), or a term added to that cell's output from its input (``asymmetry``:
+  the square law of `hysteresis_lab.effects.asymmetry.SquareLaw`, weight from zero);
 * every linear block is stable for any parameter value (`hysteresis_lab.blocks`);
 * optionally (``model.residual_neurons > 0``, one input and output) a small ReLU network
   adds a static correction from the last ``nb`` inputs and the last ``na`` outputs of the
