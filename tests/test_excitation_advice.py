@@ -173,13 +173,16 @@ def test_no_advice_where_the_identification_data_drive_the_operators_as_the_test
     assert recommend_recordings("saturation", [rec], [rec], [rec], context) is None
 
 
-def test_the_loop_reports_the_recordings_to_add(tmp_path):
+@pytest.mark.parametrize("plant_alpha", [None, 1.0])
+def test_the_loop_reports_the_recordings_to_add(tmp_path, plant_alpha):
     """Round 0 of the loop on short simulator records with the amplifier clipping: the 1 s
     validation multisine passes 70 V a few times, the 10 and 100 Hz test sines every cycle.
     With the plain diagnosis (``loop.diagnosis_through_dynamics=false``: read through the
     model's dynamics, the clipping is named on these records) the clipping's score reaches
-    loop.min_score without significance, and the report (JSON, page, log) says which sines
-    to add, nothing else changed."""
+    loop.min_score without significance at loop.alpha, and the report (JSON, page, log) says
+    which sines to add, nothing else changed. At the default ``loop.plant_alpha=1`` the
+    positioner's prior makes it significant (the folds would judge it), and the advice
+    still stands: the data alone did not decide it."""
     spec = DataSpec.from_config(hl.compose("data=default", *CLIPPING).data)
     effects = {"hysteresis": {"enabled": False}, "creep": {"enabled": False},
                "saturation": {"enabled": True}}
@@ -188,11 +191,13 @@ def test_the_loop_reports_the_recordings_to_add(tmp_path):
     trainer = TrainerSettings(max_epochs=5, accelerator="cpu", devices=1,
                               enable_progress_bar=False, enable_model_summary=False)
     report = run_loop({"name": "linear", "effects": [], "lr": 0.02}, spec, trainer, data,
-                      tmp_path, LoopSettings(max_rounds=0, diagnosis_through_dynamics=False),
+                      tmp_path, LoopSettings(max_rounds=0, diagnosis_through_dynamics=False,
+                                             plant_alpha=plant_alpha),
                       use_tensorboard=False)
     first = report["rounds"][0]
     score = next(d for d in first["diagnosis"] if d["effect"] == "saturation")
-    assert score["score"] >= 0.05 and not score["significant"]
+    assert score["score"] >= 0.05 and score["p_value"] > 0.01
+    assert score["significant"] == (plant_alpha is not None) == score.get("by_plant_prior", False)
     advice = {a["effect"]: a for a in first["under_excited"]}["saturation"]
     assert advice["identification"] > UNDER_EXCITED_RATIO
     assert advice["override"][0].startswith("data.splits.train_sines=")
@@ -200,5 +205,5 @@ def test_the_loop_reports_the_recordings_to_add(tmp_path):
     assert f"rerun with: `{' '.join(advice['override'])}`" in page
     check_loop_notebook(tmp_path)
     unjudged = {d["effect"] for d in first["diagnosis"] if d["tested"] and d["predictable"]
-                and not d["significant"] and d["score"] >= 0.05}
+                and (not d["significant"] or d.get("by_plant_prior")) and d["score"] >= 0.05}
     assert {a["effect"] for a in first["under_excited"]} <= unjudged

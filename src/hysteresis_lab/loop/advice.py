@@ -1,6 +1,7 @@
 """The loop's advice where an effect cannot be judged for lack of excitation: what to record.
 
-An effect whose residual score reaches ``loop.min_score`` but is not significant, and whose
+An effect whose residual score reaches ``loop.min_score`` but is not significant on the data
+alone (``loop.plant_alpha`` aside), and whose
 operators the test recordings drive more than twice as hard as the identification data or
 the diagnosis recordings (`hysteresis_lab.loop.diagnosis.excitation`), is reported as not judged:
 the data show too little of it to tell. The advice names the recordings that would show it
@@ -41,10 +42,13 @@ SIM_AMPLITUDE = 100.0
 
 
 def unjudged_effects(diagnosis: Sequence[EffectScore], min_score: float) -> list[EffectScore]:
-    """Input-driven effects with a score at or above ``min_score`` that are not significant."""
+    """Input-driven effects with a score at or above ``min_score`` that the data alone do not
+    make significant (one the declared plant's prior made significant is tried, but more
+    excitation would still decide it)."""
     return [
         d for d in diagnosis
-        if d.tested and d.predictable and not d.significant and d.score >= min_score
+        if d.tested and d.predictable and (not d.significant or d.by_plant_prior)
+        and d.score >= min_score
         and get_effect(d.effect).block not in MODEL_OUTPUT_BLOCKS
     ]
 

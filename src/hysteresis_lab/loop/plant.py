@@ -54,7 +54,7 @@ def with_plant_prior(diagnosis: Sequence[EffectScore], plant: str | None, alpha:
              else f"significant at loop.plant_alpha={alpha:g}")
     note = f" ({level}: its physics fits data.plant={plant})"
     marked = [
-        dataclasses.replace(d, significant=True, evidence=d.evidence + note)
+        dataclasses.replace(d, significant=True, by_plant_prior=True, evidence=d.evidence + note)
         if (not d.significant and d.tested and fits_plant(d.effect, plant)
             and d.score >= min_score and d.p_value <= alpha) else d
         for d in diagnosis

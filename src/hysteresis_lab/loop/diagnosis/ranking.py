@@ -120,6 +120,9 @@ class EffectScore:
     tested: bool = True  # False: no recording can show the effect (see ``evidence``)
     #: how the held-out blocks voted (None: not tested)
     blocks: BlockCounts | None = None
+    #: significant by the declared plant's prior (``loop.plant_alpha``), not at ``loop.alpha``:
+    #: tried, but the data alone did not decide it (`hysteresis_lab.loop.plant`)
+    by_plant_prior: bool = False
 
     def to_dict(self) -> dict:
         out = {
@@ -133,6 +136,8 @@ class EffectScore:
         }
         if self.blocks is not None:
             out["blocks"] = dataclasses.asdict(self.blocks)
+        if self.by_plant_prior:
+            out["by_plant_prior"] = True
         return out
 
 
