@@ -24,14 +24,11 @@ import argparse
 import datetime
 import json
 import logging
-import os
-import resource
-import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from greybox_structure import train_greybox
 
 REPO = Path(__file__).resolve().parents[1]
 OUT = REPO / "docs" / "results" / "greybox_asymmetry.md"
@@ -56,7 +53,6 @@ STROKE_UM = 40.0
 IDLE_SHARE = 0.005
 #: a cost above this share on a plant without a strong asymmetric loop keeps it opt-in
 COST_LIMIT = 0.03
-QUIET = ["logger=none", "trainer.enable_progress_bar=false"]
 
 log = logging.getLogger("greybox_asymmetry")
 
@@ -87,17 +83,7 @@ def fit(case: str, setting: str, root: Path) -> Path:
         return folder
     data = data_overrides(case, root)
     effects = [*DEFAULTS.get(case, []), *SETTINGS[setting]]
-    folder.mkdir(parents=True, exist_ok=True)
-    command = [str(Path(sys.executable).parent / "hysteresis-lab-train"), "model=greybox",
-               f"model.effects=[{','.join(effects)}]", *data, *QUIET,
-               f"hydra.run.dir={folder}"]
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    with (folder / "fit.log").open("w") as handle:
-        subprocess.run(command, cwd=REPO, env=env, stdout=handle, stderr=subprocess.STDOUT,
-                       check=True)
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    cpu = train_greybox([f"model.effects=[{','.join(effects)}]", *data], folder)
     (folder / "cputime").write_text(f"{cpu:.1f}\n")
     return folder
 

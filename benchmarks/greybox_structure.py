@@ -52,20 +52,26 @@ def fit(seed: int, setting: str, overrides: list[str], root: Path) -> Path:
     if (folder / "metrics.json").is_file():
         return folder
     files = export_zoo_plant(seed, root / f"plant_{seed}" / "data")
+    cpu = train_greybox([*overrides, "data=csv", f"data.train={files['train']}",
+                         f"data.val={files['val']}", f"data.test=[{','.join(files['test'])}]"],
+                        folder)
+    (folder / "cputime").write_text(f"{cpu:.1f} 0\n")
+    return folder
+
+
+def train_greybox(overrides: list[str], folder: Path) -> float:
+    """``hysteresis-lab-train model=greybox <overrides>`` on one core into ``folder`` (its
+    output in ``fit.log``); the process's CPU seconds."""
     folder.mkdir(parents=True, exist_ok=True)
     command = [str(Path(sys.executable).parent / "hysteresis-lab-train"), "model=greybox",
-               *overrides, "data=csv", f"data.train={files['train']}",
-               f"data.val={files['val']}", f"data.test=[{','.join(files['test'])}]", *QUIET,
-               f"hydra.run.dir={folder}"]
+               *overrides, *QUIET, f"hydra.run.dir={folder}"]
     env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     with (folder / "fit.log").open("w") as handle:
         subprocess.run(command, cwd=REPO, env=env, stdout=handle, stderr=subprocess.STDOUT,
                        check=True)
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-    (folder / "cputime").write_text(f"{cpu:.1f} 0\n")
-    return folder
+    return (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
 
 
 def row(seed: int, settings: list[str], root: Path) -> dict[str, Any]:
@@ -204,6 +210,11 @@ def main(argv: list[str] | None = None) -> None:
             for setting in (args.settings or ",".join(settings)).split(","):
                 folder = fit(seed, setting, settings[setting], root)
                 log.info("plant %d: %s -> %s", seed, setting, folder)
+    missing = [f"plant {seed} {setting}" for seed in seeds for setting in settings
+               if not (root / f"plant_{seed}" / setting / "metrics.json").is_file()]
+    if missing:
+        raise SystemExit(f"page not written: no fit for {', '.join(missing)} in {root}. Fix: "
+                         "run those settings (without --settings or --render) first.")
     rows = [row(seed, list(settings), root) for seed in seeds]
     page, render = PAGES[args.compare]
     compare = "" if args.compare == "structure" else f"--compare {args.compare} "
