@@ -1,9 +1,9 @@
 """The loop's advice where an effect cannot be judged for lack of excitation: what to record.
 
 An effect whose residual score reaches ``loop.min_score`` but is not significant on the data
-alone (``loop.plant_alpha`` aside), and whose
-operators the test recordings drive more than twice as hard as the identification data or
-the diagnosis recordings (`hysteresis_lab.loop.diagnosis.excitation`), is reported as not judged:
+alone (``loop.plant_alpha`` aside), and whose operators the test recordings drive more than
+twice as hard as the identification data or the diagnosis recordings
+(`hysteresis_lab.loop.diagnosis.excitation`), is reported as not judged:
 the data show too little of it to tell. The advice names the recordings that would show it
 (`recommend_recordings`): for the simulator (``data=default``) the overrides that add them
 (``data.splits.train_sines=[...] data.splits.val_sines=[...]``, and ``data.diagnose`` where
