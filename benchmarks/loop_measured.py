@@ -106,12 +106,7 @@ def row(name: str, run: dict) -> str:
     rounds, unit = report["rounds"], report["units"]["y"]
     result = report["result"] if report["result"] is not None else 0
     before, after = rounds[0]["mean_rmse_free_run"], rounds[result]["mean_rmse_free_run"]
-    steps = []
-    for entry in rounds:
-        if entry.get("rejected"):
-            steps.append(f"{entry['rejected']} rejected")
-        if entry.get("added"):
-            steps.append(f"{entry['added']} named")
+    steps = round_steps(rounds)
     kept = rounds[result]["effects"]
     named, target = TARGETS.get(name, (None, ""))
     return (f"| {name} | {before:.4g} {unit} | {after:.4g} {unit} | "
@@ -119,6 +114,23 @@ def row(name: str, run: dict) -> str:
             f"[{', '.join(kept)}] | {target}"
             + (f" (named: {'yes' if named in _named(rounds) else 'no'})" if named else "")
             + f" | {run['round_0_train_s']:.0f} s / {run['seconds']:.0f} s{_cpu(run, rounds)} |")
+
+
+def round_steps(rounds: list[dict]) -> list[str]:
+    """What each round after the start tried and whether the folds kept it; where the folds
+    kept a confounded alternative, the effect the diagnosis named first too."""
+    steps, standing = [], list(rounds[0]["effects"])
+    for before, entry in zip(rounds, rounds[1:], strict=False):
+        new = [e for e in entry["effects"] if e not in standing]
+        named = before.get("added")
+        tried = new[0] if new else named
+        label = tried if named in (None, tried) else f"{tried} (diagnosis named {named})"
+        if entry.get("rejected"):
+            steps.append(f"{label} rejected")
+        else:
+            steps.append(f"{label} kept")
+            standing = list(entry["effects"])
+    return steps
 
 
 def _cpu(run: dict, rounds: list[dict]) -> str:
