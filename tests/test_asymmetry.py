@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from hysteresis_lab.blocks.step import StepState
+from cells import fit_lbfgs, stepped
 from hysteresis_lab.data.datamodules import WindowDataModule
 from hysteresis_lab.effects.hysteresis import HysteresisCell
 from hysteresis_lab.effects.registry import get_effect
@@ -38,13 +38,7 @@ def test_the_square_law_starts_at_zero_and_its_step_matches() -> None:
         asymmetric.square_weight.fill_(0.1)
         difference = (asymmetric(v) - plain(v)).numpy()
         np.testing.assert_allclose(difference, 0.1 * v.numpy() ** 2 / 1.5, rtol=0, atol=1e-14)
-        state = torch.zeros(1, len(asymmetric.state_names()), dtype=torch.float64)
-        steps = []
-        for k in range(v.shape[1]):
-            stepper = StepState(state)
-            steps.append(asymmetric.step(v[:, k], stepper))
-            state = stepper.next_state()
-        np.testing.assert_allclose(torch.stack(steps, 1).numpy(), asymmetric(v).numpy(),
+        np.testing.assert_allclose(stepped(asymmetric, v).numpy(), asymmetric(v).numpy(),
                                    rtol=0, atol=1e-12)
 
 
@@ -61,18 +55,7 @@ def test_the_cell_fits_an_asymmetric_loop_the_plain_cell_cannot() -> None:
     def fitted(cell: HysteresisCell) -> float:
         with torch.no_grad():
             cell.weight.fill_(0.4)
-        optimiser = torch.optim.LBFGS(cell.parameters(), lr=0.5, max_iter=200,
-                                      line_search_fn="strong_wolfe")
-
-        def closure() -> torch.Tensor:
-            optimiser.zero_grad()
-            loss = torch.mean((cell(v) - target) ** 2)
-            loss.backward()
-            return loss
-
-        optimiser.step(closure)
-        with torch.no_grad():
-            return float(torch.mean((cell(v) - target) ** 2))
+        return fit_lbfgs(cell, lambda: cell(v), target, max_iter=200)
 
     asymmetric = HysteresisCell(square_amplitude=1.5)
     loss = fitted(asymmetric)

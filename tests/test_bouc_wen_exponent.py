@@ -8,14 +8,10 @@ import numpy as np
 import pytest
 import torch
 
+from cells import fit_lbfgs, stepped, walk
 from hysteresis_lab.blocks import BoucWen, bouc_wen_free_run
 from hysteresis_lab.blocks.step import StepState
 from hysteresis_lab.physics.bouc_wen import BoucWenStates, bouc_wen_state
-
-
-def _walk(n: int, seed: int, batch: int = 2, step: float = 0.3) -> torch.Tensor:
-    rng = np.random.default_rng(seed)
-    return torch.tensor(np.cumsum(rng.normal(0, step, (batch, n)), axis=1), dtype=torch.float64)
 
 
 def _sine(n: int = 600) -> torch.Tensor:
@@ -26,7 +22,7 @@ def _sine(n: int = 600) -> torch.Tensor:
 def test_exponent_gradcheck_includes_zero_crossings() -> None:
     """The adjoint of the sub-stepped update, w.r.t. every input and the exponents, against
     finite differences, on steps that cross ``h = 0`` (one element at ``n = 1``)."""
-    v = _walk(30, 1).requires_grad_()
+    v = walk(30, 1).requires_grad_()
     v0 = torch.tensor([0.1, -0.2], dtype=torch.float64, requires_grad=True)
     h0 = torch.tensor([[0.05, -0.1], [-0.2, 0.02]], dtype=torch.float64, requires_grad=True)
     a = torch.tensor([0.37, 0.2], dtype=torch.float64, requires_grad=True)
@@ -111,17 +107,10 @@ def test_step_and_free_run_match_the_batched_update() -> None:
     bw = BoucWen(d=1.0, alpha=0.32, beta=2.0, gamma=0.6, n_channels=2, learn_exponent=True)
     with torch.no_grad():
         bw.raw_exponent.copy_(torch.tensor([0.7, 1.4], dtype=torch.float64))
-    v = _walk(300, 6, step=0.05)
+    v = walk(300, 6, step=0.05)
     with torch.no_grad():
         whole, _ = bw(v)
-        state = torch.zeros(v.shape[0], len(bw.state_names()), dtype=torch.float64)
-        steps = []
-        for k in range(v.shape[1]):
-            stepper = StepState(state)
-            steps.append(bw.step(v[:, k], stepper))
-            state = stepper.next_state()
-    np.testing.assert_allclose(torch.stack(steps, dim=1).numpy(), whole.numpy(), rtol=0,
-                               atol=1e-12)
+    np.testing.assert_allclose(stepped(bw, v).numpy(), whole.numpy(), rtol=0, atol=1e-12)
     np.testing.assert_allclose(bw.numpy_kernel()(v.numpy()), whole.numpy(), rtol=0, atol=1e-12)
     p = bw.export()
     one = bouc_wen_free_run(v.numpy()[:1], p["d"], p["alpha"][0], p["beta"][0], p["gamma"][0],
@@ -156,18 +145,7 @@ def test_a_fit_recovers_the_exponent() -> None:
 
     def fitted(learn: bool) -> tuple[BoucWen, float]:
         cell = BoucWen(d=1.0, alpha=0.25, beta=1.5, gamma=0.3, learn_exponent=learn)
-        optimiser = torch.optim.LBFGS(cell.parameters(), lr=0.5, max_iter=200,
-                                      line_search_fn="strong_wolfe")
-
-        def closure() -> torch.Tensor:
-            optimiser.zero_grad()
-            loss = torch.mean((cell(v)[0] - target) ** 2)
-            loss.backward()
-            return loss
-
-        optimiser.step(closure)
-        with torch.no_grad():
-            return cell, float(torch.mean((cell(v)[0] - target) ** 2))
+        return cell, fit_lbfgs(cell, lambda: cell(v)[0], target, max_iter=200)
 
     cell, loss = fitted(True)
     _, loss_fixed = fitted(False)

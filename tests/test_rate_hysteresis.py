@@ -7,15 +7,10 @@ import numpy as np
 import pytest
 import torch
 
+from cells import fit_lbfgs, stepped, walk
 from hysteresis_lab.blocks import BoucWen
-from hysteresis_lab.blocks.step import StepState
 from hysteresis_lab.effects.hysteresis import HysteresisCell
 from hysteresis_lab.physics.bouc_wen import BoucWenStates, bouc_wen_state
-
-
-def _walk(n: int, seed: int, batch: int = 2, step: float = 0.3) -> torch.Tensor:
-    rng = np.random.default_rng(seed)
-    return torch.tensor(np.cumsum(rng.normal(0, step, (batch, n)), axis=1), dtype=torch.float64)
 
 
 def _rate_cell(gain: float, weight: float = 0.8, rate_step: float = 0.05) -> HysteresisCell:
@@ -29,7 +24,7 @@ def _rate_cell(gain: float, weight: float = 0.8, rate_step: float = 0.05) -> Hys
 def test_per_sample_alpha_gradcheck_includes_zero_crossings() -> None:
     """The kernel's adjoint with a per-sample factor of ``a``: gradients w.r.t. every input,
     the factor included, on steps that cross ``h = 0``."""
-    v = _walk(40, 1).requires_grad_()
+    v = walk(40, 1).requires_grad_()
     v0 = torch.tensor([0.1, -0.2], dtype=torch.float64, requires_grad=True)
     h0 = torch.tensor([[0.05, -0.1], [-0.2, 0.02]], dtype=torch.float64, requires_grad=True)
     a = torch.tensor([0.37, 0.2], dtype=torch.float64, requires_grad=True)
@@ -46,7 +41,7 @@ def test_per_sample_alpha_gradcheck_includes_zero_crossings() -> None:
 def test_rate_cell_gradcheck_through_the_rate() -> None:
     """Gradients of the whole cell (the factor from ``|dv|``) w.r.t. the input and the gain."""
     cell = _rate_cell(0.7)
-    v = _walk(30, 4, batch=1).requires_grad_()
+    v = walk(30, 4, batch=1).requires_grad_()
     gain = torch.tensor(0.7, dtype=torch.float64, requires_grad=True)
     assert torch.autograd.gradcheck(
         lambda x, g: torch.func.functional_call(cell, {"rate_gain": g}, (x,)), (v, gain))
@@ -71,7 +66,7 @@ def test_rate_cell_starts_as_the_plain_cell_and_its_gain_acts() -> None:
     with torch.no_grad():
         for cell in (plain, rated):
             cell.weight.fill_(0.8)
-    v = _walk(200, 5, step=0.05)
+    v = walk(200, 5, step=0.05)
     with torch.no_grad():
         np.testing.assert_array_equal(rated(v).numpy(), plain(v).numpy())
         rated.rate_gain.fill_(0.5)
@@ -81,17 +76,10 @@ def test_rate_cell_starts_as_the_plain_cell_and_its_gain_acts() -> None:
 @pytest.mark.parametrize("gain", [0.5, -3.0])  # -3: the factor clips at zero on fast steps
 def test_rate_cell_step_matches_its_free_run(gain: float) -> None:
     cell = _rate_cell(gain)
-    v = _walk(300, 6, step=0.05)
+    v = walk(300, 6, step=0.05)
     with torch.no_grad():
         whole = cell(v)
-        state = torch.zeros(v.shape[0], len(cell.state_names()), dtype=torch.float64)
-        steps = []
-        for k in range(v.shape[1]):
-            stepper = StepState(state)
-            steps.append(cell.step(v[:, k], stepper))
-            state = stepper.next_state()
-    np.testing.assert_allclose(torch.stack(steps, dim=1).numpy(), whole.numpy(), rtol=0,
-                               atol=1e-12)
+    np.testing.assert_allclose(stepped(cell, v).numpy(), whole.numpy(), rtol=0, atol=1e-12)
 
 
 def test_a_fit_recovers_the_rate_gain() -> None:
@@ -103,16 +91,7 @@ def test_a_fit_recovers_the_rate_gain() -> None:
     with torch.no_grad():
         target = _rate_cell(0.5, weight=1.0, rate_step=rate_step)(v)
     cell = _rate_cell(0.0, weight=1.0, rate_step=rate_step)
-    optimiser = torch.optim.LBFGS(cell.parameters(), lr=0.5, max_iter=100,
-                                  line_search_fn="strong_wolfe")
-
-    def closure() -> torch.Tensor:
-        optimiser.zero_grad()
-        loss = torch.mean((cell(v) - target) ** 2)
-        loss.backward()
-        return loss
-
-    optimiser.step(closure)
+    fit_lbfgs(cell, lambda: cell(v), target, max_iter=100)
     assert float(cell.rate_gain.detach()) == pytest.approx(0.5, abs=0.05)
 
 
