@@ -94,13 +94,18 @@ def _measure(folds: int, root: Path) -> dict[str, Any]:
     }
 
 
-def _page(rows: list[dict[str, Any]], jobs: int) -> str:
+def _written_by(command: str) -> str:
+    """A page's provenance: the command, the time (UTC) and the commit."""
     stamp = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    return f"Written by `{command}` on {stamp}, commit {commit_stamp(REPO)}"
+
+
+def _page(rows: list[dict[str, Any]], jobs: int) -> str:
     lines = [
         "# The cascaded tanks' loop: what the number of folds decides",
         "",
-        f"Written by `python experiments/tanks_loop_folds.py` on {stamp}, commit "
-        f"{commit_stamp(REPO)}; 2-core CPU, {jobs} loop(s) side by side. Each row runs "
+        _written_by("python experiments/tanks_loop_folds.py")
+        + f"; 2-core CPU, {jobs} loop(s) side by side. Each row runs "
         "`hysteresis-lab-loop data=cascaded_tanks loop.folds=<k>` from `model=linear "
         "effects=[]`, nothing else changed; `loop.folds=3` is the default. The last "
         "column trains the structure the tanks need, declared (`"
@@ -161,12 +166,11 @@ def explain(folder: Path, root: Path) -> str:
     report = json.loads((folder / "loop_report.json").read_text())
     declared, _ = run_fresh_loop([*COMMON, *DECLARED], root / "declared_3")
     result = report["rounds"][report["result"] or 0]
-    stamp = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
     lines = [
         "# The cascaded tanks' loop: what the folds decided, and why",
         "",
-        f"Written by `python experiments/tanks_loop_folds.py --explain {folder}` on {stamp}, "
-        f"commit {commit_stamp(REPO)}, from the default loop's report "
+        _written_by(f"python experiments/tanks_loop_folds.py --explain {folder}")
+        + ", from the default loop's report "
         "(`hysteresis-lab-loop data=cascaded_tanks`, `loop.folds=3`). Held-out loss: the "
         "free-run MSE over the measured variance on each fold's held-out third, pooled by "
         "samples; a refit stands when it is lower pooled and on a majority of folds.",
