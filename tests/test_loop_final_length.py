@@ -97,6 +97,7 @@ def test_the_length_is_the_median_within_one_and_the_configured_length():
     length = final_length(docs, configured)
     assert length.epochs == {"one_step": 4, "fine_tune": 1}
     assert length.folds == {"one_step": [3, 8, 4], "fine_tune": [0, 0, 9]}
+    assert list(length.epochs) == ["one_step", "fine_tune"]  # in training order, every run
     two = final_length([{"trained_epochs": {"simulation": e}} for e in (2, 5)], configured)
     assert two.epochs == {"simulation": 4}
     assert final_length([*docs[:2], None], configured).epochs == {}

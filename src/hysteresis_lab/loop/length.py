@@ -76,10 +76,11 @@ def final_length(documents: Sequence[Mapping[str, Any] | None],
     if any(set(f) != stages for f in found) or not stages <= set(configured):
         return TrainingLength(configured=configured,
                               fallback="the folds' fits trained different stages")
-    folds = {stage: [int(f[stage]) for f in found] for stage in sorted(stages)}
+    order = [stage for stage in configured if stage in stages]  # the stages' training order
+    folds = {stage: [int(f[stage]) for f in found] for stage in order}
     epochs = {stage: min(max(1, math.ceil(float(np.median(best)))), configured[stage])
               for stage, best in folds.items()}
-    return TrainingLength(epochs, folds, {s: configured[s] for s in stages})
+    return TrainingLength(epochs, folds, {stage: configured[stage] for stage in order})
 
 
 def configured_length(max_epochs: int | None, simulation_epochs: int | None) -> dict[str, int]:
