@@ -74,7 +74,7 @@ def test_the_loop_names_overflow_and_its_refit_cuts_the_free_run_error(tmp_path)
     model = {"name": "linear", "order": 2, "effects": [], "lr": 0.01}
     data = DataSpec.from_config({"name": "clip", "scaling": {"mode": "standard"}})
     report = run_loop(model, data, TRAINER, clipped_splits(), tmp_path,
-                      LoopSettings(max_rounds=1, refit_lr_factors=(1.0,), confounded_margin=0.25),
+                      LoopSettings(max_rounds=1, refit_lr_factors=(1.0,), confounded_margin=0.3),
                       use_tensorboard=False)
     first, refit = report["rounds"][:2]
     significant = [d["effect"] for d in first["diagnosis"] if d["significant"]]
