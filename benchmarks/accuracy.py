@@ -65,7 +65,7 @@ RECOMMENDED: dict[str, dict[str, list[str]]] = {
         "subnet": ["model.effects=[hysteresis]", "data.window.na=20", "data.window.nb=20",
                    "training.horizon=200", "training.lr=1e-4", "data.batch_size=32",
                    "trainer.max_epochs=40"],
-        "greybox": ["model.effects=[creep]"],
+        "greybox": ["model.effects=[asymmetry,creep]"],
         AUGMENTED: ["model=subnet", "model.baseline=<root>/greybox_default", "data.window.na=20",
                     "data.window.nb=20", "training.horizon=200", "training.lr=1e-4",
                     "data.batch_size=32", "trainer.max_epochs=40"],

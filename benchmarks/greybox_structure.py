@@ -1,15 +1,19 @@
-"""The grey-box's delay and modes chosen from the data, on zoo plants: before and after.
+"""The grey-box on zoo plants, two settings side by side: its delay and modes chosen from the
+data (``--compare structure``), or its hysteresis cell (``--compare cell``).
 
     python benchmarks/greybox_structure.py --seeds 0,1,4,6,7 --root /tmp/gbs
+    python benchmarks/greybox_structure.py --compare cell --seeds 2,3,4,5,10,11 --root /tmp/gbc
     python benchmarks/greybox_structure.py --root /tmp/gbs --render     # only rewrite the page
 
 Each zoo plant (`hysteresis_lab.sim.zoo.export_zoo_plant`) is fitted through ``data=csv`` with
-``model=greybox`` twice: with the former fixed structure (``model.delay=1 model.n_modes=1``)
-and with the defaults (``auto``: chosen from the training data). A fit done before (its
-``metrics.json`` in ``<root>/plant_<seed>/<setting>``) is reused. The page,
-``docs/results/greybox_structure.md``, gives per plant the free-run RMSE over the plant's
-noise σ (mean of the twelve test sines), the structure the fit used and the process's CPU
-seconds (one core: ``OMP_NUM_THREADS=1``).
+``model=greybox`` once per setting. *structure*: the former fixed structure
+(``model.delay=1 model.n_modes=1``) against the defaults (``auto``: chosen from the training
+data); page ``docs/results/greybox_structure.md``. *cell*: the default Bouc–Wen cell against
+Prandtl–Ishlinskii play operators (``model.hysteresis=prandtl_ishlinskii``); page
+``docs/results/greybox_cell.md``. A fit done before (its ``metrics.json`` in
+``<root>/plant_<seed>/<setting>``) is reused. Each page gives per plant the free-run RMSE over
+the plant's noise σ (mean of the twelve test sines) and the process's CPU seconds (one core:
+``OMP_NUM_THREADS=1``).
 """
 
 from __future__ import annotations
@@ -28,16 +32,20 @@ from typing import Any
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-OUT = REPO / "docs" / "results" / "greybox_structure.md"
-#: the two settings compared: name -> model overrides
-SETTINGS = {"fixed": ["model.delay=1", "model.n_modes=1"], "auto": []}
+RESULTS = REPO / "docs" / "results"
+#: per comparison, the two settings compared: name -> model overrides
+COMPARISONS: dict[str, dict[str, list[str]]] = {
+    "structure": {"fixed": ["model.delay=1", "model.n_modes=1"], "auto": []},
+    "cell": {"bouc_wen": [], "prandtl_ishlinskii": ["model.hysteresis=prandtl_ishlinskii"]},
+}
 QUIET = ["logger=none", "trainer.enable_progress_bar=false"]
 
 log = logging.getLogger("greybox_structure")
 
 
-def fit(seed: int, setting: str, root: Path) -> Path:
-    """Plant ``seed`` fitted with ``setting`` into its folder (reused when done)."""
+def fit(seed: int, setting: str, overrides: list[str], root: Path) -> Path:
+    """Plant ``seed`` fitted with ``setting`` (its model ``overrides``) into its folder
+    (reused when done)."""
     from hysteresis_lab.sim.zoo import export_zoo_plant
 
     folder = root / f"plant_{seed}" / setting
@@ -46,7 +54,7 @@ def fit(seed: int, setting: str, root: Path) -> Path:
     files = export_zoo_plant(seed, root / f"plant_{seed}" / "data")
     folder.mkdir(parents=True, exist_ok=True)
     command = [str(Path(sys.executable).parent / "hysteresis-lab-train"), "model=greybox",
-               *SETTINGS[setting], "data=csv", f"data.train={files['train']}",
+               *overrides, "data=csv", f"data.train={files['train']}",
                f"data.val={files['val']}", f"data.test=[{','.join(files['test'])}]", *QUIET,
                f"hydra.run.dir={folder}"]
     env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
@@ -60,12 +68,12 @@ def fit(seed: int, setting: str, root: Path) -> Path:
     return folder
 
 
-def row(seed: int, root: Path) -> dict[str, Any]:
+def row(seed: int, settings: list[str], root: Path) -> dict[str, Any]:
     """A plant's structure and, per setting, its score, chosen structure and CPU seconds."""
     plant = json.loads((root / f"plant_{seed}" / "data" / "plant.json").read_text())
     sigma = plant["effects"]["noise"]["rms_um"]
     out: dict[str, Any] = {"seed": seed, "plant": plant["description"], "sigma": sigma}
-    for setting in SETTINGS:
+    for setting in settings:
         folder = root / f"plant_{seed}" / setting
         metrics = json.loads((folder / "metrics.json").read_text())
         rmse = np.array([m["rmse_free_run"] for m in metrics["tests"].values()])
@@ -88,18 +96,24 @@ def _structure(folder: Path) -> dict[str, Any]:
     return structure
 
 
-def render(rows: list[dict[str, Any]], command: str) -> str:
-    """The page."""
+def _header(title: str, command: str) -> list[str]:
+    """A page's title and provenance."""
     from hysteresis_lab.evaluation.provenance import commit_stamp
 
-    stamp = commit_stamp(REPO)
-    lines = [
-        "# The grey-box's delay and modes from the data, on zoo plants", "",
-        f"Command: `{command}`; commit `{stamp}`; "
+    return [
+        f"# {title}", "",
+        f"Command: `{command}`; commit `{commit_stamp(REPO)}`; "
         f"{datetime.date.today().isoformat()}; shared 2-core CPU, one core per fit "
         "(`OMP_NUM_THREADS=1`; CPU seconds of the whole `hysteresis-lab-train` process). "
         "Fits found in the root are reused: the commit is the page's, a reused fit's may be "
         "older.", "",
+    ]
+
+
+def render_structure(rows: list[dict[str, Any]], command: str) -> str:
+    """The page of ``--compare structure``."""
+    lines = [
+        *_header("The grey-box's delay and modes from the data, on zoo plants", command),
         "Each plant fitted through `data=csv` with `model=greybox`: *fixed* is the former "
         "default structure (`model.delay=1 model.n_modes=1`), *auto* the default now "
         "(delay and modes chosen from the training data). Score: mean free-run RMSE over "
@@ -115,30 +129,87 @@ def render(rows: list[dict[str, Any]], command: str) -> str:
             f"| {r['fixed']['ratio']:.3g} σ | {r['auto']['ratio']:.3g} σ "
             f"| {r['auto']['delay']}, {r['auto']['modes_hz']} "
             f"| {r['fixed']['cpu_s']:.0f} | {r['auto']['cpu_s']:.0f} |")
-    ratios = {s: [r[s]["ratio"] for r in rows] for s in SETTINGS}
+    ratios = {s: [r[s]["ratio"] for r in rows] for s in COMPARISONS["structure"]}
     lines += ["", f"Median: fixed {np.median(ratios['fixed']):.3g} σ, auto "
               f"{np.median(ratios['auto']):.3g} σ.", ""]
     return "\n".join(lines)
 
 
+def _cell(plant: dict[str, Any]) -> str:
+    """The plant's hysteresis cell in a few words."""
+    if plant["cell"] == "prandtl_ishlinskii":
+        return f"PI, {plant['plays']} plays (share {plant['pi_share']:.2f})"
+    return f"BW n {plant['exponent']:.2f}" if "exponent" in plant else "BW"
+
+
+def render_cell(rows: list[dict[str, Any]], command: str) -> str:
+    """The page of ``--compare cell``."""
+    lines = [
+        *_header("The grey-box's hysteresis cell on zoo plants: Bouc–Wen or "
+                 "Prandtl–Ishlinskii", command),
+        "Each plant fitted through `data=csv` with `model=greybox` (its defaults: delay and "
+        "modes from the data) and its default Bouc–Wen cell (exponent 1), or with "
+        "`model.hysteresis=prandtl_ishlinskii` (play operators at fixed thresholds, weights "
+        "learned). Score: mean free-run RMSE over the twelve ±100 V test sines over the "
+        "plant's noise σ.", "",
+        "| seed | plant's cell | modes (Hz) | delay | Bouc–Wen | Prandtl–Ishlinskii "
+        "| CPU s BW | CPU s PI |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        p, bw, pi = r["plant"], r["bouc_wen"], r["prandtl_ishlinskii"]
+        lines.append(
+            f"| {r['seed']} | {_cell(p)} | {np.round(p['modes_hz'], 0).tolist()} "
+            f"| {p['delay_samples']} | {bw['ratio']:.3g} σ | {pi['ratio']:.3g} σ "
+            f"| {bw['cpu_s']:.0f} | {pi['cpu_s']:.0f} |")
+    lines.append("")
+    for cell in ("prandtl_ishlinskii", "bouc_wen"):
+        group = [r for r in rows if r["plant"]["cell"] == cell]
+        if not group:
+            continue
+        bw = [r["bouc_wen"]["ratio"] for r in group]
+        pi = [r["prandtl_ishlinskii"]["ratio"] for r in group]
+        better = sum(b > p for b, p in zip(bw, pi, strict=True))
+        lines.append(
+            f"- On the {len(group)} plants with a {cell.replace('_', '–').title()} cell, play "
+            f"operators fit better on {better}; median Bouc–Wen {np.median(bw):.3g} σ, "
+            f"Prandtl–Ishlinskii {np.median(pi):.3g} σ.")
+    best = [min(r["bouc_wen"]["ratio"], r["prandtl_ishlinskii"]["ratio"]) for r in rows]
+    lines += [f"- The better cell per plant: median {np.median(best):.3g} σ over all "
+              f"{len(rows)} (what a choice between the two by validation could reach at most).", ""]
+    return "\n".join(lines)
+
+
+#: per comparison, its page and how it is written
+PAGES = {"structure": (RESULTS / "greybox_structure.md", render_structure),
+         "cell": (RESULTS / "greybox_cell.md", render_cell)}
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--compare", choices=sorted(COMPARISONS), default="structure")
     parser.add_argument("--seeds", default="0,1,4,6,7")
-    parser.add_argument("--root", type=Path, default=Path("outputs/greybox_structure"))
-    parser.add_argument("--settings", default=",".join(SETTINGS),
-                        help="the settings to fit (the page needs both)")
+    parser.add_argument("--root", type=Path, default=None,
+                        help="where the fits go (default outputs/greybox_<compare>)")
+    parser.add_argument("--settings", default=None,
+                        help="the settings to fit, comma-separated (the page needs both)")
     parser.add_argument("--render", action="store_true", help="only rewrite the page")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+    settings = COMPARISONS[args.compare]
+    root = args.root or Path(f"outputs/greybox_{args.compare}")
     seeds = [int(s) for s in args.seeds.split(",")]
     if not args.render:
         for seed in seeds:
-            for setting in args.settings.split(","):
-                log.info("plant %d: %s -> %s", seed, setting, fit(seed, setting, args.root))
-    rows = [row(seed, args.root) for seed in seeds]
-    OUT.write_text(render(rows, "python benchmarks/greybox_structure.py --seeds "
-                          f"{args.seeds} --root <root>") + "\n")
-    log.info("wrote %s", OUT)
+            for setting in (args.settings or ",".join(settings)).split(","):
+                folder = fit(seed, setting, settings[setting], root)
+                log.info("plant %d: %s -> %s", seed, setting, folder)
+    rows = [row(seed, list(settings), root) for seed in seeds]
+    page, render = PAGES[args.compare]
+    compare = "" if args.compare == "structure" else f"--compare {args.compare} "
+    page.write_text(render(rows, f"python benchmarks/greybox_structure.py {compare}--seeds "
+                                 f"{args.seeds} --root <root>") + "\n")
+    log.info("wrote %s", page)
 
 
 if __name__ == "__main__":

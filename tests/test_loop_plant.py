@@ -10,7 +10,7 @@ from hydra import compose, initialize_config_module
 from hysteresis_lab.data.spec import PLANT_KINDS, DataSpec
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.loop.diagnosis.ranking import EffectScore
-from hysteresis_lab.loop.driver import named_group
+from hysteresis_lab.loop.driver import LoopSettings, named_group
 from hysteresis_lab.loop.plant import PLANT_EFFECTS
 
 SCORES = [EffectScore("overflow", 0.95, 1e-6, True, ""),
@@ -114,3 +114,21 @@ def test_the_plant_prior_makes_only_the_plants_own_effects_significant_at_its_le
     assert marked == {"hysteresis": True, "saturation": True, "nonlinear_feedback": True,
                       "backlash": False, "overflow": False}
     assert with_plant_prior(scores, None, 0.05, 0.05) == scores
+
+
+def test_at_plant_alpha_1_the_plants_own_effects_need_only_reach_min_score():
+    """The default loop.plant_alpha=1: a tank's rim that explains 7 % of the residual at
+    p 0.29 (too few blocks to be significant) goes to the folds; a foreign effect at the
+    same evidence, or the rim below loop.min_score, does not."""
+    from hysteresis_lab.loop.plant import with_plant_prior
+
+    scores = [EffectScore("overflow", 0.069, 0.29, False, ""),
+              EffectScore("backlash", 0.069, 0.29, False, ""),
+              EffectScore("nonlinear_feedback", 0.04, 0.29, False, "")]
+    marked = with_plant_prior(scores, "tank", 1.0, 0.05)
+    assert {d.effect: d.significant for d in marked} == {
+        "overflow": True, "backlash": False, "nonlinear_feedback": False}
+    assert "the folds judge it" in marked[0].evidence
+    assert LoopSettings(plant_alpha=1.0).plant_alpha == 1.0
+    with pytest.raises(ConfigError, match="plant_alpha"):
+        LoopSettings(plant_alpha=1.5)

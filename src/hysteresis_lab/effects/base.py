@@ -166,9 +166,12 @@ class GreyBoxPart:
     """What ``model=greybox`` carries of an effect: ``series`` builds a block per input
     after the hysteresis cell and the gain (``series(fs, settings)``, kept as ``attribute``
     on one axis and ``attribute_mimo`` per input on MIMO data); ``extra_modes`` adds modes to
-    the structure's; ``in_cell``: the model's own hysteresis cell carries it."""
+    the structure's; ``in_cell``: the model's own hysteresis cell carries it; ``cell_term``
+    builds a term added to the cell's output from the cell's input (``cell_term(amplitude)``,
+    the input's amplitude over its scale; kept as ``attribute`` / ``attribute_mimo``)."""
 
     series: Callable[[float, Mapping[str, Any]], nn.Module] | None = None
+    cell_term: Callable[[float], nn.Module] | None = None
     attribute: str | None = None
     attribute_mimo: str | None = None
     extra_modes: int = 0

@@ -125,8 +125,9 @@ class LoopSettings:
     #: fits the plant, or any effect where no plant is declared, is added as before)
     add_under_excited: bool = False
     #: significance level of the effects whose physics fits the declared ``data.plant``
-    #: (`hysteresis_lab.loop.plant.with_plant_prior`); None: ``alpha``, as every effect
-    plant_alpha: float | None = None
+    #: (`hysteresis_lab.loop.plant.with_plant_prior`); 1: such an effect needs only reach
+    #: ``min_score`` and the folds alone judge its refit; None: ``alpha``, as every effect
+    plant_alpha: float | None = 1.0
     #: the diagnosis drops each residual's start transient and also reads the input-side
     #: effects through the model's own dynamics (`hysteresis_lab.loop.diagnosis.ranking`): a
     #: recording that starts with a jump from rest rings, and filters of the input started
@@ -141,9 +142,9 @@ class LoopSettings:
                 f"loop.max_alternatives={self.max_alternatives} be at least 1. Fix: e.g. "
                 "loop.confounded_margin=0.2 loop.max_alternatives=3."
             )
-        if self.plant_alpha is not None and not 0.0 < self.plant_alpha < 1.0:
+        if self.plant_alpha is not None and not 0.0 < self.plant_alpha <= 1.0:
             raise ConfigError(
-                f"loop.plant_alpha={self.plant_alpha} must lie in (0, 1), or be null (loop.alpha "
+                f"loop.plant_alpha={self.plant_alpha} must lie in (0, 1], or be null (loop.alpha "
                 "for every effect). Fix: e.g. loop.plant_alpha=0.05."
             )
         if self.folds < 2:

@@ -45,14 +45,16 @@ def with_plant_prior(diagnosis: Sequence[EffectScore], plant: str | None, alpha:
                      min_score: float) -> list[EffectScore]:
     """``diagnosis`` with each effect that fits the declared ``plant`` significant where it
     reaches ``min_score`` at the significance level ``alpha`` (``loop.plant_alpha``, the
-    prior the declared kind gives its own physics); best first again. Unchanged where no
-    plant is declared."""
+    prior the declared kind gives its own physics; at 1 reaching ``min_score`` is enough, and
+    the folds alone judge its refit); best first again. Unchanged where no plant is
+    declared."""
     if plant is None:
         return list(diagnosis)
+    level = ("the folds judge it" if alpha >= 1.0
+             else f"significant at loop.plant_alpha={alpha:g}")
+    note = f" ({level}: its physics fits data.plant={plant})"
     marked = [
-        dataclasses.replace(d, significant=True,
-                            evidence=d.evidence + f" (significant at loop.plant_alpha={alpha:g}: "
-                            f"its physics fits data.plant={plant})")
+        dataclasses.replace(d, significant=True, evidence=d.evidence + note)
         if (not d.significant and d.tested and fits_plant(d.effect, plant)
             and d.score >= min_score and d.p_value <= alpha) else d
         for d in diagnosis

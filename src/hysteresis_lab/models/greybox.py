@@ -24,8 +24,9 @@ parameters and fits exactly as before MIMO.
   ``none`` (a static gain);
 * the declared effects' grey-box parts (`hysteresis_lab.effects.base.GreyBoxPart`): a block
   per input after the gain (``creep``: a first-order filter bank, fixed time constants,
-  learnable weights), more modes (``resonance``: one), or the model's own cell
-  (``hysteresis``);
+  learnable weights), more modes (``resonance``: one), the model's own cell
+  (``hysteresis``), or a term added to that cell's output from its input (``asymmetry``:
+  the square law of `hysteresis_lab.effects.asymmetry.SquareLaw`, weight from zero);
 * every linear block is stable for any parameter value (`hysteresis_lab.blocks`);
 * optionally (``model.residual_neurons > 0``, one input and output) a small ReLU network
   adds a static correction from the last ``nb`` inputs and the last ``na`` outputs of the
@@ -77,6 +78,7 @@ from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.effects.base import Effect, GreyBoxPart, physical_order
 from hysteresis_lab.effects.registry import get_effect
 from hysteresis_lab.errors import ConfigError
+from hysteresis_lab.models.augment import context_from_dict
 from hysteresis_lab.models.base import NarxModule, mlp
 from hysteresis_lab.models.physical_chain import FromEffects, PhysicalChainModule
 
@@ -151,14 +153,20 @@ def _in_cell(effect: Effect) -> bool:
     return part is not None and part.in_cell
 
 
+def _on_cell(effect: Effect) -> bool:
+    """The effect's part is a term added to the hysteresis cell (`GreyBoxPart.cell_term`)."""
+    part = _part(effect)
+    return part is not None and part.cell_term is not None
+
+
 class GreyBox(PhysicalChainModule):
     """Amplifier, delay, hysteresis, creep and modes in series (see the module docstring)."""
 
     #: the effects with a grey-box part (`Effect.greybox_part`), in physical order
     carried_effects = FromEffects(lambda effect: _part(effect) is not None)
-    #: the hysteresis cell sits ahead of the gain and the modes: they were fitted to the
-    #: cell's absence, and the whole chain refits when it is grown
-    whole_refit_effects = FromEffects(_in_cell)
+    #: the hysteresis cell and its terms sit ahead of the gain and the modes: they were
+    #: fitted to their absence, and the whole chain refits when one is grown
+    whole_refit_effects = FromEffects(lambda effect: _in_cell(effect) or _on_cell(effect))
     #: the effects the model's own hysteresis cell carries
     cell_effects = FromEffects(_in_cell)
 
@@ -247,15 +255,25 @@ class GreyBox(PhysicalChainModule):
         #: the effects' blocks after the gain: (label, attribute) of each
         self.series_blocks: list[tuple[str, str]] = []
         series = [part for part in parts if part.series is not None]
+        #: the effects' terms added to the hysteresis cell from its input: (label, attribute)
+        self.cell_terms: list[tuple[str, str]] = []
+        terms = [part for part in parts if part.cell_term is not None]
         if self.mimo:
             self._build_mimo(fs, hysteresis, modes, mode_hz, mode_damping, amplifier_hz, delay,
                              series, settings, operators)
+            for part in terms:
+                setattr(self, part.attribute_mimo, nn.ModuleList(
+                    part.cell_term(self._input_amplitude(j)) for j in range(self.n_base_inputs)))
+                self.cell_terms.append((part.attribute, part.attribute_mimo))
             return
         nyquist = 0.5 * fs
         self.amplifier = FirstOrderLag(fs, amplifier_hz or 0.25 * fs,
                                        min_cutoff_hz=self.f_floor)
         self.delay = Delay(delay)
         self.hysteresis = _hysteresis_cell(hysteresis, operators)
+        for part in terms:
+            setattr(self, part.attribute, part.cell_term(self._input_amplitude(0)))
+            self.cell_terms.append((part.attribute, part.attribute))
         self.gain = nn.Parameter(torch.ones((), dtype=torch.float64))  # after the hysteresis
         for part in series:
             setattr(self, part.attribute, part.series(fs, settings))
@@ -273,6 +291,16 @@ class GreyBox(PhysicalChainModule):
             with torch.no_grad():
                 self.residual[-1].weight.zero_()
                 self.residual[-1].bias.zero_()
+
+    def _input_amplitude(self, channel: int) -> float:
+        """A measured input's amplitude over its scale (the training data's, saved with the
+        model as its ``feature_context``; 1 without one): a cell term's scale."""
+        context = self.hparams.get("feature_context")
+        scale = float(self.u_scale[channel])
+        if context is None or not scale > 0:
+            return 1.0
+        amplitude = float(context_from_dict(context).u_amplitude[channel])
+        return max(amplitude / scale, 1e-6)
 
     def _build_mimo(
         self, fs: float, hysteresis: str, n_modes: int, mode_hz: float | None,
@@ -315,21 +343,25 @@ class GreyBox(PhysicalChainModule):
 
     def _input_path(self, v: torch.Tensor, j: int) -> torch.Tensor:
         """MIMO input ``j``'s amplifier, delay, hysteresis and creep: (B, T) -> (B, T)."""
-        x = self.delays[j](self.amplifiers[j](v))
+        x = cell_input = self.delays[j](self.amplifiers[j](v))
         if self.cells is not None:
             x = self.cells[j](x)
             x = x[0] if isinstance(x, tuple) else x
+        for _, attribute in self.cell_terms:
+            x = x + getattr(self, attribute)[j](cell_input)
         for _, attribute in self.series_blocks:
             x = getattr(self, attribute)[j](x)
         return x
 
     def _chain(self, v: torch.Tensor) -> torch.Tensor:
         """`chain` on (B, T) -> (B, T)."""
-        x = self.delay(self.amplifier(v))
+        x = cell_input = self.delay(self.amplifier(v))
         v_in = v
         if self.hysteresis is not None:
             x = self.hysteresis(x)
             x = x[0] if isinstance(x, tuple) else x
+        for _, attribute in self.cell_terms:
+            x = x + getattr(self, attribute)(cell_input)
         x = self.gain * x
         for _, attribute in self.series_blocks:
             x = getattr(self, attribute)(x)
@@ -382,17 +414,22 @@ class GreyBox(PhysicalChainModule):
         if self.mimo:
             xs = []
             for j in range(self.n_base_inputs):  # the blocks in the order of `state_names`
-                x = self.delays[j].step(self.amplifiers[j].step(v[:, j], state), state)
+                x = cell_input = self.delays[j].step(self.amplifiers[j].step(v[:, j], state),
+                                                     state)
                 if self.cells is not None:
                     x = self.cells[j].step(x, state)
+                for _, attribute in self.cell_terms:
+                    x = x + getattr(self, attribute)[j].step(cell_input, state)
                 for _, attribute in self.series_blocks:
                     x = getattr(self, attribute)[j].step(x, state)
                 xs.append(x)
             return self.dynamics.step(torch.stack(xs, dim=-1), state)
         v_in = v[:, 0]
-        x = self.delay.step(self.amplifier.step(v_in, state), state)
+        x = cell_input = self.delay.step(self.amplifier.step(v_in, state), state)
         if self.hysteresis is not None:
             x = self.hysteresis.step(x, state)
+        for _, attribute in self.cell_terms:
+            x = x + getattr(self, attribute).step(cell_input, state)
         x = frozen(self.gain)[0] * x
         for _, attribute in self.series_blocks:
             x = getattr(self, attribute).step(x, state)
@@ -449,7 +486,8 @@ class GreyBox(PhysicalChainModule):
             value.zero_()
 
     def _series_attributes(self) -> set[str]:
-        return {attribute for _, attribute in self.series_blocks}
+        """The attributes of the blocks that start at zero: after the gain, on the cell."""
+        return {attribute for _, attribute in (*self.series_blocks, *self.cell_terms)}
 
     @staticmethod
     def _start_new_cell_parameter(name: str, value: torch.Tensor) -> None:
@@ -698,7 +736,8 @@ class GreyBox(PhysicalChainModule):
         if self.mimo:
             return self._mimo_parameters()
         blocks = {"amplifier": self.amplifier, "hysteresis": self.hysteresis,
-                  **{label: getattr(self, attribute) for label, attribute in self.series_blocks},
+                  **{label: getattr(self, attribute) for label, attribute in
+                     (*self.cell_terms, *self.series_blocks)},
                   "mode": self.mode}
         out = {name: block.export() for name, block in blocks.items() if block is not None}
         out.update(gain=float(self.gain.detach()), offset=float(self.offset.detach()),
@@ -712,7 +751,7 @@ class GreyBox(PhysicalChainModule):
             blocks = {"amplifier": self.amplifiers[j].export()}
             if self.cells is not None:
                 blocks["hysteresis"] = self.cells[j].export()
-            for label, attribute in self.series_blocks:
+            for label, attribute in (*self.cell_terms, *self.series_blocks):
                 blocks[label] = getattr(self, attribute)[j].export()
             inputs.append(blocks)
         return {"inputs": inputs, "dynamics": self.dynamics.export(),
