@@ -38,7 +38,8 @@ TARGETS = {
 }
 QUIET = ["trainer.enable_progress_bar=false", "logger=none"]
 #: the round fields the table reads (the rest of loop_report.json stays in the run folder)
-ROUND_FIELDS = ("mean_rmse_free_run", "rejected", "added", "effects", "held_out")
+ROUND_FIELDS = ("mean_rmse_free_run", "rejected", "added", "effects", "held_out", "chosen_on",
+                "fitted_on", "tests")
 
 log = logging.getLogger("loop_measured")
 
@@ -149,11 +150,19 @@ def roles_lines(name: str, run: dict) -> list[str]:
     roles = run["report"]["roles"]
     if "folds" in roles:
         return [f"- **{name}**: chosen on {len(roles['folds'])} folds holding out "
-                f"{'; '.join(roles['folds'])}; the result fitted on {', '.join(roles['train'])}; "
-                f"test {', '.join(roles['test'])}"]
+                f"{'; '.join(roles['folds'])}; the result fitted on {', '.join(roles['train'])}"
+                f"{_length(run)}; test {', '.join(roles['test'])}"]
     return [f"- **{name}** (one held-out stretch): trained on {', '.join(roles['train'])}; "
             f"diagnosis and validation {', '.join(roles['diagnosis'])} / "
             f"{', '.join(roles['validation'])}; test {', '.join(roles['test'])}"]
+
+
+def _length(run: dict) -> str:
+    """How long the result's whole-record refit trained (rows measured before the folds set
+    it: nothing)."""
+    report = run["report"]
+    fitted = report["rounds"][report["result"] or 0].get("fitted_on") or {}
+    return f" (every sample, trained {fitted['length']})" if fitted.get("length") else ""
 
 
 def _votes(score: dict[str, Any]) -> str:

@@ -136,16 +136,22 @@ def test_the_result_is_refitted_on_every_identification_sample(tmp_path):
     report = run_loop(model, data_spec, TRAINER, splits, tmp_path / "loop",
                       LoopSettings(max_rounds=0, folds=3), use_tensorboard=False)
     start = report["rounds"][0]
-    assert start["fitted_on"] == {"samples": 1200, "recordings": ["train0"]}
-    assert start["chosen_on"] == {"folds": 3, "samples": [800, 800, 800]}
+    fitted = start["fitted_on"]
+    assert (fitted["samples"], fitted["recordings"]) == (1200, ["train0"])
+    assert start["chosen_on"]["folds"] == 3
+    assert start["chosen_on"]["samples"] == [800, 800, 800]
     data = {"name": "lowpass", "scaling": {"mode": "standard"}}
+    length = fitted["training_length"]["epochs"]["simulation"]
 
-    def fit_on(fit: DatasetSplits, folder: str) -> float:
-        config = RunConfig.build(model, data, TRAINER, tmp_path / folder, seed=0,
-                                 use_tensorboard=False, plots=False)
+    def fit_on(fit: DatasetSplits, folder: str, keep_last: bool = False) -> float:
+        config = RunConfig.build(model, data, TRAINER.with_changes(max_epochs=length),
+                                 tmp_path / folder, seed=0, use_tensorboard=False, plots=False)
+        config = dataclasses.replace(
+            config, settings=dataclasses.replace(config.settings, keep_last=keep_last))
         return run_model(config, splits=fit).document["mean"]["rmse_free_run"]
 
-    assert start["mean_rmse_free_run"] == pytest.approx(fit_on(splits, "whole"), rel=1e-9)
+    whole = loop_data(splits, data_spec, 3).whole
+    assert start["mean_rmse_free_run"] == pytest.approx(fit_on(whole, "whole", True), rel=1e-9)
     fold = loop_data(splits, data_spec, 3).folds[0].fit
     assert start["mean_rmse_free_run"] != pytest.approx(fit_on(fold, "fold"), rel=1e-6)
 

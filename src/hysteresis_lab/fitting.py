@@ -13,7 +13,7 @@ import signal
 import time
 import warnings
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -61,6 +61,10 @@ class TrainResult:
     refit_validation: dict[str, float] | None = None
     #: the refit's own weights when it lost to its start (kept for reporting what it did)
     rejected_state: dict[str, torch.Tensor] | None = None
+    #: per training stage (`Stage`: "one_step", "simulation", "fine_tune"), the epochs the
+    #: kept weights trained: the best checkpoint's epoch + 1, 0 where the stage kept its
+    #: start, the stage's whole length with ``keep_last``
+    epochs: dict[str, int] = field(default_factory=dict)
 
 
 def fit_run(
@@ -89,6 +93,7 @@ def fit_run(
         model, datamodule, config.trainer, config.output_dir, logger=logger,
         callbacks=callbacks, keep_start_unless_beaten=warm_start is not None,
         min_gain=config.settings.min_refit_gain, resume=resume,
+        keep_last=config.settings.keep_last,
     )
     return trained, datamodule.window
 
@@ -143,6 +148,7 @@ def fit(
     keep_start_unless_beaten: bool = False,
     min_gain: float = 0.0,
     resume: bool = False,
+    keep_last: bool = False,
 ) -> TrainResult:
     """Fit ``model``; nets keep the checkpoint with the best validation loss.
 
@@ -154,15 +160,19 @@ def fit(
     ``resume``: each stage goes on from its ``last.ckpt`` in ``output_dir`` (an interrupted
     fit of the same model and settings); without it, or without that file, the stage starts
     afresh and the checkpoints an earlier fit left in its folder are deleted first.
+    ``keep_last``: every stage trains its whole length and keeps its last weights (no
+    checkpoint chosen on validation, no early stop, the start never put back): a length
+    chosen elsewhere (the loop's folds) on data that hold nothing out.
     """
     if model.is_network:
         _check_max_epochs(settings)
     start = (
         {k: v.detach().clone() for k, v in model.state_dict().items()}
-        if keep_start_unless_beaten and model.is_network
+        if keep_start_unless_beaten and model.is_network and not keep_last
         else None
     )
-    result = _fit(model, datamodule, settings, output_dir, logger, callbacks, one_step, resume)
+    result = _fit(model, datamodule, settings, output_dir, logger, callbacks, one_step, resume,
+                  keep_last)
     if start is not None:
         _keep_start_unless_beaten(result, start, datamodule, settings, min_gain)
     return result
@@ -191,6 +201,7 @@ def _keep_start_unless_beaten(
         log.info("refit: validation loss %.4e -> %.4e (scaled)", start_loss, trained_loss)
         return
     result.rejected_state = trained
+    result.epochs = dict.fromkeys(result.epochs, 0)  # the start's weights trained none
     log.info(
         "refit did not beat the model it started from on validation (%.4e vs %.4e, scaled): "
         "kept that model",
@@ -233,6 +244,7 @@ def _fit(
     callbacks: list[Any] | None,
     one_step: bool,
     resume: bool = False,
+    keep_last: bool = False,
 ) -> TrainResult:
     """`fit` without the comparison with the starting weights."""
     datamodule.setup()
@@ -243,7 +255,7 @@ def _fit(
         val_mse = datamodule.validation_mse(model.predict_scaled)
         return TrainResult(model, val_mse, time.perf_counter() - start)
     return _fit_network(model, datamodule, settings, output_dir, logger, callbacks, one_step,
-                        resume, start)
+                        resume, start, keep_last)
 
 
 def _fit_network(
@@ -256,6 +268,7 @@ def _fit_network(
     one_step: bool,
     resume: bool,
     start: float,
+    keep_last: bool = False,
 ) -> TrainResult:
     """A network's stages, from its starting values read off the data: the free-run error
     alone, or the one-step error fine-tuned on the free run (`_fit_one_step_and_fine_tune`)."""
@@ -267,20 +280,23 @@ def _fit_network(
                  "first) does not apply to it", type(model).__name__, fine_tune_epochs)
         fine_tune_epochs = None
     if steps > 0 and fine_tune_epochs is None:  # the free-run error is the only objective
-        best, _, val_mse = _fit_free_run(
+        best, _, val_mse, trained = _fit_free_run(
             model, datamodule, settings, output_dir, logger, "simulation", steps,
             int(settings.max_epochs), callbacks, RunFolder.CHECKPOINTS,
             starting_checkpoint=None, keep_start=True, finite_start=True, resume=resume,
+            keep_last=keep_last,
         )
+        epochs = {"simulation": trained}
         detail = f" (validation free-run MSE {val_mse:.4e}, scaled)"
     else:
-        best, val_mse = _fit_one_step_and_fine_tune(model, datamodule, settings, output_dir, logger,
-                                            callbacks, one_step, resume, fine_tune_epochs)
+        best, val_mse, epochs = _fit_one_step_and_fine_tune(
+            model, datamodule, settings, output_dir, logger, callbacks, one_step, resume,
+            fine_tune_epochs, keep_last)
         detail = ""
     model.stage_lr = None
     seconds = time.perf_counter() - start
     log.info("trained in %.1f s%s", seconds, detail)
-    return TrainResult(model.eval(), val_mse, seconds, best)
+    return TrainResult(model.eval(), val_mse, seconds, best, epochs=epochs)
 
 
 def _fit_one_step_and_fine_tune(
@@ -293,30 +309,33 @@ def _fit_one_step_and_fine_tune(
     one_step: bool,
     resume: bool,
     fine_tune_epochs: int | None,
-) -> tuple[Path | None, float]:
+    keep_last: bool = False,
+) -> tuple[Path | None, float, dict[str, int]]:
     """The one-step stage, then (with a free-run horizon) free-run fine-tuning from its best
     checkpoint; ``one_step=False`` fine-tunes the (warm-started) weights directly and falls
-    back to both stages when that does not beat them. The kept checkpoint and its loss."""
+    back to both stages when that does not beat them. The kept checkpoint, its loss and
+    each stage's epochs (`TrainResult.epochs`)."""
     steps = model.simulation_horizon
     stages = (model, datamodule, settings, output_dir, logger, "fine_tune", steps)
     if not one_step and steps > 0:
-        best, improved, val_mse = _fit_free_run(
+        best, improved, val_mse, tuned = _fit_free_run(
             *stages, int(fine_tune_epochs), None, RunFolder.FREE_RUN_CHECKPOINTS,
-            starting_checkpoint=None, keep_start=True, resume=resume,
+            starting_checkpoint=None, keep_start=True, resume=resume, keep_last=keep_last,
         )
         if improved:
-            return best, val_mse
+            return best, val_mse, {"one_step": 0, "fine_tune": tuned}
         # the new inputs were not learned: refit from the warm start
         log.info("refitting the warm-started network on the one-step error first")
         resume = False  # the free-run folder holds that first stage's checkpoints
-    best, val_mse = _fit_one_step(model, datamodule, settings, output_dir, logger, callbacks,
-                                  resume)
+    best, val_mse, trained = _fit_one_step(model, datamodule, settings, output_dir, logger,
+                                           callbacks, resume, keep_last)
+    epochs = {"one_step": trained}
     if steps > 0:
-        best, _, val_mse = _fit_free_run(
+        best, _, val_mse, epochs["fine_tune"] = _fit_free_run(
             *stages, int(fine_tune_epochs), None, RunFolder.FREE_RUN_CHECKPOINTS,
-            starting_checkpoint=best, keep_start=True, resume=resume,
+            starting_checkpoint=best, keep_start=True, resume=resume, keep_last=keep_last,
         )
-    return best, val_mse
+    return best, val_mse, epochs
 
 
 def _initialise_from_data(model: L.LightningModule, datamodule: WindowDataModule) -> None:
@@ -336,8 +355,10 @@ def _fit_one_step(
     logger: TensorBoardLogger | None,
     callbacks: list[Any] | None,
     resume: bool = False,
-) -> tuple[Path | None, float]:
-    """The study's training on the one-step error; the best checkpoint's path and loss."""
+    keep_last: bool = False,
+) -> tuple[Path | None, float, int]:
+    """The study's training on the one-step error; the best checkpoint's path, its loss and
+    the epochs it trained (``keep_last``: the last epoch's)."""
     last, checkpoint, all_callbacks = _stage_callbacks(output_dir / RunFolder.CHECKPOINTS,
                                                        resume, callbacks)
     model.stage_lr = stage_lr(model, "one_step")
@@ -347,9 +368,10 @@ def _fit_one_step(
         settings, all_callbacks, module=model,
         logger=logger if logger is not None else False, default_root_dir=str(output_dir),
     )
-    best, val_mse = _train_keeping_best(trainer, model, datamodule, last, checkpoint)
+    best, val_mse, epochs = _train_keeping_best(trainer, model, datamodule, last, checkpoint,
+                                                keep_last=keep_last)
     log.info("best validation MSE %.4e (scaled); checkpoint %s", val_mse, best)
-    return best, val_mse
+    return best, val_mse, epochs
 
 
 def _stage_callbacks(
@@ -371,10 +393,12 @@ def _train_keeping_best(
     last: Path | None,
     checkpoint: ModelCheckpoint,
     diverged_ok: bool = False,
-) -> tuple[Path | None, float]:
+    keep_last: bool = False,
+) -> tuple[Path | None, float, int]:
     """Train ``model`` on ``data`` (going on from the ``last`` checkpoint when given) and load
-    its best checkpoint's weights (`_restore_best`); ``diverged_ok``: a `DivergedError` ends
-    the training with a warning (the best epoch before it is kept)."""
+    its best checkpoint's weights (`_restore_best`; ``keep_last``: keep the last epoch's);
+    ``diverged_ok``: a `DivergedError` ends the training with a warning (the best epoch
+    before it is kept). The kept checkpoint, its validation loss and its epochs."""
     try:
         with _resuming(last):
             trainer.fit(model, datamodule=data, ckpt_path=last)
@@ -382,6 +406,9 @@ def _train_keeping_best(
         if not diverged_ok:
             raise
         log.warning("free-run fine-tuning diverged (%s)", exc)
+    if keep_last:
+        loss = trainer.callback_metrics.get("val_loss")
+        return None, float(loss) if loss is not None else float("nan"), trainer.current_epoch
     return _restore_best(model, checkpoint)
 
 
@@ -528,19 +555,23 @@ class _StayStopped(L.Callback):
 
 def _restore_best(
     model: L.LightningModule, checkpoint: ModelCheckpoint
-) -> tuple[Path | None, float]:
-    """Load the weights of the best checkpoint; its path and validation loss. Other best
+) -> tuple[Path | None, float, int]:
+    """Load the weights of the best checkpoint; its path, validation loss and the epochs it
+    trained (its 0-based epoch + 1; 0 without one). Other best
     checkpoints beside it are deleted: a fit resumed from a ``last.ckpt`` written before the
     interrupted fit's last best does not know that best, which would stay beside the new."""
     best = checkpoint.best_model_path
+    epochs = 0
     if best:
         for stale in Path(best).parent.glob("best-*.ckpt"):
             if stale.name != Path(best).name:
                 stale.unlink()
-        state = torch.load(best, map_location=model.device, weights_only=True)["state_dict"]
-        model.load_state_dict(state)
+        saved = torch.load(best, map_location=model.device, weights_only=True)
+        model.load_state_dict(saved["state_dict"])
+        epochs = int(saved.get("epoch", -1)) + 1
     score = checkpoint.best_model_score
-    return (Path(best) if best else None), float(score) if score is not None else float("nan")
+    loss = float(score) if score is not None else float("nan")
+    return (Path(best) if best else None), loss, epochs
 
 
 def _fit_free_run(
@@ -558,7 +589,8 @@ def _fit_free_run(
     keep_start: bool,
     finite_start: bool = False,
     resume: bool = False,
-) -> tuple[Path | None, bool, float]:
+    keep_last: bool = False,
+) -> tuple[Path | None, bool, float, int]:
     """Simulation-error training: minimise the free-run MSE over ``steps``-sample segments.
 
     Runs ``epochs`` epochs from the current weights at the learning rate of ``lr_stage``
@@ -569,14 +601,16 @@ def _fit_free_run(
     data): when no epoch beat them on that loss, they stay and ``starting_checkpoint`` and
     False are returned. ``finite_start``: an initial model whose free run is not finite is
     an error (the model trains from it alone). ``resume``: go on from the stage's
-    ``last.ckpt`` when there is one (see `fit`). Returns the checkpoint, whether training
-    improved on the start, and the validation free-run MSE (scaled) of the weights kept.
+    ``last.ckpt`` when there is one (see `fit`); ``keep_last``: all ``epochs``, the last
+    weights kept (see `fit`). Returns the checkpoint, whether training improved on the
+    start, the validation free-run MSE (scaled) of the weights kept and the epochs they
+    trained (0: the start).
     """
     last, checkpoint, all_callbacks = _stage_callbacks(output_dir / folder, resume, callbacks)
     model.stage_lr = stage_lr(model, lr_stage)
     segments = simulation_data(datamodule, model, steps)
     patience = model.training_settings.patience
-    if patience:
+    if patience and not keep_last:
         early_stopping = EarlyStopping(monitor="val_loss", mode="min", patience=patience)
         all_callbacks += [early_stopping, _StayStopped(early_stopping)]
     # feedback through many steps: keep updates bounded
@@ -604,11 +638,12 @@ def _fit_free_run(
                 "unstable initial model). Fix: a shorter training.horizon, or check the data "
                 "scaling (data.scaling) and the model's initial settings."
             )
-        best, val_free_run = _train_keeping_best(trainer, model, segments, last, checkpoint,
-                                                 diverged_ok=not finite_start)
+        best, val_free_run, trained = _train_keeping_best(
+            trainer, model, segments, last, checkpoint, diverged_ok=not finite_start,
+            keep_last=keep_last)
     finally:
         model.simulation_mode = False
-    if keep_start and not val_free_run < starting_loss:
+    if keep_start and not keep_last and not val_free_run < starting_loss:
         model.load_state_dict(starting_weights)
         log.info(
             "free-run fine-tuning did not beat the starting weights on validation (%.4e vs "
@@ -616,14 +651,14 @@ def _fit_free_run(
             val_free_run,
             starting_loss,
         )
-        return starting_checkpoint, False, starting_loss
+        return starting_checkpoint, False, starting_loss, 0
     log.info(
         "free-run training: validation free-run MSE %.4e -> %.4e (scaled) over %s",
         starting_loss,
         val_free_run,
         "whole recordings" if model.whole_recordings else f"{steps} steps",
     )
-    return best, True, val_free_run
+    return best, True, val_free_run, trained
 
 
 #: model parameters that come from the data, never from the config

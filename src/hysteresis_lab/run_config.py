@@ -59,7 +59,8 @@ class RunSettings:
     (`hysteresis_lab.fit_record`) is loaded and scored instead of trained. ``resume``: a
     network fit interrupted in the output folder with the same settings, data and start goes
     on from its last checkpoints (`RunFolder.FIT_IN_PROGRESS`); one with other settings is
-    refused; without ``resume`` it starts afresh.
+    refused; without ``resume`` it starts afresh. ``keep_last``: a network trains every
+    epoch of each stage and keeps its last weights (`hysteresis_lab.fitting.fit`).
     """
 
     seed: int = 0
@@ -72,6 +73,7 @@ class RunSettings:
     reuse: bool = False
     resume: bool = True
     initial_state: str = "rest"
+    keep_last: bool = False
 
 
 @dataclass(frozen=True)

@@ -9,8 +9,10 @@ round refits it on every fold: the refit stands only when its free run is stable
 fold, its pooled held-out loss beats the standing model's and it is better on a majority of
 the folds (`hysteresis_lab.loop.crossval.keep_refit`); the refit's learning rate and the
 effect's place are the candidates' with the lowest pooled held-out loss. The structure the
-folds chose is then refitted on the whole identification record: that model is the round's
-result, the one reported on the tests and saved in ``round_<n>/``.
+folds chose is then refitted on the whole identification record, every sample training, for
+the epochs the folds' fits of it needed (`hysteresis_lab.loop.length`), its last weights
+kept: that model is the round's result, the one reported on the tests and saved in
+``round_<n>/``.
 
 With ``warm_start`` every refit (each fold's and the whole record's) starts from the same
 lane's previous model with the new effect's input weights at zero; with
@@ -49,6 +51,7 @@ from hysteresis_lab.loop.diagnosis.excitation import operator_excitation, under_
 from hysteresis_lab.loop.diagnosis.ranking import TESTS, EffectScore, diagnose, evidence_lags
 from hysteresis_lab.loop.diagnosis.residuals import diagnostics_figure, residual_analysis
 from hysteresis_lab.loop.figures import ResidualEvidence
+from hysteresis_lab.loop.length import TrainingLength, configured_length, final_length
 from hysteresis_lab.loop.plant import fits_plant, prefer_plant, with_plant_prior
 from hysteresis_lab.loop.report import (
     loop_markdown,
@@ -62,7 +65,12 @@ from hysteresis_lab.models.augment import feature_context
 from hysteresis_lab.models.settings import TrainingSettings
 from hysteresis_lab.models.spec import ModelSpec
 from hysteresis_lab.run_folder import LoopFolder
-from hysteresis_lab.workflows.grow import REFIT_LR_FACTORS, refit_mode, refit_rates
+from hysteresis_lab.workflows.grow import (
+    REFIT_LR_FACTORS,
+    growth_stages,
+    refit_mode,
+    refit_rates,
+)
 from hysteresis_lab.workflows.pipeline import (
     RunConfig,
     RunResult,
@@ -308,7 +316,7 @@ def run_loop(
         settings=settings,
         data=data,
         context=feature_context(data.fit.train),
-        whole=_Lane(base, data.fit),
+        whole=_Lane(base, data.whole),
         folds=[_Lane(quiet, fold.fit) for fold in data.folds],
         fold_judges=[functools.partial(held_out, stretches=fold.held_out,
                                        n_init=data.fit.n_init, device=device)
@@ -404,14 +412,16 @@ def _fit_round_and_decide(
                                   start=state.kept[0].check)
     fitted_on = None
     if kept:
-        final, samples = _fit_final(run, model, best, round_dir, standing if warm else None,
-                                    refit)
-        fitted_on = {"samples": samples, "recordings": [r.name for r in run.data.fit.train]}
+        final, samples, length = _fit_final(run, model, best, round_dir,
+                                            standing if warm else None, refit)
+        fitted_on = {"samples": samples, "recordings": [r.name for r in run.data.fit.train],
+                     "training_length": length.to_dict(), "length": length.describe()}
     else:
         final = standing.final
     entry = _round_entry(round_effects, final)
     entry["chosen_on"] = {"folds": len(run.data.folds),
-                          "samples": [lane.samples for lane in run.folds]}
+                          "samples": [lane.samples for lane in run.folds],
+                          "held_out": [fold.describe() for fold in run.data.folds]}
     entry["fitted_on"] = fitted_on
     entry["held_out"] = (best.check if kept else standing.check).to_dict()
     if rates[0] is not None:
@@ -500,17 +510,48 @@ def _fit_on_folds(
 
 
 def _fit_final(run: _LoopRun, model: ModelSpec, chosen: _Candidate, round_dir: Path,
-               standing: _Standing | None, refit: str) -> tuple[RunResult, int]:
+               standing: _Standing | None,
+               refit: str) -> tuple[RunResult, int, TrainingLength]:
     """The structure the folds chose (its place and rate) refitted on the whole
-    identification record, from the standing result when ``standing`` is given; with the
-    samples it trained on."""
-    rate = {"refit_lr": chosen.rate} if chosen.rate is not None else {}
+    identification record, from the standing result when ``standing`` is given, for the
+    folds' length (`training_length`; its last weights kept); with the samples it trained on
+    and that length."""
+    spec = model.with_settings({**model.settings, **chosen.variant})
+    training = run.training.with_changes(
+        **({"refit_lr": chosen.rate} if chosen.rate is not None else {}))
     lane = run.whole
-    result = lane.fit(model=model.with_settings({**model.settings, **chosen.variant}),
-                      training=run.training.with_changes(**rate), output_dir=round_dir,
+    length = training_length(run, spec, chosen, grows=standing is None)
+    trainer = lane.config.trainer
+    if length.from_folds:
+        stages = length.epochs
+        trainer = trainer.with_changes(max_epochs=next(
+            (stages[s] for s in ("one_step", "simulation") if s in stages),
+            trainer.max_epochs))
+        if "fine_tune" in stages:
+            training = training.with_changes(simulation_epochs=stages["fine_tune"])
+    log.info("the final refit on the whole identification record trains %s",
+             length.describe())
+    result = lane.fit(model=spec, training=training, output_dir=round_dir,
                       warm_start=None if standing is None else standing.final.model,
-                      refit=refit)
-    return result, lane.samples
+                      refit=refit, trainer=trainer, keep_last=length.from_folds)
+    return result, lane.samples, length
+
+
+def training_length(run: _LoopRun, model: ModelSpec, chosen: _Candidate,
+                    grows: bool) -> TrainingLength:
+    """How long the final refit of ``chosen`` trains: the folds' median best epoch per
+    stage (`hysteresis_lab.loop.length`), or the configured length where the folds cannot
+    say (not a network; a model that ``grows`` through stages from the data, each stage
+    its own length)."""
+    configured = configured_length(run.whole.config.trainer.max_epochs,
+                                   run.training.simulation_epochs)
+    if not model.is_network:
+        return TrainingLength(configured=configured, fallback="not a network: no epochs")
+    if grows and len(growth_stages(model)) > 1:
+        return TrainingLength(configured=configured,
+                              fallback="the model grows through stages, each its own length")
+    return final_length([None if r is None else r.document for r in chosen.folds],
+                        configured)
 
 
 def _candidate_entry(candidate: _Candidate) -> dict[str, Any]:
@@ -746,12 +787,16 @@ def _not_carried(
 
 def fit_model(base: RunConfig, splits: DatasetSplits, model: ModelSpec,
               training: TrainingSettings, output_dir: Path, warm_start: Any | None,
-              refit: str) -> RunResult:
+              refit: str, trainer: TrainerSettings | None = None,
+              keep_last: bool = False) -> RunResult:
     """One fit of the loop: ``base`` (the loop's data, trainer and bookkeeping) with a
     round's ``model`` and ``training`` settings, in ``output_dir``, started from
-    ``warm_start`` (None: from the data) with that ``refit`` mode."""
+    ``warm_start`` (None: from the data) with that ``refit`` mode; ``trainer``: another
+    length, ``keep_last``: its last weights kept (`hysteresis_lab.fitting.fit`)."""
     config = dataclasses.replace(base, model=model, training=training, output_dir=output_dir,
-                                 settings=dataclasses.replace(base.settings, refit=refit))
+                                 trainer=trainer or base.trainer,
+                                 settings=dataclasses.replace(base.settings, refit=refit,
+                                                              keep_last=keep_last))
     return run_model(config, splits=splits, warm_start=warm_start)
 
 

@@ -198,8 +198,12 @@ def _fit_lines(r: Mapping[str, Any], unit: str) -> list[str]:
         where = (f"the result refitted on the whole identification record "
                  f"({', '.join(fitted['recordings'])}: {fitted['samples']} samples)"
                  if fitted else "not refitted on the whole record (the folds dropped it)")
+        held = (f", holding out {'; '.join(chosen['held_out'])} in turn"
+                if chosen.get("held_out") else "")
         lines.append(f"- chosen on {chosen['folds']} folds (each trained on "
-                     f"{', '.join(map(str, chosen['samples']))} samples); {where}")
+                     f"{', '.join(map(str, chosen['samples']))} samples{held}); {where}")
+        if fitted and fitted.get("length"):
+            lines.append(f"- the whole-record refit trained {fitted['length']}")
     if r.get("final_refit"):
         lines.append(f"- {r['final_refit']}")
     if decision is None or decision["kept"]:

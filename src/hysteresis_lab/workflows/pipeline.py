@@ -167,6 +167,8 @@ def _fingerprinted(
     }
     if config.model.is_network:
         fingerprinted["training"] = config.training.to_dict()
+    if settings.keep_last:  # only then: the records of runs without it stay valid
+        fingerprinted["keep_last"] = True
     if baseline is not None:  # only then: the records of runs without one stay valid
         fingerprinted["baseline"] = baseline.digest
     return fingerprinted

@@ -107,7 +107,7 @@ def _score_and_write(
         evaluation.metrics,
         trained.train_seconds,
         extra={"val_mse_scaled": trained.val_mse, "data": data.name, "model_path": str(model_path),
-               "initial_state": settings.initial_state},
+               "initial_state": settings.initial_state, "trained_epochs": trained.epochs},
     )
     folder.write_metrics(document)
     if settings.plots:
