@@ -6,11 +6,11 @@ chooses the structure and fits the result; the test recordings never inform a ch
 * **folds** (choose): ``loop.folds`` = k folds of the identification record. Where it has
   at least k recordings, each fold holds out whole recordings (every k-th); else every
   recording is cut into k contiguous blocks and fold j holds out block j of each. A fold's
-  models train on the rest, keep the epoch whose free run is best on the held-out part
-  (their validation data: the length the final refit trains comes from there), and are
-  scored on the free run of each held-out recording, simulated end to end (a model that
-  simulates from rest has no other state to start a block from), over the held-out
-  samples only;
+  models train on the rest, keep the epoch whose loss is best on a random share of that
+  rest (as any fit without validation recordings: what a fold holds out only judges it;
+  the length the final refit trains comes from those epochs), and are scored on the free
+  run of each held-out recording, simulated end to end (a model that simulates from rest
+  has no other state to start a block from), over the held-out samples only;
 * **diagnosis** (chooses the effect): the folds' held-out residuals together, or the
   recordings named in ``data.diagnose=[...]``: names of the data set's test recordings (a
   test recording named there leaves the before/after set) or files, read like ``data.test``;
@@ -138,26 +138,25 @@ def loop_data(splits: DatasetSplits, data: DataSpec, folds: int) -> LoopData:
 
 def cross_validation_folds(fit: DatasetSplits, k: int) -> list[Fold]:
     """``k`` folds of ``fit.train``: whole recordings (every k-th) where there are at least
-    ``k``, else the j-th of ``k`` contiguous blocks of every recording. A fold validates
-    (chooses its checkpoint) on what it holds out."""
+    ``k``, else the j-th of ``k`` contiguous blocks of every recording. A fold's fit
+    chooses its checkpoint on a random share of its own training part, never on what the
+    fold holds out (that would choose on the data that judge it)."""
     recordings = fit.train
     if k < 2:
         raise ConfigError(f"loop.folds={k} must be at least 2. Fix: e.g. loop.folds=3.")
     if len(recordings) >= k:
         return [Fold(dataclasses.replace(fit, train=[r for i, r in enumerate(recordings)
-                                                     if i % k != j],
-                                         val=recordings[j::k]),
+                                                     if i % k != j]),
                      [Stretch(r) for r in recordings[j::k]]) for j in range(k)]
     folds = []
     for j in range(k):
-        train, val, held = [], [], []
+        train, held = [], []
         for rec in recordings:
             a, b = _block(rec, j, k)
             train += [piece for piece in (_piece(rec, 0, a), _piece(rec, b, rec.n_samples))
                       if piece is not None]
-            val.append(_piece(rec, a, b))
             held.append(Stretch(rec, a, b))
-        folds.append(Fold(dataclasses.replace(fit, train=train, val=val), held))
+        folds.append(Fold(dataclasses.replace(fit, train=train), held))
     return folds
 
 

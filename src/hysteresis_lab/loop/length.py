@@ -1,7 +1,8 @@
 """How long the loop's final refit trains: the epochs the folds showed are needed.
 
-A fold's fit keeps the checkpoint whose free run is best on what the fold holds out
-(`hysteresis_lab.loop.data`); the epochs that checkpoint trained, per training stage, are in
+A fold's fit keeps the checkpoint whose loss is best on a random share of its own training
+part (never on what the fold holds out, which judges it: `hysteresis_lab.loop.data`); the
+epochs that checkpoint trained, per training stage, are in
 the fit's ``metrics.json`` (``trained_epochs``, `hysteresis_lab.fitting.TrainResult.epochs`).
 The whole-record refit holds nothing out, so it cannot choose its own epoch: it trains each
 stage for the folds' median (rounded up; at least 1 epoch, at most the configured length)
