@@ -398,7 +398,9 @@ def _train_keeping_best(
     """Train ``model`` on ``data`` (going on from the ``last`` checkpoint when given) and load
     its best checkpoint's weights (`_restore_best`; ``keep_last``: keep the last epoch's);
     ``diverged_ok``: a `DivergedError` ends the training with a warning (the best epoch
-    before it is kept). The kept checkpoint, its validation loss and its epochs."""
+    before it is kept, with ``keep_last`` too). The kept checkpoint, its validation loss and
+    its epochs."""
+    diverged = False
     try:
         with _resuming(last):
             trainer.fit(model, datamodule=data, ckpt_path=last)
@@ -406,7 +408,8 @@ def _train_keeping_best(
         if not diverged_ok:
             raise
         log.warning("free-run fine-tuning diverged (%s)", exc)
-    if keep_last:
+        diverged = True
+    if keep_last and not diverged:
         loss = trainer.callback_metrics.get("val_loss")
         return None, float(loss) if loss is not None else float("nan"), trainer.current_epoch
     return _restore_best(model, checkpoint)
