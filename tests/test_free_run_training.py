@@ -119,3 +119,17 @@ def test_fine_tuning_that_does_not_help_keeps_the_starting_weights(splits, tmp_p
     for a, b in zip(free_run(plain, splits.test, dm.window),
                     free_run(guarded.model, splits.test, dm.window), strict=True):
         np.testing.assert_allclose(a, b, atol=1e-6)
+
+
+def test_a_fine_tuning_that_diverges_keeps_finite_weights_when_the_last_epoch_is_asked_for(
+        splits, tmp_path):
+    """``keep_last`` (the loop's whole-record refit) keeps the last epoch's weights, but not
+    those of a fine-tuning that diverged: its free run stays finite."""
+    dm = datamodule_for("ffnn", splits)
+    cfg = {**CONFIGS["ffnn"], "objective": "simulation", "horizon": 50, "simulation_epochs": 2,
+           "simulation_lr": 1e3}
+    L.seed_everything(0)
+    kept = fit(build_model(cfg, dm), dm, TRAINER, tmp_path / "last", keep_last=True)
+    assert kept.epochs["one_step"] == TRAINER.max_epochs
+    for y in free_run(kept.model, splits.test, dm.window):
+        assert np.all(np.isfinite(y))

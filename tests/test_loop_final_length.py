@@ -48,8 +48,9 @@ def _trained_epochs(folder) -> dict[str, int]:
 
 def test_the_final_refit_trains_the_folds_median_best_epoch(tmp_path):
     """Each fold's fit records the epoch its best checkpoint (on a random share of its
-    training part) came from; the whole-record refit trains the median of those, not trainer.max_epochs, and the
-    report says so and where it came from. Run again in its folder, the loop reuses it."""
+    training part) came from; the whole-record refit trains the median of those, not
+    trainer.max_epochs, and the report says so and where it came from. Run again in its
+    folder, the loop reuses it."""
     folder = tmp_path / "loop"
     report = run_loop(MODEL, DATA, TRAINER, _splits(), folder,
                       LoopSettings(max_rounds=0, folds=3), use_tensorboard=False)

@@ -605,9 +605,9 @@ def _fit_free_run(
     False are returned. ``finite_start``: an initial model whose free run is not finite is
     an error (the model trains from it alone). ``resume``: go on from the stage's
     ``last.ckpt`` when there is one (see `fit`); ``keep_last``: all ``epochs``, the last
-    weights kept (see `fit`). Returns the checkpoint, whether training improved on the
-    start, the validation free-run MSE (scaled) of the weights kept and the epochs they
-    trained (0: the start).
+    weights kept (see `fit`) unless the training diverged. Returns the checkpoint, whether
+    training improved on the start, the validation free-run MSE (scaled) of the weights kept
+    and the epochs they trained (0: the start).
     """
     last, checkpoint, all_callbacks = _stage_callbacks(output_dir / folder, resume, callbacks)
     model.stage_lr = stage_lr(model, lr_stage)
@@ -646,7 +646,10 @@ def _fit_free_run(
             keep_last=keep_last)
     finally:
         model.simulation_mode = False
-    if keep_start and not keep_last and not val_free_run < starting_loss:
+    # the last epoch's weights stand unless the training diverged (then its best epoch, or
+    # the start, is kept as without keep_last)
+    kept_last = keep_last and best is None and np.isfinite(val_free_run)
+    if keep_start and not kept_last and not val_free_run < starting_loss:
         model.load_state_dict(starting_weights)
         log.info(
             "free-run fine-tuning did not beat the starting weights on validation (%.4e vs "
