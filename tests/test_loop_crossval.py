@@ -7,9 +7,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from scipy import signal
 
-from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.errors import ConfigError, DataError
@@ -17,25 +15,16 @@ from hysteresis_lab.lightning_trainer import TrainerSettings
 from hysteresis_lab.loop.crossval import FoldsCheck, HeldOut, diverges, keep_refit
 from hysteresis_lab.loop.data import cross_validation_folds, loop_data
 from hysteresis_lab.loop.driver import LoopSettings, run_loop
-from hysteresis_lab.signals import multisine
 from hysteresis_lab.workflows.pipeline import RunConfig, run_model
+from lowpass import clipped_lowpass
 
-FS = 100.0
 TRAINER = TrainerSettings(max_epochs=3, accelerator="cpu", devices=1, enable_progress_bar=False,
                           enable_model_summary=False)
 
 
-def _recording(n: int, seed: int, name: str) -> Recording:
-    u = multisine(n, fs=FS, n_components=20, f_max=2.0, seed=seed)
-    b, a = signal.butter(2, 1.0, fs=FS)
-    y = np.minimum(signal.lfilter(b, a, u), 0.6)
-    return Recording(u=u, y=y + 0.01 * np.random.default_rng(seed).standard_normal(n), fs=FS,
-                     name=name)
-
-
 def _splits(n_train: int = 1200, train: int = 1) -> DatasetSplits:
-    records = [_recording(n_train, 1 + i, f"train{i}") for i in range(train)]
-    return DatasetSplits("lowpass", train=records, test=[_recording(600, 9, "test")])
+    records = [clipped_lowpass(n_train, 1 + i, f"train{i}") for i in range(train)]
+    return DatasetSplits("lowpass", train=records, test=[clipped_lowpass(600, 9, "test")])
 
 
 def _fold(losses: list[float], diverging: tuple[str, ...] = ()) -> FoldsCheck:
@@ -118,7 +107,7 @@ def test_several_recordings_are_held_out_whole():
 
 
 def test_the_identification_record_is_the_training_and_validation_recordings():
-    splits = dataclasses.replace(_splits(), val=[_recording(900, 5, "val")])
+    splits = dataclasses.replace(_splits(), val=[clipped_lowpass(900, 5, "val")])
     data = loop_data(splits, DataSpec.from_config({}), folds=2)
     assert [r.name for r in data.fit.train] == ["train0", "val"] and not data.fit.val
     assert data.diagnosis == data.validation

@@ -8,10 +8,8 @@ import json
 import math
 
 import numpy as np
-from scipy import signal
 
 from hysteresis_lab.data.datamodules import WindowDataModule
-from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.spec import DataSpec
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.data.windows import WindowSpec, make_windows
@@ -19,9 +17,8 @@ from hysteresis_lab.lightning_trainer import TrainerSettings
 from hysteresis_lab.loop.data import loop_data
 from hysteresis_lab.loop.driver import LoopSettings, run_loop
 from hysteresis_lab.loop.length import final_length
-from hysteresis_lab.signals import multisine
+from lowpass import clipped_lowpass
 
-FS = 100.0
 EPOCHS = 6
 TRAINER = TrainerSettings(max_epochs=EPOCHS, accelerator="cpu", devices=1,
                           enable_progress_bar=False, enable_model_summary=False)
@@ -29,17 +26,9 @@ MODEL = {"name": "linear", "order": 2, "effects": [], "lr": 0.01}
 DATA = DataSpec.from_config({"name": "lowpass", "scaling": {"mode": "standard"}})
 
 
-def _recording(n: int, seed: int, name: str) -> Recording:
-    u = multisine(n, fs=FS, n_components=20, f_max=2.0, seed=seed)
-    b, a = signal.butter(2, 1.0, fs=FS)
-    y = np.minimum(signal.lfilter(b, a, u), 0.6)
-    return Recording(u=u, y=y + 0.01 * np.random.default_rng(seed).standard_normal(n), fs=FS,
-                     name=name)
-
-
 def _splits() -> DatasetSplits:
-    return DatasetSplits("lowpass", train=[_recording(1200, 1, "train0")],
-                         test=[_recording(600, 9, "test")])
+    return DatasetSplits("lowpass", train=[clipped_lowpass(1200, 1, "train0")],
+                         test=[clipped_lowpass(600, 9, "test")])
 
 
 def _trained_epochs(folder) -> dict[str, int]:
@@ -75,8 +64,9 @@ def test_the_final_refit_uses_every_identification_sample(tmp_path):
     """The whole-record refit's data hold no validation share out of training: a window
     model trains on every window of every identification recording (with no validation
     recordings the data module would otherwise set a random tenth aside)."""
-    splits = DatasetSplits("lowpass", train=[_recording(900, 1, "a")],
-                           val=[_recording(700, 2, "b")], test=[_recording(600, 9, "test")])
+    splits = DatasetSplits("lowpass", train=[clipped_lowpass(900, 1, "a")],
+                           val=[clipped_lowpass(700, 2, "b")],
+                           test=[clipped_lowpass(600, 9, "test")])
     data = loop_data(splits, DATA, 3)
     window = WindowSpec(na=2, nb=2, nk=0)
     module = WindowDataModule(data.whole, window)
