@@ -164,7 +164,8 @@ def _best_candidate(
     choices: dict[str, Any], callbacks: list[Any] | None,
 ) -> tuple[TrainResult, WindowSpec]:
     """Each candidate's settings fitted (`train_model`) in ``grow/candidates/<setting>``, the
-    one with the lowest validation free-run loss kept; ``choices`` records the losses."""
+    one with the lowest validation free-run loss kept (its training time: all of theirs);
+    ``choices`` records the losses."""
     fits = []
     for settings in candidates:
         label = ",".join(f"{k}={v}" for k, v in settings.items()
@@ -180,7 +181,8 @@ def _best_candidate(
              ", ".join(f"{k} {v:.4e}" for k, v in losses.items()), label)
     trained.model.data_choices = {**choices, "candidates_validation_loss": losses,
                                   "kept": label}
-    return trained, window
+    seconds = sum(fit[1].train_seconds for fit in fits)  # the run took every candidate's
+    return dataclasses.replace(trained, train_seconds=seconds), window
 
 
 def _better_of_grown_and_at_once(
