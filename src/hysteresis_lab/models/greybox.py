@@ -656,10 +656,10 @@ class GreyBox(PhysicalChainModule):
             return [{**settings, "hysteresis": evidence.decided}], {
                 "hysteresis": {"chosen": evidence.decided, "by": "data test", **found}}
         log.info("model.hysteresis=auto: the data test leaves the cell open (held-out misfit "
-                 "Bouc–Wen %.4g, Prandtl–Ishlinskii %.4g: ratio %.3g, within %.3g-%.3g): both "
-                 "cells are fitted, the lower validation free-run loss kept",
-                 evidence.misfits["bouc_wen"], evidence.misfits["prandtl_ishlinskii"],
-                 evidence.ratio, CLEAR_RATIO, 1.0 / CLEAR_RATIO)
+                 "Bouc–Wen %.4g, Prandtl–Ishlinskii %.4g, chain alone %.4g: the lower not "
+                 "below %.3g of the others): both cells are fitted, the lower validation "
+                 "free-run loss kept", evidence.misfits["bouc_wen"],
+                 evidence.misfits["prandtl_ishlinskii"], evidence.misfits["none"], CLEAR_RATIO)
         return ([{**settings, "hysteresis": cell} for cell in CELLS],
                 {"hysteresis": {"by": "validation free-run loss", **found}})
 

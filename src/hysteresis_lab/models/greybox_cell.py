@@ -13,10 +13,11 @@ each column through each mode, the weights by linear least squares, the chain's 
 modes refined for each cell by `scipy.optimize.least_squares`. Both are scored on held-out
 data (the validation recording; without one, the training recording's last fifth): the mean
 square misfit of the output over its standard deviation. Where one cell's misfit is below
-`CLEAR_RATIO` of the other's, the test decides; where it is not, the data leave the choice
-open and both cells are fitted, the lower validation free-run loss kept
-(`hysteresis_lab.workflows.grow`): a near tie of the test says little about which cell the
-free-run training takes further.
+`CLEAR_RATIO` of the other's and of the chain alone's, the test decides; where it is not,
+the data leave the choice open and both cells are fitted, the lower validation free-run loss
+kept (`hysteresis_lab.workflows.grow`): a near tie of the test, or a cell that barely improves
+on the chain alone (a chain the best linear approximation misread), says little about which
+cell the free-run training takes further.
 """
 
 from __future__ import annotations
@@ -38,7 +39,8 @@ log = logging.getLogger(__name__)
 
 #: the cells ``model.hysteresis=auto`` chooses between
 CELLS = ("bouc_wen", "prandtl_ishlinskii")
-#: the test decides where one cell's held-out misfit is below this share of the other's
+#: the test decides where one cell's held-out misfit is below this share of the other's and
+#: of the chain alone's
 CLEAR_RATIO = 0.8
 #: play thresholds of the test, over the input's standard deviation
 PLAY_THRESHOLDS = tuple(0.17 * k for k in range(1, 9))
@@ -69,12 +71,13 @@ class CellEvidence:
 
     @property
     def decided(self) -> str | None:
-        """The cell the test chooses (`CLEAR_RATIO`), or None where it leaves it open."""
-        if self.ratio < CLEAR_RATIO:
-            return "bouc_wen"
-        if self.ratio > 1.0 / CLEAR_RATIO:
-            return "prandtl_ishlinskii"
-        return None
+        """The cell the test chooses, or None where it leaves it open: the cell whose
+        misfit is below `CLEAR_RATIO` of the other's and of the chain alone's (a cell that
+        barely improves on the chain says little about which cell the plant has)."""
+        cell = self.lower
+        other = "prandtl_ishlinskii" if cell == "bouc_wen" else "bouc_wen"
+        clear = CLEAR_RATIO * min(self.misfits[other], self.misfits["none"])
+        return cell if self.misfits[cell] < clear else None
 
     @property
     def lower(self) -> str:
