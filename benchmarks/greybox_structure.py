@@ -179,7 +179,8 @@ def render_cell(rows: list[dict[str, Any]], command: str) -> str:
         "*test*; where it leaves the choice open, both fitted and the lower validation "
         "free-run loss kept, *val*). Score: mean free-run RMSE over the twelve ±100 V test "
         "sines over the plant's noise σ. *test BW/PI*: the test's held-out misfit of "
-        "Bouc–Wen over play operators (it decides below 0.8 and above 1.25).", "",
+        "Bouc–Wen over play operators (it decides where the lower is below 0.8 of the other "
+        "and of the linear chain alone's).", "",
         "| seed | plant's cell | modes (Hz) | delay | Bouc–Wen | Prandtl–Ishlinskii | auto "
         "| auto chose | test BW/PI | CPU s BW | CPU s PI | CPU s auto |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|",
