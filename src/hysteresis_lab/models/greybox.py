@@ -19,9 +19,11 @@ parameters train, those linear weights are solved again by least squares each ep
 parameters and fits exactly as before MIMO.
 
 * hysteresis (``model.hysteresis``): ``bouc_wen`` (a differentiable Bouc–Wen state
-  recursion, the default), ``prandtl_ishlinskii`` (play operators with learnable thresholds
-  and non-negative weights, the recursion the effect catalogue's ``hysteresis`` uses) or
-  ``none`` (a static gain);
+  recursion, the class's default), ``prandtl_ishlinskii`` (play operators with learnable
+  thresholds and non-negative weights, the recursion the effect catalogue's ``hysteresis``
+  uses), ``none`` (a static gain) or ``auto`` (the config's default: one of the two cells
+  chosen from the training data, `hysteresis_lab.models.greybox_cell`; a run settles it
+  before it builds the model, `settings_from_data`);
 * the declared effects' grey-box parts (`hysteresis_lab.effects.base.GreyBoxPart`): a block
   per input after the gain (``creep``: a first-order filter bank, fixed time constants,
   learnable weights), more modes (``resonance``: one), the model's own cell
