@@ -144,11 +144,16 @@ def test_a_model_built_directly_chooses_when_it_reads_the_data():
     assert isinstance(model.hysteresis, PlayOperators)
 
 
-def test_a_value_that_is_no_cell_is_refused_with_the_choices():
-    splits = zoo_splits(BOUC_WEN_PLANT)
+def test_a_value_that_is_no_cell_is_refused_with_the_choices_before_training(tmp_path):
+    """Through a run it is refused before its first stage (the chain without a cell) trains;
+    built directly, by the model."""
     with pytest.raises(ConfigError, match="model.hysteresis='foo'") as error:
-        build_model({"name": "greybox", "hysteresis": "foo"},
-                    WindowDataModule(splits, scaling="standard"), trained_on={"fs": 20_000.0})
+        csv_run(tmp_path, BOUC_WEN_PLANT, "model.hysteresis=foo")
     for choice in HYSTERESIS:
         assert f"'{choice}'" in str(error.value)
     assert "auto" in HYSTERESIS
+    assert not (tmp_path / "run" / "grow").exists()
+    splits = zoo_splits(BOUC_WEN_PLANT)
+    with pytest.raises(ConfigError, match="model.hysteresis='foo'"):
+        build_model({"name": "greybox", "hysteresis": "foo"},
+                    WindowDataModule(splits, scaling="standard"), trained_on={"fs": 20_000.0})

@@ -128,6 +128,11 @@ def _hysteresis_cell(hysteresis: str, operators: int, alpha: float = 0.2) -> nn.
     return None
 
 
+def _cell_problem(hysteresis: Any) -> str:
+    """What is wrong with a ``model.hysteresis`` value that is no cell."""
+    return f"model.hysteresis={hysteresis!r} (one of {list(HYSTERESIS)})"
+
+
 #: the structures chosen for the last few training recordings (`_chain_structure`)
 _CHOSEN: dict[tuple[Any, ...], ChainStructure] = {}
 _CHOSEN_KEPT = 4
@@ -213,7 +218,7 @@ class GreyBox(PhysicalChainModule):
         parts = [part for e in declared if (part := _part(e)) is not None]
         problems = []
         if hysteresis not in HYSTERESIS:
-            problems.append(f"model.hysteresis='{hysteresis}' (one of {list(HYSTERESIS)})")
+            problems.append(_cell_problem(hysteresis))
         self.mimo = self.n_base_inputs != 1 or ny != 1
         if self.mimo and residual_neurons:
             problems.append(f"model.residual_neurons={residual_neurons!r} with "
@@ -627,7 +632,11 @@ class GreyBox(PhysicalChainModule):
         the choice open (each is fitted, the lower validation loss kept); and what the test
         found (for ``metrics.json``). Other settings: as they are."""
         settings = dict(settings)
-        if settings.get("hysteresis") != AUTO_CELL:
+        hysteresis = settings.get("hysteresis", "bouc_wen")
+        if hysteresis not in HYSTERESIS:  # refused before any stage trains
+            raise ConfigError(f"model=greybox cannot take {_cell_problem(hysteresis)}. Fix: "
+                              "model.hysteresis=auto (chosen from the data) or one of those.")
+        if hysteresis != AUTO_CELL:
             return [settings], {}
         train = max(splits.train, key=lambda rec: rec.n_samples)
         if train.u.shape[1] != 1 or train.y.shape[1] != 1:
