@@ -1,4 +1,4 @@
-"""The grey-box on zoo plants, two settings side by side: its delay and modes chosen from the
+"""The grey-box on zoo plants, settings side by side: its delay and modes chosen from the
 data (``--compare structure``), or its hysteresis cell (``--compare cell``).
 
     python benchmarks/greybox_structure.py --seeds 0,1,4,6,7 --root /tmp/gbs
@@ -8,8 +8,9 @@ data (``--compare structure``), or its hysteresis cell (``--compare cell``).
 Each zoo plant (`hysteresis_lab.sim.zoo.export_zoo_plant`) is fitted through ``data=csv`` with
 ``model=greybox`` once per setting. *structure*: the former fixed structure
 (``model.delay=1 model.n_modes=1``) against the defaults (``auto``: chosen from the training
-data); page ``docs/results/greybox_structure.md``. *cell*: the default Bouc–Wen cell against
-Prandtl–Ishlinskii play operators (``model.hysteresis=prandtl_ishlinskii``); page
+data); page ``docs/results/greybox_structure.md``. *cell*: the Bouc–Wen cell, Prandtl–Ishlinskii
+play operators (``model.hysteresis=prandtl_ishlinskii``) and the cell chosen from the data
+(``model.hysteresis=auto``), each symmetric (``model.effects=[]``); page
 ``docs/results/greybox_cell.md``. A fit done before (its ``metrics.json`` in
 ``<root>/plant_<seed>/<setting>``) is reused. Each page gives per plant the free-run RMSE over
 the plant's noise σ (mean of the twelve test sines) and the process's CPU seconds (one core:
@@ -36,7 +37,10 @@ RESULTS = REPO / "docs" / "results"
 #: per comparison, the two settings compared: name -> model overrides
 COMPARISONS: dict[str, dict[str, list[str]]] = {
     "structure": {"fixed": ["model.delay=1", "model.n_modes=1"], "auto": []},
-    "cell": {"bouc_wen": [], "prandtl_ishlinskii": ["model.hysteresis=prandtl_ishlinskii"]},
+    # the symmetric cell (``model.effects=[]``): the cells compared alone
+    "cell": {"bouc_wen": ["model.hysteresis=bouc_wen", "model.effects=[]"],
+             "prandtl_ishlinskii": ["model.hysteresis=prandtl_ishlinskii", "model.effects=[]"],
+             "auto": ["model.hysteresis=auto", "model.effects=[]"]},
 }
 QUIET = ["logger=none", "trainer.enable_progress_bar=false"]
 
@@ -87,8 +91,22 @@ def row(seed: int, settings: list[str], root: Path) -> dict[str, Any]:
             if (folder / "structure.json").is_file() else _structure(folder)
         cpu = (folder / "cputime").read_text().split()
         out[setting] = {"ratio": float(rmse.mean()) / sigma, **model,
-                        "cpu_s": float(cpu[0]) + float(cpu[1])}
+                        "cpu_s": float(cpu[0]) + float(cpu[1]),
+                        **_chosen_cell(metrics)}
     return out
+
+
+def _chosen_cell(metrics: dict[str, Any]) -> dict[str, Any]:
+    """``model.hysteresis=auto``'s choice in a run's ``metrics.json``: the cell and how
+    (``test``: the data test; ``val``: both fitted, the lower validation loss); empty for
+    other runs."""
+    chosen = (metrics.get("chosen_from_data") or {}).get("hysteresis")
+    if chosen is None:
+        return {}
+    kept = metrics["chosen_from_data"].get("kept")
+    cell = chosen.get("chosen") or (kept or "").removeprefix("hysteresis=")
+    return {"cell": cell, "by": "test" if chosen["by"] == "data test" else "val",
+            "test_ratio": chosen.get("bouc_wen_over_prandtl_ishlinskii")}
 
 
 def _structure(folder: Path) -> dict[str, Any]:
@@ -151,23 +169,31 @@ def _cell(plant: dict[str, Any]) -> str:
 def render_cell(rows: list[dict[str, Any]], command: str) -> str:
     """The page of ``--compare cell``."""
     lines = [
-        *_header("The grey-box's hysteresis cell on zoo plants: Bouc–Wen or "
-                 "Prandtl–Ishlinskii", command),
+        *_header("The grey-box's hysteresis cell on zoo plants: Bouc–Wen, "
+                 "Prandtl–Ishlinskii or chosen from the data", command),
         "Each plant fitted through `data=csv` with `model=greybox` (its defaults: delay and "
-        "modes from the data) and its default Bouc–Wen cell (exponent 1), or with "
-        "`model.hysteresis=prandtl_ishlinskii` (play operators at fixed thresholds, weights "
-        "learned). Score: mean free-run RMSE over the twelve ±100 V test sines over the "
-        "plant's noise σ.", "",
-        "| seed | plant's cell | modes (Hz) | delay | Bouc–Wen | Prandtl–Ishlinskii "
-        "| CPU s BW | CPU s PI |",
-        "|---|---|---|---|---|---|---|---|",
+        "modes from the data; the symmetric cell, `model.effects=[]`) and its Bouc–Wen cell "
+        "(exponent 1), with `model.hysteresis=prandtl_ishlinskii` (play operators at fixed "
+        "thresholds, weights learned), or with `model.hysteresis=auto` (the cell chosen from "
+        "the training data: a least-squares test of both cells through the linear chain, "
+        "*test*; where it leaves the choice open, both fitted and the lower validation "
+        "free-run loss kept, *val*). Score: mean free-run RMSE over the twelve ±100 V test "
+        "sines over the plant's noise σ. *test BW/PI*: the test's held-out misfit of "
+        "Bouc–Wen over play operators (it decides where the lower is below 0.8 of the other "
+        "and of the linear chain alone's).", "",
+        "| seed | plant's cell | modes (Hz) | delay | Bouc–Wen | Prandtl–Ishlinskii | auto "
+        "| auto chose | test BW/PI | CPU s BW | CPU s PI | CPU s auto |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
-        p, bw, pi = r["plant"], r["bouc_wen"], r["prandtl_ishlinskii"]
+        p, bw, pi, auto = r["plant"], r["bouc_wen"], r["prandtl_ishlinskii"], r["auto"]
+        ratio = auto.get("test_ratio")
         lines.append(
             f"| {r['seed']} | {_cell(p)} | {np.round(p['modes_hz'], 0).tolist()} "
             f"| {p['delay_samples']} | {bw['ratio']:.3g} σ | {pi['ratio']:.3g} σ "
-            f"| {bw['cpu_s']:.0f} | {pi['cpu_s']:.0f} |")
+            f"| {auto['ratio']:.3g} σ | {_short(auto.get('cell', '?'))} ({auto.get('by', '?')}) "
+            f"| {'' if ratio is None else f'{ratio:.2f}'} "
+            f"| {bw['cpu_s']:.0f} | {pi['cpu_s']:.0f} | {auto['cpu_s']:.0f} |")
     lines.append("")
     for cell in ("prandtl_ishlinskii", "bouc_wen"):
         group = [r for r in rows if r["plant"]["cell"] == cell]
@@ -182,8 +208,51 @@ def render_cell(rows: list[dict[str, Any]], command: str) -> str:
             f"Prandtl–Ishlinskii {np.median(pi):.3g} σ.")
     best = [min(r["bouc_wen"]["ratio"], r["prandtl_ishlinskii"]["ratio"]) for r in rows]
     lines += [f"- The better cell per plant: median {np.median(best):.3g} σ over all "
-              f"{len(rows)} (what a choice between the two by validation could reach at most).", ""]
+              f"{len(rows)} (what a choice between the two by validation could reach at most)."]
+    auto = [r["auto"]["ratio"] for r in rows]
+    picked = [r for r in rows if r["auto"].get("cell") == _better_cell(r)]
+    by_test = [r for r in rows if r["auto"].get("by") == "test"]
+    alone = [r for r in rows if r["auto"].get("test_ratio") is not None]
+    alone_cell = {r["seed"]: "bouc_wen" if r["auto"]["test_ratio"] < 1.0
+                  else "prandtl_ishlinskii" for r in alone}
+    cpu = {s: np.median([r[s]["cpu_s"] for r in rows]) for s in COMPARISONS["cell"]}
+    lines += [
+        f"- `auto`: median {np.median(auto):.3g} σ over all {len(rows)} (Bouc–Wen "
+        f"{np.median([r['bouc_wen']['ratio'] for r in rows]):.3g} σ, Prandtl–Ishlinskii "
+        f"{np.median([r['prandtl_ishlinskii']['ratio'] for r in rows]):.3g} σ); it chose the "
+        f"better cell on {len(picked)} of {len(rows)} plants (missed: "
+        f"{', '.join(_missed(r) for r in rows if r not in picked) or 'none'}); the data test "
+        f"decided on {len(by_test)} ({sum(r in picked for r in by_test)} of them right), "
+        f"validation on {len(rows) - len(by_test)}. The test alone (its lower misfit, "
+        f"never both fitted) would have chosen the better cell on "
+        f"{sum(alone_cell[r['seed']] == _better_cell(r) for r in alone)} of {len(alone)}, "
+        f"median {np.median([r[alone_cell[r['seed']]]['ratio'] for r in alone]):.3g} σ, "
+        "at one fit's CPU.",
+        f"- CPU seconds per fit, median: Bouc–Wen {cpu['bouc_wen']:.0f}, Prandtl–Ishlinskii "
+        f"{cpu['prandtl_ishlinskii']:.0f}, auto {cpu['auto']:.0f} (decided by the test "
+        f"{_median_cpu(by_test)}, by validation "
+        f"{_median_cpu([r for r in rows if r not in by_test])}).", ""]
     return "\n".join(lines)
+
+
+def _short(cell: str) -> str:
+    return {"bouc_wen": "BW", "prandtl_ishlinskii": "PI"}.get(cell, cell)
+
+
+def _better_cell(r: dict[str, Any]) -> str:
+    """The cell with the lower test error on plant row ``r``."""
+    return ("bouc_wen" if r["bouc_wen"]["ratio"] <= r["prandtl_ishlinskii"]["ratio"]
+            else "prandtl_ishlinskii")
+
+
+def _missed(r: dict[str, Any]) -> str:
+    """A plant where ``auto`` did not choose the better cell, and what that cost."""
+    chosen, other = r["auto"]["ratio"], r[_better_cell(r)]["ratio"]
+    return f"plant {r['seed']}, {chosen / other - 1:+.0%}"
+
+
+def _median_cpu(rows: list[dict[str, Any]]) -> str:
+    return f"{np.median([r['auto']['cpu_s'] for r in rows]):.0f}" if rows else "-"
 
 
 #: per comparison, its page and how it is written

@@ -250,7 +250,7 @@ def test_plugin_registers_an_architecture_and_its_config(csv_data, tmp_path):
 @pytest.mark.parametrize(("model", "extra"), [
     ("subnet", ["model.nx=4", "model.neurons=16", "model.encoder_neurons=16",
                 "training.horizon=50"]),
-    ("greybox", ["model.n_modes=1", "model.mode_hz=400"]),
+    ("greybox", ["model.n_modes=1", "model.mode_hz=400", "model.hysteresis=bouc_wen"]),
     ("linear", ["model.order=4"]),
 ])
 def test_models_that_simulate_train_log_and_rescore_through_the_cli(

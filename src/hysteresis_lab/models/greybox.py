@@ -19,9 +19,11 @@ parameters train, those linear weights are solved again by least squares each ep
 parameters and fits exactly as before MIMO.
 
 * hysteresis (``model.hysteresis``): ``bouc_wen`` (a differentiable Bouc–Wen state
-  recursion, the default), ``prandtl_ishlinskii`` (play operators with learnable thresholds
-  and non-negative weights, the recursion the effect catalogue's ``hysteresis`` uses) or
-  ``none`` (a static gain);
+  recursion, the class's default), ``prandtl_ishlinskii`` (play operators with learnable
+  thresholds and non-negative weights, the recursion the effect catalogue's ``hysteresis``
+  uses), ``none`` (a static gain) or ``auto`` (the config's default: one of the two cells
+  chosen from the training data, `hysteresis_lab.models.greybox_cell`; a run settles it
+  before it builds the model, `settings_from_data`);
 * the declared effects' grey-box parts (`hysteresis_lab.effects.base.GreyBoxPart`): a block
   per input after the gain (``creep``: a first-order filter bank, fixed time constants,
   learnable weights), more modes (``resonance``: one), the model's own cell
@@ -75,16 +77,23 @@ from hysteresis_lab.blocks.estimate import (
 from hysteresis_lab.blocks.modal import ModalDynamics
 from hysteresis_lab.blocks.step import StepState, frozen
 from hysteresis_lab.data.recording import Recording
+from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.effects.base import Effect, GreyBoxPart, physical_order
 from hysteresis_lab.effects.registry import get_effect
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.augment import context_from_dict
 from hysteresis_lab.models.base import NarxModule, mlp
+from hysteresis_lab.models.greybox_cell import CELLS, CLEAR_RATIO, cell_evidence
 from hysteresis_lab.models.physical_chain import FromEffects, PhysicalChainModule
 
 log = logging.getLogger(__name__)
 
-HYSTERESIS = ("bouc_wen", "bouc_wen_exponent", "prandtl_ishlinskii", "none")
+#: ``model.hysteresis``: chosen from the training data (`hysteresis_lab.models.greybox_cell`)
+AUTO_CELL = "auto"
+HYSTERESIS = ("bouc_wen", "bouc_wen_exponent", "prandtl_ishlinskii", "none", AUTO_CELL)
+#: what ``model.hysteresis=auto`` is where the data do not choose (MIMO data; a model built
+#: before it reads any data)
+DEFAULT_CELL = "bouc_wen"
 #: most shared modes of the MIMO dynamics
 MAX_MIMO_MODES = 32
 #: the MIMO Bouc–Wen cells' starting hysteretic share (one axis: 0.2); with the residues
@@ -107,7 +116,8 @@ AUTO_MIMO = {"delay": 1, "n_modes": 1}
 
 def _hysteresis_cell(hysteresis: str, operators: int, alpha: float = 0.2) -> nn.Module | None:
     """One input channel's hysteresis cell (None for ``hysteresis='none'``); ``alpha``: the
-    Bouc–Wen cell's hysteretic share."""
+    Bouc–Wen cell's hysteretic share; ``auto``: the `DEFAULT_CELL` until the data choose."""
+    hysteresis = DEFAULT_CELL if hysteresis == AUTO_CELL else hysteresis
     if hysteresis in ("bouc_wen", "bouc_wen_exponent"):
         # a generic loop shape for an input of unit amplitude (not the simulator's values);
         # the gain after the cell is read off the data
@@ -116,6 +126,11 @@ def _hysteresis_cell(hysteresis: str, operators: int, alpha: float = 0.2) -> nn.
     if hysteresis == "prandtl_ishlinskii":
         return PlayOperators(n_operators=operators, max_threshold=0.8)
     return None
+
+
+def _cell_problem(hysteresis: Any) -> str:
+    """What is wrong with a ``model.hysteresis`` value that is no cell."""
+    return f"model.hysteresis={hysteresis!r} (one of {list(HYSTERESIS)})"
 
 
 #: the structures chosen for the last few training recordings (`_chain_structure`)
@@ -203,7 +218,7 @@ class GreyBox(PhysicalChainModule):
         parts = [part for e in declared if (part := _part(e)) is not None]
         problems = []
         if hysteresis not in HYSTERESIS:
-            problems.append(f"model.hysteresis='{hysteresis}' (one of {list(HYSTERESIS)})")
+            problems.append(_cell_problem(hysteresis))
         self.mimo = self.n_base_inputs != 1 or ny != 1
         if self.mimo and residual_neurons:
             problems.append(f"model.residual_neurons={residual_neurons!r} with "
@@ -241,6 +256,9 @@ class GreyBox(PhysicalChainModule):
         self.auto_settings = tuple(name for name, value in (("delay", delay),
                                                             ("n_modes", n_modes))
                                    if value == AUTO)
+        if self.mimo and hysteresis == AUTO_CELL:  # the data test reads one axis
+            hysteresis = DEFAULT_CELL
+            self.hparams.update(hysteresis=hysteresis)
         if self.mimo:
             delay = AUTO_MIMO["delay"] if delay == AUTO else delay
             n_modes = AUTO_MIMO["n_modes"] if n_modes == AUTO else n_modes
@@ -530,6 +548,8 @@ class GreyBox(PhysicalChainModule):
         y_s = y / float(self.y_scale[0])
         gain = estimate_static_gain(u_s - u_s.mean(), y_s - y_s.mean())
         structure = self._choose_structure(u, y, fs) if self.auto_settings else None
+        if self.hparams.get("hysteresis") == AUTO_CELL:
+            self._choose_cell(u, y, fs)
         with torch.no_grad():
             if structure is not None:
                 self._start_from_structure(structure, fs)
@@ -579,6 +599,81 @@ class GreyBox(PhysicalChainModule):
                  ", ".join(f"model.{name}={self.hparams[name]}" for name in chosen))
         return structure
 
+    def _choose_cell(self, u: np.ndarray, y: np.ndarray, fs: float) -> None:
+        """``model.hysteresis=auto`` on a model built and initialised directly (a run chooses
+        before it builds one, `settings_from_data`): the cell with the lower held-out misfit
+        of the data test on this recording (`cell_evidence`), set in the model."""
+        delay, n_modes = self.hparams.get("delay"), self.hparams.get("n_modes")
+        try:
+            structure = _chain_structure(u, y, fs, int(delay), max(int(n_modes), 1))
+            evidence = cell_evidence(u, y, fs, structure)
+        except ValueError as exc:
+            log.warning("model.hysteresis=auto: the data test failed (%s): %s", exc, DEFAULT_CELL)
+            self._set_cell(DEFAULT_CELL)
+            return
+        log.info("model.hysteresis=auto: %s (data test: %s)", evidence.lower,
+                 evidence.to_dict())
+        self._set_cell(evidence.lower)
+
+    def _set_cell(self, hysteresis: str) -> None:
+        """Rebuild the (one-axis) hysteresis cell as ``hysteresis``, recorded in ``hparams``."""
+        self.hysteresis = _hysteresis_cell(hysteresis, int(self.hparams.get("operators", 8)))
+        if self.hysteresis is not None:
+            self.hysteresis.to(self.offset.device)
+        self.hparams.update(hysteresis=hysteresis)
+
+    @classmethod
+    def settings_from_data(
+        cls, settings: Mapping[str, Any], splits: DatasetSplits
+    ) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+        """The settings ``model.hysteresis=auto`` comes to on ``splits`` (measured, before
+        a model is built; `hysteresis_lab.workflows.grow.train_model`): one, the cell the data
+        test decides (`hysteresis_lab.models.greybox_cell`), or both cells where it leaves
+        the choice open (each is fitted, the lower validation loss kept); and what the test
+        found (for ``metrics.json``). Other settings: as they are."""
+        settings = dict(settings)
+        hysteresis = settings.get("hysteresis", "bouc_wen")
+        if hysteresis not in HYSTERESIS:  # refused before any stage trains
+            raise ConfigError(f"model=greybox cannot take {_cell_problem(hysteresis)}. Fix: "
+                              "model.hysteresis=auto (chosen from the data) or one of those.")
+        if hysteresis != AUTO_CELL:
+            return [settings], {}
+        train = max(splits.train, key=lambda rec: rec.n_samples)
+        if train.u.shape[1] != 1 or train.y.shape[1] != 1:
+            log.info("model.hysteresis=auto on MIMO data: %s (the data test reads one axis)",
+                     DEFAULT_CELL)
+            return [{**settings, "hysteresis": DEFAULT_CELL}], {
+                "hysteresis": {"chosen": DEFAULT_CELL, "by": "MIMO data: the default cell"}}
+        delay, n_modes = settings.get("delay", AUTO), settings.get("n_modes", AUTO)
+        val = max(splits.val, key=lambda rec: rec.n_samples) if splits.val else None
+        try:
+            structure = _chain_structure(train.u[:, 0], train.y[:, 0], train.fs,
+                                         None if delay == AUTO else int(delay),
+                                         None if n_modes == AUTO else max(int(n_modes), 1))
+            evidence = cell_evidence(train.u[:, 0], train.y[:, 0], train.fs, structure,
+                                     None if val is None else val.u[:, 0],
+                                     None if val is None else val.y[:, 0])
+        except ValueError as exc:
+            log.info("model.hysteresis=auto: no data test (%s); both cells are fitted", exc)
+            return ([{**settings, "hysteresis": cell} for cell in CELLS],
+                    {"hysteresis": {"by": "validation free-run loss", "data_test": str(exc)}})
+        found = evidence.to_dict()
+        if evidence.decided is not None:
+            log.info("model.hysteresis=auto: %s, by the data test (held-out misfit Bouc–Wen "
+                     "%.4g, Prandtl–Ishlinskii %.4g, chain alone %.4g: ratio %.3g)",
+                     evidence.decided, evidence.misfits["bouc_wen"],
+                     evidence.misfits["prandtl_ishlinskii"], evidence.misfits["none"],
+                     evidence.ratio)
+            return [{**settings, "hysteresis": evidence.decided}], {
+                "hysteresis": {"chosen": evidence.decided, "by": "data test", **found}}
+        log.info("model.hysteresis=auto: the data test leaves the cell open (held-out misfit "
+                 "Bouc–Wen %.4g, Prandtl–Ishlinskii %.4g, chain alone %.4g: the lower not "
+                 "below %.3g of the others): both cells are fitted, the lower validation "
+                 "free-run loss kept", evidence.misfits["bouc_wen"],
+                 evidence.misfits["prandtl_ishlinskii"], evidence.misfits["none"], CLEAR_RATIO)
+        return ([{**settings, "hysteresis": cell} for cell in CELLS],
+                {"hysteresis": {"by": "validation free-run loss", **found}})
+
     def _set_structure(self, delay: int, n_modes: int, fs: float) -> None:
         """Rebuild the delay and the modes (placeholders) for ``delay`` samples and
         ``n_modes`` modes (plus the declared effects'), recorded in ``hparams``."""
@@ -619,6 +714,10 @@ class GreyBox(PhysicalChainModule):
         """`PhysicalChainModule.warm_start_from`; a setting left to the data (``auto``)
         takes the value the fitted model chose (its delay, its modes without the declared
         effects' extra ones)."""
+        if (self.hparams.get("hysteresis") == AUTO_CELL and isinstance(previous, GreyBox)
+                and not self.mimo):  # the fitted model's cell (none: the default's)
+            cell = previous.hparams.get("hysteresis")
+            self._set_cell(cell if cell not in (None, "none", AUTO_CELL) else DEFAULT_CELL)
         if self.auto_settings and isinstance(previous, GreyBox) and not self.mimo:
             delay = previous.hparams.get("delay")
             n_modes = previous.hparams.get("n_modes")

@@ -14,6 +14,10 @@ every declared block at once from the start, and keeps the one with the lower va
 free-run loss (which path started a model decides its accuracy on some plants, and neither
 path is the better one on every plant); ``true`` only grows; ``false`` only trains at once.
 
+A setting the model's class reads off the data (``settings_from_data``: the grey-box's
+``model.hysteresis=auto``) is settled first; where the data leave several candidates, each
+is fitted in ``<run>/grow/candidates/<setting>/`` and the lowest validation loss kept.
+
 Every stage trains in ``<run>/grow/<k>_<label>/`` (a refit: one folder per learning rate),
 the fit at once in ``<run>/grow/at_once/``; the chosen model is the run's model, saved and
 scored in the run folder as any other.
@@ -53,6 +57,8 @@ GROW_MODES = ("best", True, False)
 STAGES_FOLDER = "grow"
 #: the folder (under `STAGES_FOLDER`) of the fit at once that ``model.grow=best`` compares
 AT_ONCE_FOLDER = "at_once"
+#: the folder (under `STAGES_FOLDER`) of each candidate setting the data left open
+CANDIDATES_FOLDER = "candidates"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -122,12 +128,61 @@ def train_model(
     """The run's fitted model and its window: a declared physical model grows through its
     stages (`grow`), each from the start, and does not resume; any other fits once
     (`hysteresis_lab.fitting.fit_run`, going on from an interrupted fit: ``resume``)."""
+    choices: dict[str, Any] = {}
+    if warm_start is None:
+        candidates, choices = settings_from_data(config.model, data)
+        if len(candidates) > 1:
+            return _best_candidate(config, data, candidates, choices, callbacks)
+        config = dataclasses.replace(config, model=config.model.with_settings(candidates[0]))
     if warm_start is not None or len(growth_stages(config.model)) == 1:
-        return fit_run(config, data, warm_start, logger, callbacks, resume)
-    trained = grow(config, data, callbacks)
-    if config.model.settings.get(SETTING, "best") == "best":
-        trained = _better_of_grown_and_at_once(config, data, trained, callbacks)
-    return trained, model_window(trained.model)
+        trained, window = fit_run(config, data, warm_start, logger, callbacks, resume)
+    else:
+        trained = grow(config, data, callbacks)
+        if config.model.settings.get(SETTING, "best") == "best":
+            trained = _better_of_grown_and_at_once(config, data, trained, callbacks)
+        window = model_window(trained.model)
+    if choices:
+        trained.model.data_choices = choices
+    return trained, window
+
+
+def settings_from_data(
+    spec: ModelSpec, data: ModelData
+) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """The model settings its class reads off the measured data (a class method
+    ``settings_from_data``, e.g. the grey-box's ``hysteresis=auto``): the candidates (one:
+    the data chose; several: each is fitted, the lowest validation loss kept) and what the
+    data showed; without that method, the settings as they are."""
+    choose = getattr(spec.cls, "settings_from_data", None)
+    if choose is None:
+        return [dict(spec.settings)], {}
+    return choose(spec.settings, data.measured)
+
+
+def _best_candidate(
+    config: RunConfig, data: ModelData, candidates: Sequence[Mapping[str, Any]],
+    choices: dict[str, Any], callbacks: list[Any] | None,
+) -> tuple[TrainResult, WindowSpec]:
+    """Each candidate's settings fitted (`train_model`) in ``grow/candidates/<setting>``, the
+    one with the lowest validation free-run loss kept (its training time: all of theirs);
+    ``choices`` records the losses."""
+    fits = []
+    for settings in candidates:
+        label = ",".join(f"{k}={v}" for k, v in settings.items()
+                         if config.model.settings.get(k) != v)
+        folder = config.output_dir / STAGES_FOLDER / CANDIDATES_FOLDER / label
+        log.info("%s: fitting the candidate %s", config.model.name, label)
+        candidate = dataclasses.replace(config, model=config.model.with_settings(settings),
+                                        output_dir=folder)
+        fits.append((label, *train_model(candidate, data, callbacks=callbacks)))
+    losses = {label: kept_loss(trained) for label, trained, _ in fits}
+    label, trained, window = min(fits, key=lambda fit: losses[fit[0]])
+    log.info("%s: validation free-run loss %s: %s kept", config.model.name,
+             ", ".join(f"{k} {v:.4e}" for k, v in losses.items()), label)
+    trained.model.data_choices = {**choices, "candidates_validation_loss": losses,
+                                  "kept": label}
+    seconds = sum(fit[1].train_seconds for fit in fits)  # the run took every candidate's
+    return dataclasses.replace(trained, train_seconds=seconds), window
 
 
 def _better_of_grown_and_at_once(

@@ -107,7 +107,8 @@ def _score_and_write(
         evaluation.metrics,
         trained.train_seconds,
         extra={"val_mse_scaled": trained.val_mse, "data": data.name, "model_path": str(model_path),
-               "initial_state": settings.initial_state, "trained_epochs": trained.epochs},
+               "initial_state": settings.initial_state, "trained_epochs": trained.epochs,
+               **_data_choices(trained.model)},
     )
     folder.write_metrics(document)
     if settings.plots:
@@ -130,6 +131,13 @@ def _score_and_write(
         document, trained.val_mse, evaluation, trained.model, window, trained.improved,
         trained.refit_validation, rejected_refit,
     )
+
+
+def _data_choices(model: Any) -> dict[str, Any]:
+    """The settings the model's class read off the data and why
+    (`hysteresis_lab.workflows.grow.settings_from_data`), for ``metrics.json``."""
+    choices = getattr(model, "data_choices", None)
+    return {"chosen_from_data": choices} if choices else {}
 
 
 def _keep_rejected_refit(
