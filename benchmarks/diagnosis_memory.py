@@ -95,6 +95,7 @@ def main() -> None:
     parser.add_argument("--data", default="fsm", choices=sorted([*DATA, "sim"]))
     parser.add_argument("--recordings", type=int, default=0, help="first N (0: all)")
     parser.add_argument("--candidates", nargs="*", default=None, help="default: all")
+    parser.add_argument("--declared", nargs="*", default=[], help="effects the model carries")
     parser.add_argument("--nb", type=int, default=10, help="the model window's input lags")
     parser.add_argument("--n-init", type=int, default=100, help="unscored samples at the start")
     parser.add_argument("--test", default="pooled", choices=TESTS)
@@ -118,7 +119,8 @@ def main() -> None:
         residuals.append(e)
     rss_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
     start = time.perf_counter()
-    scores = diagnose(recordings, residuals, context, declared=[], candidates=args.candidates,
+    scores = diagnose(recordings, residuals, context, declared=args.declared,
+                      candidates=args.candidates,
                       lags=evidence_lags(args.nb), predictions=predictions,
                       test=args.test, through_dynamics=True)
     seconds = time.perf_counter() - start
