@@ -66,13 +66,17 @@ fastest) is then not diluted by the recordings it cannot act on. Circularly shif
 the candidate signals are no null here: the study's test signals are periodic, and a shifted
 copy of a periodic signal is as good a regressor as the original. Nothing here looks at the
 name or origin of the data.
+
+The held-out fits are computed from normal equations accumulated block by block, one series
+at a time (`normal_equations`): never a stacked design, whose zeros of the other outputs'
+coefficients made it gigabytes on a long MIMO data set.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -82,6 +86,14 @@ from hysteresis_lab.blocks.sections import arx_least_squares
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.effects.base import MODEL_OUTPUT_BLOCKS, Effect, FeatureContext
 from hysteresis_lab.effects.registry import available_effects, get_effect
+from hysteresis_lab.loop.diagnosis.normal_equations import (
+    BlockSums,
+    Design,
+    Segment,
+    accumulate,
+    block_edges,
+    held_out_sse,
+)
 
 log = logging.getLogger(__name__)
 
@@ -188,15 +200,6 @@ class _Prepared:
     #: the baseline signals through the model's dynamics (lagged, de-meaned, scaled), in the
     #: baseline of nonlinear input-side effects only (None: no dynamics; `_model_dynamics`)
     through: np.ndarray | None = None
-
-
-@dataclass
-class _Block:
-    """One held-out block of a recording."""
-
-    recording: int
-    e: np.ndarray
-    design: np.ndarray
 
 
 def _centre(x: np.ndarray) -> np.ndarray:
@@ -356,67 +359,6 @@ def evidence_lags(nb: int) -> tuple[int, ...]:
     return tuple(sorted({0, nb // 5, nb // 2, nb, 2 * nb}))
 
 
-def _in_groups(signals: list[np.ndarray], groups: Sequence[int]) -> list[np.ndarray]:
-    """Each group's signals in columns of their own (zeros elsewhere), so each group gets
-    coefficients of its own: every output of a MIMO system has its own law, and an effect
-    that does not depend on the input (drift) takes a different course in every recording.
-    One group: the signals as they are."""
-    keys = sorted(set(groups))
-    if len(keys) == 1:
-        return list(signals)
-    width = signals[0].shape[1]
-    out = []
-    for s, group in zip(signals, groups, strict=True):
-        block = np.zeros((len(s), width * len(keys)))
-        start = keys.index(group) * width
-        block[:, start : start + width] = s
-        out.append(block)
-    return out
-
-
-def _standardised(columns: list[np.ndarray]) -> list[np.ndarray]:
-    """Columns divided by their pooled std (conditioning of the ridge fit)."""
-    scale = np.std(np.concatenate(columns), axis=0)
-    scale[scale == 0] = 1.0
-    return [c / scale for c in columns]
-
-
-def _blocks(
-    prepared: Sequence[_Prepared],
-    designs: Sequence[np.ndarray],
-    folds: int,
-    min_blocks: int = 20,
-    min_rows: int = 20,
-) -> list[_Block]:
-    """Every recording cut into contiguous blocks of ``min_rows`` rows or more: ``folds`` each,
-    more when there are few recordings (``min_blocks`` in all, for the signed-rank test)."""
-    per_recording = max(folds, -(-min_blocks // len(prepared)))
-    blocks = []
-    for position, (p, design) in enumerate(zip(prepared, designs, strict=True)):
-        n_blocks = max(1, min(per_recording, len(p.e) // min_rows))
-        edges = np.linspace(0, len(p.e), n_blocks + 1).astype(int)
-        blocks += [
-            _Block(position, p.e[i:j], design[i:j])
-            for i, j in zip(edges[:-1], edges[1:], strict=True)
-        ]
-    return blocks
-
-
-def _held_out_sse(blocks: Sequence[_Block], ridge: float = 1e-4) -> np.ndarray:
-    """SSE of each block under the shared ridge fit on all the other blocks, capped at its SST
-    (a held-out fit worse than predicting nothing explains nothing)."""
-    grams = [b.design.T @ b.design for b in blocks]
-    moments = [b.design.T @ b.e for b in blocks]
-    sst = np.array([float(b.e @ b.e) for b in blocks])
-    gram_all, moment_all = sum(grams), sum(moments)
-    penalty = ridge * sum(len(b.e) for b in blocks) * np.eye(gram_all.shape[0])
-    sse = np.empty(len(blocks))
-    for k, (gram, moment) in enumerate(zip(grams, moments, strict=True)):
-        coef = np.linalg.solve(gram_all - gram + penalty, moment_all - moment)
-        sse[k] = sst[k] - 2 * coef @ moment + coef @ gram @ coef
-    return np.minimum(sse, sst)
-
-
 @dataclass
 class _Gains:
     """One candidate's evidence: its score and the signed-rank p-values of its block gains."""
@@ -446,10 +388,10 @@ def _holm(p: np.ndarray) -> np.ndarray:
     return adjusted
 
 
-def _gains(base_blocks: Sequence[_Block], full_blocks: Sequence[_Block]) -> _Gains:
-    base, full = _held_out_sse(base_blocks), _held_out_sse(full_blocks)
-    sst = np.array([max(float(b.e @ b.e), 1e-12) for b in base_blocks])
-    owner = np.array([b.recording for b in base_blocks])
+def _gains(base_design: Design, full_design: Design) -> _Gains:
+    base, full = held_out_sse(base_design), held_out_sse(full_design)
+    sst = np.array([max(b.sst, 1e-12) for b in base_design.blocks])
+    owner = np.array([b.series for b in base_design.blocks])
     block_gains = (base - full) / sst
     recordings = np.unique(owner)
     per_recording = np.array([
@@ -484,9 +426,9 @@ def _verdict(
     )
 
 
-def _warn_too_short(blocks: Sequence[_Block], names: Sequence[str], alpha: float) -> None:
+def _warn_too_short(blocks: Sequence[BlockSums], names: Sequence[str], alpha: float) -> None:
     """Log the recordings too short for the per-recording test ever to reach ``alpha``."""
-    counts = np.bincount([b.recording for b in blocks], minlength=len(names))
+    counts = np.bincount([b.series for b in blocks], minlength=len(names))
     # the smallest one-sided signed-rank p of n blocks is 2**-n, times Holm's factor
     ranked = counts >= MIN_RANKED_BLOCKS
     floor = np.where(ranked, 2.0 ** -counts.astype(float), 1.0) * len(names)
@@ -568,10 +510,10 @@ def _has_state_evidence(effect: Effect) -> bool:
 def _output_evidence(
     effect: Effect, model_outputs: Sequence[np.ndarray], outputs: Sequence[int],
     state: bool = False,
-) -> list[np.ndarray]:
-    """An output-side effect's signals per recording from the model's free-run output
-    (``state``: its state-side ones); the span its levels are set in is that output's over
-    all the recordings (one law)."""
+) -> Callable[[int], np.ndarray]:
+    """An output-side effect's signals on recording ``k`` from the model's free-run output
+    (``state``: its state-side ones), read when asked; the span its levels are set in is
+    that output's over all the recordings (one law)."""
     spans = {}
     for j in set(outputs):
         pooled = np.concatenate([
@@ -581,8 +523,11 @@ def _output_evidence(
         pooled = pooled[np.isfinite(pooled)]
         spans[j] = (float(pooled.min()), float(pooled.max())) if len(pooled) else (0.0, 1.0)
     read = effect.state_evidence if state else effect.output_evidence
-    return [read(np.asarray(y, dtype=float).reshape(-1), spans[o])
-            for y, o in zip(model_outputs, outputs, strict=True)]
+
+    def signals(k: int) -> np.ndarray:
+        return read(np.asarray(model_outputs[k], dtype=float).reshape(-1), spans[outputs[k]])
+
+    return signals
 
 
 @dataclass(frozen=True)
@@ -617,9 +562,9 @@ class _Evidence:
     prepared: list[_Prepared]
     held: list[bool]  # whether each holds the input constant
     model_outputs: list[np.ndarray] | None
-    #: baseline designs and blocks per (tested recordings, output-side, through the model's
-    #: dynamics), built on first use
-    baselines: dict[tuple, tuple[list[np.ndarray], list[_Block]]]
+    #: baseline designs (their held-out blocks) per (tested recordings, output-side, through
+    #: the model's dynamics), built on first use
+    baselines: dict[tuple, Design]
     declared: tuple[str, ...] = ()  # the effects the model carries
     #: per series, the denominator of the model's own dynamics (`_model_dynamics`), or None
     dynamics: list[np.ndarray | None] | None = None
@@ -687,40 +632,72 @@ def _prepare_evidence(
                      dynamics)
 
 
+def _baseline_segment(
+    evidence: _Evidence, tested: tuple[int, ...], output_side: bool, through: bool = False,
+) -> Segment:
+    """The baseline's columns (the input and the declared effects; for an output-side effect
+    also the model's output; ``through``: also those signals through the model's dynamics)
+    on the ``tested`` recordings, coefficients per output."""
+    shown = [evidence.prepared[i] for i in tested]
+
+    def columns(k: int) -> np.ndarray:
+        p = shown[k]
+        parts = [p.base]
+        if output_side and p.model_output is not None:
+            parts.append(p.model_output)
+        if through:
+            parts.append(p.through)
+        return np.column_stack(parts) if len(parts) > 1 else p.base
+
+    return Segment(tuple(evidence.outputs[i] for i in tested), columns)
+
+
+def _design(evidence: _Evidence, tested: tuple[int, ...], segments: Sequence[Segment],
+            settings: DiagnosisSettings) -> Design:
+    """The held-out blocks of the ``tested`` recordings' residuals regressed on
+    ``segments``."""
+    shown = [evidence.prepared[i] for i in tested]
+    edges = block_edges([len(p.e) for p in shown], settings.folds)
+    return accumulate([p.e for p in shown], segments, edges)
+
+
 def _baseline(
     evidence: _Evidence, tested: tuple[int, ...], output_side: bool, settings: DiagnosisSettings,
     through: bool = False,
-) -> tuple[list[np.ndarray], list[_Block]]:
-    """The baseline design (the input and the declared effects; for an output-side effect
-    also the model's output; ``through``: also those signals through the model's dynamics)
-    of the ``tested`` recordings and its held-out blocks."""
+) -> Design:
+    """The baseline design of the ``tested`` recordings (`_baseline_segment`) and its held-out
+    blocks."""
     key = (tested, output_side, through)
     if key not in evidence.baselines:
-        shown = [evidence.prepared[i] for i in tested]
-        columns = [p.base if not output_side or p.model_output is None
-                   else np.column_stack([p.base, p.model_output]) for p in shown]
-        if through:
-            columns = [np.column_stack([c, p.through]) for c, p in zip(columns, shown,
-                                                                        strict=True)]
-        base = _standardised(_in_groups(columns, [evidence.outputs[i] for i in tested]))
-        evidence.baselines[key] = base, _blocks(shown, base, settings.folds)
+        segment = _baseline_segment(evidence, tested, output_side, through)
+        evidence.baselines[key] = _design(evidence, tested, [segment], settings)
         if settings.test == "per_recording" and not output_side:
-            _warn_too_short(evidence.baselines[key][1],
+            _warn_too_short(evidence.baselines[key].blocks,
                             [evidence.recordings[i].name for i in tested], settings.alpha)
     return evidence.baselines[key]
 
 
-def _raw_signals(
-    effect: Effect, evidence: _Evidence, tested: tuple[int, ...], context: FeatureContext
-) -> list[np.ndarray]:
-    """The effect's candidate signals on each tested recording (see `_signals_of`)."""
-    return _signals_of(
-        effect,
-        [evidence.recordings[i] for i in tested],
-        [evidence.outputs[i] for i in tested],
-        None if evidence.model_outputs is None else [evidence.model_outputs[i] for i in tested],
-        context,
-    )
+def _signal_reader(
+    effect: Effect,
+    recordings: Sequence[Recording],
+    outputs: Sequence[int],
+    model_outputs: Sequence[np.ndarray] | None,
+    context: FeatureContext,
+) -> Callable[[int], np.ndarray]:
+    """The effect's candidate signals on single-output series ``k``, read when asked: from
+    its input, or for an output-side effect from the model's output (plus the state-side
+    ones from it)."""
+    if effect.block in MODEL_OUTPUT_BLOCKS:
+        assert model_outputs is not None
+        return _output_evidence(effect, model_outputs, outputs)
+    state = (_output_evidence(effect, model_outputs, outputs, state=True)
+             if model_outputs is not None and _has_state_evidence(effect) else None)
+
+    def read(k: int) -> np.ndarray:
+        raw = effect.evidence(recordings[k].u, context)
+        return raw if state is None else np.column_stack([raw, state(k)])
+
+    return read
 
 
 def _signals_of(
@@ -730,16 +707,9 @@ def _signals_of(
     model_outputs: Sequence[np.ndarray] | None,
     context: FeatureContext,
 ) -> list[np.ndarray]:
-    """The effect's candidate signals on each single-output series: from its input, or for
-    an output-side effect from the model's output (plus the state-side ones from it)."""
-    if effect.block in MODEL_OUTPUT_BLOCKS:
-        assert model_outputs is not None
-        return _output_evidence(effect, model_outputs, outputs)
-    raw = [effect.evidence(rec.u, context) for rec in recordings]
-    if model_outputs is not None and _has_state_evidence(effect):
-        state = _output_evidence(effect, model_outputs, outputs, state=True)
-        raw = [np.column_stack([r, x]) for r, x in zip(raw, state, strict=True)]
-    return raw
+    """The effect's candidate signals on each single-output series (`_signal_reader`)."""
+    read = _signal_reader(effect, recordings, outputs, model_outputs, context)
+    return [read(k) for k in range(len(recordings))]
 
 
 def effect_signals(
@@ -762,28 +732,36 @@ def effect_signals(
     return _signals_of(effect, singles, outputs, model_outputs, context)
 
 
-def _effect_design(
+def _effect_segment(
     effect: Effect, evidence: _Evidence, tested: tuple[int, ...], context: FeatureContext,
     settings: DiagnosisSettings, through: bool = False,
-) -> list[np.ndarray]:
-    """An effect's candidate signals on the ``tested`` recordings, lagged, weighted like the
-    residual and standardised (per output, or per recording for an input-independent one);
-    ``through``: its input-side ones also through the model's dynamics."""
+) -> Segment:
+    """An effect's candidate signals on the ``tested`` recordings, lagged and weighted like
+    the residual, coefficients per output (per recording for an input-independent one);
+    ``through``: its input-side ones also through the model's dynamics. Each recording's
+    are computed when the design reads them."""
     shown = [evidence.prepared[i] for i in tested]
     # an input-independent trend gains nothing from delayed copies of itself
     own_lags = settings.lags if effect.predictable else (0,)
-    raw = _raw_signals(effect, evidence, tested, context)
-    if through:
-        raw = [np.column_stack([r, _through_dynamics(
-                   effect.evidence(evidence.recordings[i].u, context), evidence.dynamics[i])])
-               for r, i in zip(raw, tested, strict=True)]
-    lagged = [
-        _centre(_lagged_rows(x, p.keep, own_lags)) * p.weight
-        for x, p in zip(raw, shown, strict=True)
-    ]
-    groups = ([evidence.outputs[i] for i in tested] if effect.predictable
-              else list(range(len(tested))))
-    return _standardised(_in_groups(lagged, groups))
+    read = _signal_reader(
+        effect,
+        [evidence.recordings[i] for i in tested],
+        [evidence.outputs[i] for i in tested],
+        None if evidence.model_outputs is None else [evidence.model_outputs[i] for i in tested],
+        context,
+    )
+
+    def columns(k: int) -> np.ndarray:
+        raw, i = read(k), tested[k]
+        if through:
+            assert evidence.dynamics is not None
+            raw = np.column_stack([raw, _through_dynamics(
+                effect.evidence(evidence.recordings[i].u, context), evidence.dynamics[i])])
+        return _centre(_lagged_rows(raw, shown[k].keep, own_lags)) * shown[k].weight
+
+    groups = (tuple(evidence.outputs[i] for i in tested) if effect.predictable
+              else tuple(range(len(tested))))
+    return Segment(groups, columns)
 
 
 def _score_effect(
@@ -799,30 +777,27 @@ def _score_effect(
         return _not_tested(name, effect.description, True, why=(
             "acts on the model's output: no free-run prediction was given to read it from"
         ))
-    shown = [evidence.prepared[i] for i in tested]
     shown_names = [evidence.recordings[i].name for i in tested]
     through = (evidence.dynamics is not None
                and all(evidence.dynamics[i] is not None for i in tested)
                and _passes_dynamics(effect, evidence.recordings[tested[0]].u, context))
-    base, base_blocks = _baseline(evidence, tested, effect.block in MODEL_OUTPUT_BLOCKS, settings,
-                                  through)
-    signals = _effect_design(effect, evidence, tested, context, settings, through)
-    full = [np.column_stack([b, s]) for b, s in zip(base, signals, strict=True)]
-    gains = _gains(base_blocks, _blocks(shown, full, settings.folds))
+    output_side = effect.block in MODEL_OUTPUT_BLOCKS
+    base = _baseline(evidence, tested, output_side, settings, through)
+    base_columns = _baseline_segment(evidence, tested, output_side, through)
+    signals = _effect_segment(effect, evidence, tested, context, settings, through)
+    gains = _gains(base, _design(evidence, tested, [base_columns, signals], settings))
     significant, p_value, how = _verdict(gains, settings.test, settings.min_score,
                                          settings.alpha, shown_names)
     blocks = BlockCounts.of(gains.block_gains)
     simpler_names = [other for other in effect.beyond if other not in evidence.declared]
     if simpler_names and significant:  # and beyond the simpler explanation's signals too
-        simpler = [_effect_design(get_effect(other), evidence, tested, context, settings,
-                                  through and _passes_dynamics(
-                                      get_effect(other), evidence.recordings[tested[0]].u,
-                                      context))
+        simpler = [_effect_segment(get_effect(other), evidence, tested, context, settings,
+                                   through and _passes_dynamics(
+                                       get_effect(other), evidence.recordings[tested[0]].u,
+                                       context))
                    for other in simpler_names]
-        wider = [np.column_stack([b, *(d[i] for d in simpler)]) for i, b in enumerate(base)]
-        with_it = [np.column_stack([b, s]) for b, s in zip(wider, signals, strict=True)]
-        left = _gains(_blocks(shown, wider, settings.folds),
-                      _blocks(shown, with_it, settings.folds))
+        with_it = _design(evidence, tested, [base_columns, *simpler, signals], settings)
+        left = _gains(with_it.select(range(1 + len(simpler))), with_it)
         significant, p_left, _ = _verdict(left, settings.test, settings.min_score,
                                           settings.alpha, shown_names)
         if p_left > p_value:  # the test that decided: its blocks' votes go with its p
