@@ -653,10 +653,11 @@ class GreyBox(PhysicalChainModule):
             evidence = cell_evidence(train.u[:, 0], train.y[:, 0], train.fs, structure,
                                      None if val is None else val.u[:, 0],
                                      None if val is None else val.y[:, 0])
-        except ValueError as exc:
-            log.info("model.hysteresis=auto: no data test (%s); both cells are fitted", exc)
+        except ValueError as exc:  # e.g. too few samples for the linear chain's spectra
+            why = f"the training data could not be read for the data test ({exc})"
+            log.info("model.hysteresis=auto: %s; both cells are fitted", why)
             return ([{**settings, "hysteresis": cell} for cell in CELLS],
-                    {"hysteresis": {"by": "validation free-run loss", "data_test": str(exc)}})
+                    {"hysteresis": {"by": "validation free-run loss", "data_test": why}})
         found = evidence.to_dict()
         if evidence.decided is not None:
             log.info("model.hysteresis=auto: %s, by the data test (held-out misfit Bouc–Wen "
