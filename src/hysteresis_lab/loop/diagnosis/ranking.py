@@ -683,10 +683,12 @@ def _signal_reader(
     outputs: Sequence[int],
     model_outputs: Sequence[np.ndarray] | None,
     context: FeatureContext,
+    dynamics: Sequence[np.ndarray] | None = None,
 ) -> Callable[[int], np.ndarray]:
     """The effect's candidate signals on single-output series ``k``, read when asked: from
     its input, or for an output-side effect from the model's output (plus the state-side
-    ones from it)."""
+    ones from it); ``dynamics`` (per series, an input-side effect's): its input signals also
+    through them."""
     if effect.block in MODEL_OUTPUT_BLOCKS:
         assert model_outputs is not None
         return _output_evidence(effect, model_outputs, outputs)
@@ -695,7 +697,10 @@ def _signal_reader(
 
     def read(k: int) -> np.ndarray:
         raw = effect.evidence(recordings[k].u, context)
-        return raw if state is None else np.column_stack([raw, state(k)])
+        parts = [raw] if state is None else [raw, state(k)]
+        if dynamics is not None:
+            parts.append(_through_dynamics(raw, dynamics[k]))
+        return parts[0] if len(parts) == 1 else np.column_stack(parts)
 
     return read
 
@@ -743,21 +748,19 @@ def _effect_segment(
     shown = [evidence.prepared[i] for i in tested]
     # an input-independent trend gains nothing from delayed copies of itself
     own_lags = settings.lags if effect.predictable else (0,)
+    if through:
+        assert evidence.dynamics is not None
     read = _signal_reader(
         effect,
         [evidence.recordings[i] for i in tested],
         [evidence.outputs[i] for i in tested],
         None if evidence.model_outputs is None else [evidence.model_outputs[i] for i in tested],
         context,
+        dynamics=[evidence.dynamics[i] for i in tested] if through else None,
     )
 
     def columns(k: int) -> np.ndarray:
-        raw, i = read(k), tested[k]
-        if through:
-            assert evidence.dynamics is not None
-            raw = np.column_stack([raw, _through_dynamics(
-                effect.evidence(evidence.recordings[i].u, context), evidence.dynamics[i])])
-        return _centre(_lagged_rows(raw, shown[k].keep, own_lags)) * shown[k].weight
+        return _centre(_lagged_rows(read(k), shown[k].keep, own_lags)) * shown[k].weight
 
     groups = (tuple(evidence.outputs[i] for i in tested) if effect.predictable
               else tuple(range(len(tested))))
