@@ -53,6 +53,8 @@ CHECKS: dict[str, tuple[str, list[str]]] = {
                                            "loop.resume=false"]),
 }
 QUIET = ["logger=none", "trainer.enable_progress_bar=false"]
+#: the studies with a GPU path (the SVM is fitted by scikit-learn on the CPU)
+GPU_STUDY = ["ffnn", "lstm", "cnn"]
 
 
 def run_check(name: str, root: Path, timeout_s: float) -> dict:
@@ -115,7 +117,32 @@ def bench(device: str, timeout_s: float) -> str:
     return "\n".join(head + [line for line in lines[starts[-1]:] if line.startswith("|")])
 
 
-def render(rows: dict[str, dict], benches: dict[str, str], stamp: str, argv: str) -> str:
+def study(n_trials: int, max_epochs: int | None, stamp: str, root: Path,
+          timeout_s: float) -> str:
+    """`pareto_study.py` on the GPU (the NARX networks; the SVM has no GPU path): its table of
+    wall times and its total line, or why there is none."""
+    out = root / "pareto_gpu.md"
+    command = [sys.executable, str(REPO / "benchmarks" / "pareto_study.py"), "--archs", *GPU_STUDY,
+               "--n-trials", str(n_trials), "--results", str(root / "pareto"), "--out", str(out),
+               "--commit", stamp]
+    if max_epochs is not None:
+        command += ["--max-epochs", str(max_epochs)]
+    command.append("trainer.accelerator=gpu")
+    try:
+        done = subprocess.run(command, capture_output=True, text=True, timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        return f"(the study ran past {timeout_s:.0f} s)"
+    if done.returncode != 0 or not out.is_file():
+        return "\n".join((done.stdout + done.stderr).strip().splitlines()[-3:])
+    page = out.read_text().splitlines()
+    keep = [line for line in page if line.startswith(("| ", "|---", "Total:", "- studies:"))]
+    # only the wall-time table: the fronts below it are the tuning result, not the speed
+    end = next((i for i, line in enumerate(keep) if line.startswith("Total:")), len(keep))
+    return "\n".join(keep[: end + 1])
+
+
+def render(rows: dict[str, dict], benches: dict[str, str], stamp: str, argv: str,
+           study_table: str = "") -> str:
     name = torch.cuda.get_device_name() if torch.cuda.is_available() else "no CUDA device"
     lines = [
         "# The GPU path",
@@ -140,6 +167,10 @@ def render(rows: dict[str, dict], benches: dict[str, str], stamp: str, argv: str
         lines += ["", f"Speed on the {device.upper()} (`python benchmarks/bench_models.py "
                   f"--device {device} --epochs 2 --models ffnn lstm cnn subnet`; untrained "
                   "weights):", "", table]
+    if study_table:
+        lines += ["", "Tuning study on the GPU (`benchmarks/pareto_study.py --archs "
+                  f"{' '.join(GPU_STUDY)} ... trainer.accelerator=gpu`, one trial at a time):",
+                  "", study_table]
     return "\n".join(lines) + "\n"
 
 
@@ -150,6 +181,10 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=OUT)
     parser.add_argument("--timeout", type=float, default=120.0, help="seconds per check")
     parser.add_argument("--bench", nargs="*", default=["cuda", "cpu"], choices=["cuda", "cpu"])
+    parser.add_argument("--study-trials", type=int, default=0, help="trials of each GPU "
+                        "tuning study (0: no study)")
+    parser.add_argument("--study-epochs", type=int, default=None,
+                        help="trainer.max_epochs of the study's trials (default: the config's)")
     parser.add_argument("--commit", default=None, help="the commit measured, where this copy "
                         "of the project has no git history (a device machine's copy)")
     args = parser.parse_args()
@@ -161,14 +196,20 @@ def main() -> None:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     rows: dict[str, dict] = {}
     benches: dict[str, str] = {}
-    for check in args.checks:  # the page is rewritten after each step: a cut run keeps its rows
+    study_table = ""
+    # the page is rewritten after each step: a run cut short keeps what it measured
+    for device in args.bench:
+        benches[device] = bench(device, 3 * args.timeout)
+        args.out.write_text(render(rows, benches, stamp, argv, study_table))
+    if args.study_trials:
+        study_table = study(args.study_trials, args.study_epochs, stamp, args.root,
+                            6 * args.timeout)
+        args.out.write_text(render(rows, benches, stamp, argv, study_table))
+    for check in args.checks:
         rows[check] = run_check(check, args.root, args.timeout)
         log.info("%s: exit %s, GPU used %s, %.0f s, %s", check, rows[check]["status"],
                  rows[check]["gpu_used"], rows[check]["seconds"], rows[check]["rmse"])
-        args.out.write_text(render(rows, benches, stamp, argv))
-    for device in args.bench:
-        benches[device] = bench(device, 3 * args.timeout)
-        args.out.write_text(render(rows, benches, stamp, argv))
+        args.out.write_text(render(rows, benches, stamp, argv, study_table))
     log.info("wrote %s", args.out)
 
 

@@ -99,7 +99,7 @@ def write_page(rows: list[dict[str, Any]], args: argparse.Namespace, argv: list[
         "",
         f"- command: `OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', '?')} python "
         f"benchmarks/pareto_study.py {shlex.join(argv)}`",
-        f"- commit: {commit_stamp(REPO, ['src'])}",
+        f"- commit: {args.commit or commit_stamp(REPO, ['src'])}",
         f"- date: {datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC",
         f"- machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
         f"load average at the end {os.getloadavg()[0]:.2f}",
@@ -176,6 +176,8 @@ def main() -> None:
     parser.add_argument("--budget-h", type=float, default=2.0)
     parser.add_argument("--results", default="outputs/pareto_study")
     parser.add_argument("--out", default=str(OUT))
+    parser.add_argument("--commit", default=None, help="the commit measured, where this copy "
+                        "of the project has no git history (a device machine's copy)")
     parser.add_argument("overrides", nargs="*", help="extra Hydra overrides for every study")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
