@@ -53,6 +53,10 @@ CHECKS: dict[str, tuple[str, list[str]]] = {
                                            "loop.resume=false"]),
 }
 QUIET = ["logger=none", "trainer.enable_progress_bar=false"]
+#: what gpu_check asks of bench_models.py, and the header of the table it logs
+BENCH_ARGS = ["--epochs", "2", "--models", "ffnn", "lstm", "cnn", "subnet"]
+BENCH_HEADER = ("| model | s/epoch | fit, 100 epochs [s] | one-step [µs/sample] | "
+                "free-run [steps/s] | free-run [recording-samples/s] | one recording [steps/s] |")
 #: the studies with a GPU path (the SVM is fitted by scikit-learn on the CPU)
 GPU_STUDY = ["ffnn", "lstm", "cnn"]
 
@@ -100,21 +104,29 @@ def _free_run_rmse(folder: Path, app: str) -> str:
     return f"{data['mean']['rmse_free_run']:.4g} {data['units']['y']}"
 
 
-def bench(device: str, timeout_s: float) -> str:
-    """`bench_models.py`'s table on ``device`` (its last lines), or why there is none."""
+def bench(device: str, timeout_s: float, max_test_samples: int | None) -> str:
+    """`bench_models.py`'s table on ``device``: the rows it measured, and why it stopped where
+    it ran past ``timeout_s``."""
     command = [sys.executable, str(REPO / "benchmarks" / "bench_models.py"), "--device", device,
-               "--epochs", "2", "--models", "ffnn", "lstm", "cnn", "subnet"]
+               *BENCH_ARGS]
+    if max_test_samples:
+        command += ["--max-test-samples", str(max_test_samples)]
+    note = ""
     try:
         done = subprocess.run(command, capture_output=True, text=True, timeout=timeout_s)
-    except subprocess.TimeoutExpired:
-        return f"(`bench_models.py --device {device}` ran past {timeout_s:.0f} s)"
-    lines = (done.stdout + done.stderr).strip().splitlines()
+        output = done.stdout + done.stderr
+    except subprocess.TimeoutExpired as exc:  # keep the rows measured before the limit
+        output = _text(exc.stdout) + _text(exc.stderr)
+        note = f"(`bench_models.py --device {device}` ran past {timeout_s:.0f} s here)"
+    lines = output.strip().splitlines()
     head = [line for line in lines if line.startswith("device ")]
-    # each row is logged as it is measured, then the whole table from its header on
-    starts = [i for i, line in enumerate(lines) if line.startswith("| model |")]
-    if not starts:
-        return "\n".join(lines[-3:])
-    return "\n".join(head + [line for line in lines[starts[-1]:] if line.startswith("|")])
+    # each row is logged once as it is measured, and again in the closing table
+    rows = list(dict.fromkeys(line for line in lines if line.startswith("| ")
+                              and not line.startswith("| model |")))
+    if not rows:
+        return "\n".join(lines[-3:] + [note])
+    table = [*head, BENCH_HEADER, "|---|---|---|---|---|---|---|", *rows]
+    return "\n".join(table + ([note] if note else []))
 
 
 def study(n_trials: int, max_epochs: int | None, stamp: str, root: Path,
@@ -142,7 +154,7 @@ def study(n_trials: int, max_epochs: int | None, stamp: str, root: Path,
 
 
 def render(rows: dict[str, dict], benches: dict[str, str], stamp: str, argv: str,
-           study_table: str = "") -> str:
+           study_table: str = "", bench_extra: str = "") -> str:
     name = torch.cuda.get_device_name() if torch.cuda.is_available() else "no CUDA device"
     lines = [
         "# The GPU path",
@@ -165,7 +177,7 @@ def render(rows: dict[str, dict], benches: dict[str, str], stamp: str, argv: str
         lines += ["", "Failures (the last line of their output):", "", *errors]
     for device, table in benches.items():
         lines += ["", f"Speed on the {device.upper()} (`python benchmarks/bench_models.py "
-                  f"--device {device} --epochs 2 --models ffnn lstm cnn subnet`; untrained "
+                  f"--device {device} {' '.join(BENCH_ARGS)}{bench_extra}`; untrained "
                   "weights):", "", table]
     if study_table:
         lines += ["", "Tuning study on the GPU (`benchmarks/pareto_study.py --archs "
@@ -181,6 +193,9 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=OUT)
     parser.add_argument("--timeout", type=float, default=120.0, help="seconds per check")
     parser.add_argument("--bench", nargs="*", default=["cuda", "cpu"], choices=["cuda", "cpu"])
+    parser.add_argument("--bench-samples", type=int, default=None, help="cut the test sines "
+                        "of the speed tables to this many samples (bench_models.py "
+                        "--max-test-samples)")
     parser.add_argument("--study-trials", type=int, default=0, help="trials of each GPU "
                         "tuning study (0: no study)")
     parser.add_argument("--study-epochs", type=int, default=None,
@@ -197,19 +212,20 @@ def main() -> None:
     rows: dict[str, dict] = {}
     benches: dict[str, str] = {}
     study_table = ""
+    extra = f" --max-test-samples {args.bench_samples}" if args.bench_samples else ""
     # the page is rewritten after each step: a run cut short keeps what it measured
     for device in args.bench:
-        benches[device] = bench(device, 3 * args.timeout)
-        args.out.write_text(render(rows, benches, stamp, argv, study_table))
+        benches[device] = bench(device, 3 * args.timeout, args.bench_samples)
+        args.out.write_text(render(rows, benches, stamp, argv, study_table, extra))
     if args.study_trials:
         study_table = study(args.study_trials, args.study_epochs, stamp, args.root,
                             6 * args.timeout)
-        args.out.write_text(render(rows, benches, stamp, argv, study_table))
+        args.out.write_text(render(rows, benches, stamp, argv, study_table, extra))
     for check in args.checks:
         rows[check] = run_check(check, args.root, args.timeout)
         log.info("%s: exit %s, GPU used %s, %.0f s, %s", check, rows[check]["status"],
                  rows[check]["gpu_used"], rows[check]["seconds"], rows[check]["rmse"])
-        args.out.write_text(render(rows, benches, stamp, argv, study_table))
+        args.out.write_text(render(rows, benches, stamp, argv, study_table, extra))
     log.info("wrote %s", args.out)
 
 
