@@ -70,10 +70,10 @@ def test_other_settings_pass_as_they_are():
     assert GreyBox.settings_from_data(settings, splits) == ([settings], {})
 
 
-def csv_run(tmp_path, seed: int, *overrides: str):
-    """``model=greybox model.hysteresis=auto`` on zoo plant ``seed`` through ``data=csv``."""
+def csv_run(tmp_path, seed: int, *overrides: str, cell: str = "auto"):
+    """``model=greybox model.hysteresis=<cell>`` on zoo plant ``seed`` through ``data=csv``."""
     files = export_zoo_plant(seed, tmp_path / "data", max_test_samples=1000)
-    cfg = compose("model=greybox", "model.hysteresis=auto", "data=csv",
+    cfg = compose("model=greybox", f"model.hysteresis={cell}", "data=csv",
                   f"data.train={files['train']}", f"data.val={files['val']}",
                   f"data.test=[{','.join(files['test'][:2])}]", *QUICK, *overrides)
     train(cfg, tmp_path / "run")
@@ -116,6 +116,24 @@ def test_where_the_test_leaves_it_open_both_cells_are_fitted_and_the_better_kept
     assert model.hparams["hysteresis"] == kept.removeprefix("hysteresis=")
     for label in losses:
         assert (tmp_path / "run" / "grow" / "candidates" / label / "checkpoints").is_dir()
+
+
+def test_the_candidates_fit_the_chain_without_a_cell_once(tmp_path, monkeypatch):
+    """Both cells grow from the chain without its cell: that stage is fitted once, in the
+    first candidate's folder, and the second candidate grows from a copy of it to the same
+    model as when that cell is fitted on its own."""
+    monkeypatch.setattr(greybox_cell, "CLEAR_RATIO", 1e-9)
+    grown = ("model.grow=true", "model.effects=[]")
+    metrics, _ = csv_run(tmp_path / "auto", BOUC_WEN_PLANT, *grown)
+    losses = metrics["chosen_from_data"]["candidates_validation_loss"]
+    first, second = losses  # in the order they were fitted
+    candidates = tmp_path / "auto" / "run" / "grow" / "candidates"
+    assert (candidates / first / "grow" / "0_linear" / "checkpoints").is_dir()
+    assert (candidates / second / "grow").is_dir()
+    assert not (candidates / second / "grow" / "0_linear").exists()
+    alone, _ = csv_run(tmp_path / "alone", BOUC_WEN_PLANT, *grown,
+                       cell=second.removeprefix("hysteresis="))
+    assert alone["val_mse_scaled"] == pytest.approx(losses[second], rel=1e-9)
 
 
 def test_mimo_data_keep_the_default_cell():

@@ -25,6 +25,7 @@ scored in the run folder as any other.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import logging
 from collections.abc import Mapping, Sequence
@@ -124,9 +125,11 @@ def train_model(
     logger: TensorBoardLogger | None = None,
     callbacks: list[Any] | None = None,
     resume: bool = False,
+    first_stages: dict[str, TrainResult] | None = None,
 ) -> tuple[TrainResult, WindowSpec]:
     """The run's fitted model and its window: a declared physical model grows through its
-    stages (`grow`), each from the start, and does not resume; any other fits once
+    stages (`grow`, its first stage taken from ``first_stages`` where fitted before), each
+    from the start, and does not resume; any other fits once
     (`hysteresis_lab.fitting.fit_run`, going on from an interrupted fit: ``resume``)."""
     choices: dict[str, Any] = {}
     if warm_start is None:
@@ -137,7 +140,7 @@ def train_model(
     if warm_start is not None or len(growth_stages(config.model)) == 1:
         trained, window = fit_run(config, data, warm_start, logger, callbacks, resume)
     else:
-        trained = grow(config, data, callbacks)
+        trained = grow(config, data, callbacks, first_stages)
         if config.model.settings.get(SETTING, "best") == "best":
             trained = _better_of_grown_and_at_once(config, data, trained, callbacks)
         window = model_window(trained.model)
@@ -165,8 +168,9 @@ def _best_candidate(
 ) -> tuple[TrainResult, WindowSpec]:
     """Each candidate's settings fitted (`train_model`) in ``grow/candidates/<setting>``, the
     one with the lowest validation free-run loss kept (its training time: all of theirs);
-    ``choices`` records the losses."""
+    ``choices`` records the losses. A first growth stage they share is fitted once."""
     fits = []
+    first_stages: dict[str, TrainResult] = {}
     for settings in candidates:
         label = ",".join(f"{k}={v}" for k, v in settings.items()
                          if config.model.settings.get(k) != v)
@@ -174,7 +178,8 @@ def _best_candidate(
         log.info("%s: fitting the candidate %s", config.model.name, label)
         candidate = dataclasses.replace(config, model=config.model.with_settings(settings),
                                         output_dir=folder)
-        fits.append((label, *train_model(candidate, data, callbacks=callbacks)))
+        fits.append((label, *train_model(candidate, data, callbacks=callbacks,
+                                         first_stages=first_stages)))
     losses = {label: kept_loss(trained) for label, trained, _ in fits}
     label, trained, window = min(fits, key=lambda fit: losses[fit[0]])
     log.info("%s: validation free-run loss %s: %s kept", config.model.name,
@@ -207,20 +212,41 @@ def _better_of_grown_and_at_once(
     return better
 
 
-def grow(config: RunConfig, data: ModelData, callbacks: list[Any] | None = None) -> TrainResult:
+def grow(config: RunConfig, data: ModelData, callbacks: list[Any] | None = None,
+         first_stages: dict[str, TrainResult] | None = None) -> TrainResult:
     """Train ``config``'s model through its `growth_stages` (`_grow_stage`), every stage in
     its folder under the run folder; the last stage's result (with the best refit rate) is
     returned, its start's rejected weights dropped (a declared block kept at no effect is
-    the declared model, not a rejected refit)."""
+    the declared model, not a rejected refit). ``first_stages`` (settings -> fit) holds first
+    stages fitted before: one with the same settings is reused (a copy), a new one is added."""
     stages = growth_stages(config.model)
     previous: TrainResult | None = None
     for number, stage in enumerate(stages):
+        position = f"stage {number + 1} of {len(stages)}"
+        key = _settings_key(stage.settings) if number == 0 and first_stages is not None else None
+        if key is not None and key in first_stages:
+            log.info("growing %s: %s, %s: the same fit as an earlier candidate's, reused",
+                     config.model.name, position, stage.label)
+            previous = _copied(first_stages[key])
+            continue
         folder = config.output_dir / STAGES_FOLDER / f"{number}_{stage.label}"
-        previous = _grow_stage(config, data, stage, folder, previous, callbacks,
-                               f"stage {number + 1} of {len(stages)}")
+        previous = _grow_stage(config, data, stage, folder, previous, callbacks, position)
+        if key is not None:
+            first_stages[key] = _copied(previous)
     assert previous is not None
     previous.rejected_state = None
     return previous
+
+
+def _settings_key(settings: Mapping[str, Any]) -> str:
+    """A stage's model settings as a key: equal settings, the same fit."""
+    return repr(sorted((str(k), repr(v)) for k, v in settings.items()))
+
+
+def _copied(result: TrainResult) -> TrainResult:
+    """``result`` with its own copy of the model (a later stage must not change the one
+    another candidate grows from)."""
+    return dataclasses.replace(result, model=copy.deepcopy(result.model))
 
 
 def _grow_stage(
