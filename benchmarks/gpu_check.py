@@ -147,10 +147,11 @@ def study(n_trials: int, max_epochs: int | None, stamp: str, root: Path,
     if done.returncode != 0 or not out.is_file():
         return "\n".join((done.stdout + done.stderr).strip().splitlines()[-3:])
     page = out.read_text().splitlines()
-    keep = [line for line in page if line.startswith(("| ", "|---", "Total:", "- studies:"))]
     # only the wall-time table: the fronts below it are the tuning result, not the speed
-    end = next((i for i, line in enumerate(keep) if line.startswith("Total:")), len(keep))
-    return "\n".join(keep[: end + 1])
+    end = next((i for i, line in enumerate(page) if line.startswith("Total:")), len(page))
+    studies = [line for line in page[:end] if line.startswith("- studies:")]
+    table = [line for line in page[:end] if line.startswith(("| ", "|---"))]
+    return "\n".join([*studies, "", *table, "", *page[end:end + 1]])
 
 
 def render(rows: dict[str, dict], benches: dict[str, str], stamp: str, argv: str,
