@@ -5,7 +5,9 @@
         --out docs/results/pareto_study.md                # a small version
 
 Runs ``hysteresis-lab-train -m hparams_search=<arch>_pareto`` for each architecture, one after
-the other (one worker; default data, the study's default pruner: Hyperband on the CPU),
+the other (``--workers`` processes per study sharing its storage, two by default: one per
+core of the 2-core CPU the budget is set for; default data, the study's default pruner:
+Hyperband on the CPU),
 records each study's wall time and its trials' states, and writes a page with the command,
 commit, date, machine, the times against the budget (``--budget-h``) and the table of best
 trials: each study's Pareto front (validation free-run MSE x training seconds). The studies
@@ -39,8 +41,9 @@ OUT = REPO / "docs" / "results" / "pareto_study.md"
 ARCHS = ("ffnn", "lstm", "cnn", "svm")
 
 
-def command(arch: str, args: argparse.Namespace) -> list[str]:
-    """The sweep command of one architecture's study."""
+def command(arch: str, args: argparse.Namespace, worker: int = 0) -> list[str]:
+    """The sweep command of one worker of one architecture's study (every worker shares the
+    study's storage, each writes its trials' folders apart)."""
     results = Path(args.results).resolve()
     cmd = [
         sys.executable,
@@ -50,7 +53,7 @@ def command(arch: str, args: argparse.Namespace) -> list[str]:
         f"hparams_search={arch}_pareto",
         f"hydra.sweeper.n_trials={args.n_trials}",
         f"hydra.sweeper.results_dir={results}",
-        f"hydra.sweep.dir={results}/runs/{arch}",
+        f"hydra.sweep.dir={results}/runs/{arch}/worker_{worker}",
         "trainer.enable_progress_bar=false",
     ]
     if args.max_epochs is not None:
@@ -59,16 +62,23 @@ def command(arch: str, args: argparse.Namespace) -> list[str]:
 
 
 def run_study(arch: str, args: argparse.Namespace) -> dict[str, Any]:
-    """Run one study; its wall time, exit status and the stored study's trials."""
-    cmd = command(arch, args)
-    log.info("%s: %s", arch, shlex.join(cmd))
+    """Run one study with ``args.workers`` worker processes sharing its storage (they run
+    ``n_trials`` trials together); its wall time, exit status and the stored study's
+    trials."""
+    Path(args.results).mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
-    log_path = Path(args.results) / f"{arch}_sweep.log"
-    log_path.parent.mkdir(parents=True, exist_ok=True)
-    with log_path.open("w") as handle:
-        returncode = subprocess.run(
-            cmd, cwd=REPO, stdout=handle, stderr=subprocess.STDOUT
-        ).returncode
+    _create_study(arch, args)
+    workers = []
+    for worker in range(args.workers):
+        cmd = command(arch, args, worker)
+        log.info("%s, worker %d: %s", arch, worker, shlex.join(cmd))
+        handle = (Path(args.results) / f"{arch}_sweep_{worker}.log").open("w")
+        workers.append((subprocess.Popen(cmd, cwd=REPO, stdout=handle,
+                                         stderr=subprocess.STDOUT), handle))
+    returncode = 0
+    for process, handle in workers:
+        returncode = max(returncode, process.wait())
+        handle.close()
     seconds = time.perf_counter() - start
     name = f"{arch}_pareto_default"
     url = f"sqlite:///{Path(args.results).resolve()}/{name}.db"
@@ -84,8 +94,15 @@ def run_study(arch: str, args: argparse.Namespace) -> dict[str, Any]:
         "returncode": returncode,
         "states": states,
         "study": study,
-        "log": log_path,
     }
+
+
+def _create_study(arch: str, args: argparse.Namespace) -> None:
+    """One worker's sweep alone, with no trial, so that the study's storage exists before
+    the workers start together (two that create it at once can collide)."""
+    cmd = [*command(arch, args), "hydra.sweeper.n_trials=0"]
+    with (Path(args.results) / f"{arch}_create.log").open("w") as handle:
+        subprocess.run(cmd, cwd=REPO, stdout=handle, stderr=subprocess.STDOUT, check=False)
 
 
 def write_page(rows: list[dict[str, Any]], args: argparse.Namespace, argv: list[str]) -> None:
@@ -103,7 +120,8 @@ def write_page(rows: list[dict[str, Any]], args: argparse.Namespace, argv: list[
         f"- date: {datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC",
         f"- machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
         f"load average at the end {os.getloadavg()[0]:.2f}",
-        f"- studies: {', '.join(r['arch'] for r in rows)}; {args.n_trials} trials each; "
+        f"- studies: {', '.join(r['arch'] for r in rows)}; {args.n_trials} trials each, run by "
+        f"{args.workers} worker process{'es' * (args.workers != 1)} sharing the study; "
         f"trainer.max_epochs={args.max_epochs or 'the default'}; extra overrides: "
         f"{' '.join(args.overrides) or 'none'}",
         "",
@@ -114,8 +132,9 @@ def write_page(rows: list[dict[str, Any]], args: argparse.Namespace, argv: list[
         states = ", ".join(f"{n} {k.lower()}" for k, n in sorted(r["states"].items()))
         lines.append(f"| {r['arch']}_pareto | {r['seconds']:.0f} | {states} | {r['returncode']} |")
     verdict = "within" if total <= budget_s else "over"
+    done = [r["arch"] for r in rows]
     target = (
-        sorted(args.archs) == sorted(ARCHS)
+        sorted(done) == sorted(ARCHS)
         and args.n_trials == 100
         and args.max_epochs is None
         and not args.overrides
@@ -127,6 +146,10 @@ def write_page(rows: list[dict[str, Any]], args: argparse.Namespace, argv: list[
         "configs' epochs): it shows the mechanism end to end; it does not measure the "
         "target."
     )
+    if len(done) < len(args.archs):
+        rest = [a for a in args.archs if a not in done]
+        scope += (f" Written after {len(done)} of {len(args.archs)} studies: "
+                  f"{', '.join(rest)} not (yet) run.")
     lines += [
         "",
         f"Total: {total:.0f} s = {total / 3600:.2f} h, {verdict} the budget of "
@@ -174,6 +197,9 @@ def main() -> None:
         help="trainer.max_epochs of every trial (default: the config's)",
     )
     parser.add_argument("--budget-h", type=float, default=2.0)
+    parser.add_argument("--workers", type=int, default=2, help="worker processes per study, "
+                        "sharing its storage (one per core; each trains with one torch thread "
+                        "under OMP_NUM_THREADS=1)")
     parser.add_argument("--results", default="outputs/pareto_study")
     parser.add_argument("--out", default=str(OUT))
     parser.add_argument("--commit", default=None, help="the commit measured, where this copy "
@@ -181,8 +207,10 @@ def main() -> None:
     parser.add_argument("overrides", nargs="*", help="extra Hydra overrides for every study")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
-    rows = [run_study(arch, args) for arch in args.archs]
-    write_page(rows, args, sys.argv[1:])
+    rows = []
+    for arch in args.archs:  # the page after each study: a run cut short keeps those done
+        rows.append(run_study(arch, args))
+        write_page(rows, args, sys.argv[1:])
 
 
 if __name__ == "__main__":
