@@ -25,8 +25,8 @@ from scipy import signal
 from hysteresis_lab.blocks.sections import arx_least_squares
 from hysteresis_lab.data.benchmarks import load_benchmark
 from hysteresis_lab.data.recording import Recording
-from hysteresis_lab.effects.base import FeatureContext
 from hysteresis_lab.loop.diagnosis.ranking import TESTS, diagnose, evidence_lags
+from hysteresis_lab.models.augment import feature_context
 
 log = logging.getLogger("diagnosis_memory")
 
@@ -61,17 +61,6 @@ def simulated() -> list[Recording]:
     y = Positioner({}).simulate(u, fs, seed=len(recordings))
     recordings.append(Recording(u[:, None], np.asarray(y).reshape(-1, 1), fs, name="hold"))
     return recordings
-
-
-def context_of(recordings: list[Recording]) -> FeatureContext:
-    """The operators' facts from the identification recordings."""
-    u = np.concatenate([r.u for r in recordings])
-    y = np.concatenate([r.y for r in recordings])
-    return FeatureContext(
-        fs=recordings[0].fs, u_amplitude=np.max(np.abs(u), axis=0),
-        duration_s=recordings[0].n_samples / recordings[0].fs,
-        y_low=y.min(axis=0), y_high=y.max(axis=0),
-    )
 
 
 def free_run(recordings: list[Recording]) -> list[np.ndarray]:
@@ -110,7 +99,7 @@ def main() -> None:
         recordings = load_benchmark(name, **options).train
     if args.recordings:
         recordings = recordings[: args.recordings]
-    context = context_of(recordings)
+    context = feature_context(recordings)  # as the loop fixes it
     predictions = free_run(recordings)
     residuals = []
     for r, p in zip(recordings, predictions, strict=True):

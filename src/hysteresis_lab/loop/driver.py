@@ -51,7 +51,13 @@ from hysteresis_lab.loop.diagnosis.excitation import operator_excitation, under_
 from hysteresis_lab.loop.diagnosis.ranking import TESTS, EffectScore, diagnose, evidence_lags
 from hysteresis_lab.loop.diagnosis.residuals import diagnostics_figure, residual_analysis
 from hysteresis_lab.loop.figures import ResidualEvidence
-from hysteresis_lab.loop.length import TrainingLength, configured_length, final_length
+from hysteresis_lab.loop.length import (
+    FINE_TUNE,
+    TRAINER_STAGES,
+    TrainingLength,
+    configured_length,
+    final_length,
+)
 from hysteresis_lab.loop.plant import fits_plant, prefer_plant, with_plant_prior
 from hysteresis_lab.loop.report import (
     loop_markdown,
@@ -525,10 +531,9 @@ def _fit_final(run: _LoopRun, model: ModelSpec, chosen: _Candidate, round_dir: P
     if length.from_folds:
         stages = length.epochs
         trainer = trainer.with_changes(max_epochs=next(
-            (stages[s] for s in ("one_step", "simulation") if s in stages),
-            trainer.max_epochs))
-        if "fine_tune" in stages:
-            training = training.with_changes(simulation_epochs=stages["fine_tune"])
+            (stages[s] for s in TRAINER_STAGES if s in stages), trainer.max_epochs))
+        if FINE_TUNE in stages:
+            training = training.with_changes(simulation_epochs=stages[FINE_TUNE])
     log.info("the final refit on the whole identification record trains %s",
              length.describe())
     result = lane.fit(model=spec, training=training, output_dir=round_dir,
