@@ -7,7 +7,7 @@
 Runs ``hysteresis-lab-train -m hparams_search=<arch>_pareto`` for each architecture, one after
 the other (``--workers`` processes per study sharing its storage, two by default: one per
 core of the 2-core CPU the budget is set for; default data, the study's default pruner:
-Hyperband on the CPU),
+successive halving on the CPU),
 records each study's wall time and its trials' states, and writes a page with the command,
 commit, date, machine, the times against the budget (``--budget-h``) and the table of best
 trials: each study's Pareto front (validation free-run MSE x training seconds). The studies

@@ -98,14 +98,14 @@ def test_pruning_is_on_by_default_on_the_cpu_and_prunes_a_clearly_bad_trial(
     results = tmp_path / "optuna"
     common = [
         *csv_data,
-        *sweep(results, 1, "hydra.sweeper.warmup_epochs=1", search=search),
+        *sweep(results, 1, "hydra.sweeper.min_epochs=1", search=search),
         "model.neurons=16",
         "data.window.na=4",
         "data.window.nb=4",
     ]
     good = run_app("train", *common, "training.lr=tag(log, interval(1e-3, 1.001e-3))")
     assert good.returncode == 0, good.stderr[-3000:]
-    assert "hyperband pruner" in good.stdout + good.stderr
+    assert "successive_halving pruner" in good.stdout + good.stderr
     bad = run_app(
         "train",
         *common,
@@ -119,17 +119,21 @@ def test_pruning_is_on_by_default_on_the_cpu_and_prunes_a_clearly_bad_trial(
     assert states == [TrialState.COMPLETE, TrialState.PRUNED]
 
 
-def test_the_default_pruner_is_hyperband_on_the_cpu_and_median_on_a_gpu():
-    assert resolve_pruner("auto", "cpu") == "hyperband"
+def test_the_default_pruner_is_successive_halving_on_the_cpu_and_median_on_a_gpu():
+    assert resolve_pruner("auto", "cpu") == "successive_halving"
     assert resolve_pruner("auto", "gpu") == "median"
     assert resolve_pruner("successive_halving", "gpu") == "successive_halving"
     assert isinstance(
-        make_pruner("hyperband", n_warmup_steps=3, max_resource=30), optuna.pruners.HyperbandPruner
+        make_pruner("hyperband", min_resource=3, max_resource=30), optuna.pruners.HyperbandPruner
     )
+    halving = make_pruner("successive_halving", min_resource=3, max_resource=30)
+    assert isinstance(halving, optuna.pruners.SuccessiveHalvingPruner)
+    assert halving._min_resource == 3  # noqa: SLF001 - the first rung is the setting's
     # no epoch past the first rung: nothing to prune
-    assert isinstance(
-        make_pruner("hyperband", n_warmup_steps=10, max_resource=10), optuna.pruners.NopPruner
-    )
+    for name in ("hyperband", "successive_halving"):
+        assert isinstance(
+            make_pruner(name, min_resource=10, max_resource=10), optuna.pruners.NopPruner
+        )
     with pytest.raises(ConfigError, match="unknown pruner 'asha'"):
         resolve_pruner("asha", "cpu")
     with pytest.raises(ConfigError, match="hydra.sweeper.objectives="):

@@ -21,10 +21,11 @@ class HysteresisLabSweeperConf:
     sampler: str = "gp"  # gp (Gaussian-process BO, the study's method) | tpe | random
     seed: int = 0
     n_startup_trials: int = 10  # random trials before the model-based sampler takes over
-    # auto: Hyperband when trials train on the CPU, else median | hyperband |
+    # auto: successive halving when trials train on the CPU, else median | hyperband |
     # successive_halving | median | none
     pruner: str = "auto"
-    warmup_epochs: int = 10  # epochs before a trial may be pruned (Hyperband's first rung)
+    warmup_epochs: int = 10  # median pruning: epochs before a trial may be pruned
+    min_epochs: int = 3  # successive halving and Hyperband: epochs to the first rung
     # minimised; several: a multi-objective study and its Pareto front (val_mse |
     # val_free_run_mse | train_seconds)
     objectives: list[str] = field(default_factory=lambda: ["val_mse"])

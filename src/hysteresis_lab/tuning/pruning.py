@@ -59,6 +59,7 @@ def trial_callback(sweep_trial: dict | None) -> PruningCallback | None:
         sweep_trial.get("pruner", "median"),
         n_warmup_steps=int(sweep_trial.get("warmup_epochs", 10)),
         max_resource=None if max_epochs is None else int(max_epochs),
+        min_resource=int(sweep_trial.get("min_epochs", 3)),
     )
     study = optuna.load_study(study_name=sweep_trial["study"], storage=url, pruner=pruner)
     trial_number = int(sweep_trial["number"])

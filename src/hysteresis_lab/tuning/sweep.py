@@ -59,6 +59,7 @@ class SweepSettings:
     n_startup_trials: int = 10
     pruner: str = "auto"
     warmup_epochs: int = 10
+    min_epochs: int = 3
     objectives: Sequence[str] = ("val_mse",)
     storage: str | None = None
     results_dir: str = "outputs/optuna"
@@ -119,6 +120,7 @@ def run_sweep(
         pruner_name,
         n_warmup_steps=settings.warmup_epochs,
         max_resource=None if max_epochs is None else int(max_epochs),
+        min_resource=settings.min_epochs,
     )
     if "val_free_run_mse" in objectives:
         _check_validation_recordings(config)
@@ -180,6 +182,7 @@ def run_sweep(
             f"sweep_trial.number={reports_to.number}",
             f"sweep_trial.pruner={pruner_name}",
             f"sweep_trial.warmup_epochs={settings.warmup_epochs}",
+            f"sweep_trial.min_epochs={settings.min_epochs}",
             f"sweep_trial.max_epochs={'null' if epochs is None else int(epochs)}",
             f"sweep_trial.objectives=[{','.join(objectives)}]",
         ]
