@@ -347,7 +347,8 @@ def test_two_workers_share_one_postgres_study(tmp_path, csv_data, postgres_url):
         popen_app(
             "train",
             *csv_data,
-            *sweep_args(tmp_path / f"w{i}", n_trials, "trainer.max_epochs=4"),
+            *sweep_args(tmp_path / f"w{i}", n_trials, "trainer.max_epochs=4",
+                       "hydra.sweeper.pruner=none"),
             env=env,
         )
         for i in range(2)
