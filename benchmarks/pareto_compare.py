@@ -23,6 +23,7 @@ import os
 import platform
 import shlex
 import sys
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -60,9 +61,7 @@ def summarise(folder: Path, arch: str) -> StudySummary | None:
     url = f"sqlite:///{db.resolve()}"
     study = optuna.load_study(study_name=name, storage=url)
     trials = [t for t in study.get_trials(deepcopy=False) if counted(t) and t.state.is_finished()]
-    states: dict[str, int] = {}
-    for t in trials:
-        states[t.state.name.lower()] = states.get(t.state.name.lower(), 0) + 1
+    states = dict(Counter(t.state.name.lower() for t in trials))
     front = pareto_front(study)
     errors = [t.values[0] for t in front]
     return StudySummary(

@@ -11,6 +11,8 @@ SAMPLERS = ("gp", "tpe", "random")
 PRUNERS = ("auto", "hyperband", "successive_halving", "median", "none")
 #: Hyperband's and successive halving's share of trials kept at each rung is 1 / this
 REDUCTION_FACTOR = 3
+#: the default first rung of Hyperband and successive halving, in epochs
+FIRST_RUNG_EPOCHS = 3
 
 
 def make_sampler(name: str, seed: int, n_startup_trials: int = 10) -> optuna.samplers.BaseSampler:
@@ -54,7 +56,7 @@ def make_pruner(
     n_startup_trials: int = 5,
     n_warmup_steps: int = 10,
     max_resource: int | None = None,
-    min_resource: int = 3,
+    min_resource: int = FIRST_RUNG_EPOCHS,
 ) -> optuna.pruners.BasePruner:
     """Hyperband or successive halving (multi-fidelity: epochs are the resource, the first
     rung after ``min_resource`` epochs, ``max_resource`` the trials' ``max_epochs``; None:

@@ -13,7 +13,7 @@ import os
 import lightning as L
 import optuna
 
-from hysteresis_lab.tuning.choices import make_pruner
+from hysteresis_lab.tuning.choices import FIRST_RUNG_EPOCHS, make_pruner
 from hysteresis_lab.tuning.storage import STORAGE_ENV
 
 
@@ -59,7 +59,7 @@ def trial_callback(sweep_trial: dict | None) -> PruningCallback | None:
         sweep_trial.get("pruner", "median"),
         n_warmup_steps=int(sweep_trial.get("warmup_epochs", 10)),
         max_resource=None if max_epochs is None else int(max_epochs),
-        min_resource=int(sweep_trial.get("min_epochs", 3)),
+        min_resource=int(sweep_trial.get("min_epochs", FIRST_RUNG_EPOCHS)),
     )
     study = optuna.load_study(study_name=sweep_trial["study"], storage=url, pruner=pruner)
     trial_number = int(sweep_trial["number"])

@@ -33,7 +33,12 @@ from optuna.trial import TrialState
 
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.tuning import bookkeeping
-from hysteresis_lab.tuning.choices import make_pruner, make_sampler, resolve_pruner
+from hysteresis_lab.tuning.choices import (
+    FIRST_RUNG_EPOCHS,
+    make_pruner,
+    make_sampler,
+    resolve_pruner,
+)
 from hysteresis_lab.tuning.objectives import (
     OBJECTIVES,
     check_objectives,
@@ -59,7 +64,7 @@ class SweepSettings:
     n_startup_trials: int = 10
     pruner: str = "auto"
     warmup_epochs: int = 10
-    min_epochs: int = 3
+    min_epochs: int = FIRST_RUNG_EPOCHS
     objectives: Sequence[str] = ("val_mse",)
     storage: str | None = None
     results_dir: str = "outputs/optuna"
