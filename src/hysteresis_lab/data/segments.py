@@ -120,14 +120,17 @@ class RecordingDataModule(L.LightningDataModule):
     """Whole recordings ``(u, y)`` (1, N, nu / ny), scaled, one per batch, for models that
     simulate from rest (a grey-box's physical state is known only there).
 
-    An epoch visits every training recording ``repeats`` times; validation uses the
+    An epoch visits every training recording ``repeats`` times, one per batch, or with
+    ``together`` all of them in one block (a full-batch step: L-BFGS); validation uses the
     validation recordings, or the training recordings when there are none (said in the log).
     """
 
-    def __init__(self, windows: WindowDataModule, repeats: int = 1) -> None:
+    def __init__(self, windows: WindowDataModule, repeats: int = 1, together: bool = False
+                 ) -> None:
         super().__init__()
         self.windows = windows
         self.repeats = repeats
+        self.together = together
         self._data: dict[str, list[tuple[torch.Tensor, torch.Tensor]]] = {}
 
     def setup(self, stage: str | None = None) -> None:
@@ -141,7 +144,8 @@ class RecordingDataModule(L.LightningDataModule):
                 "no validation recordings: model selection reads the free run of the training "
                 "recordings (give data.val, or for data=default data.splits.val_samples > 0)"
             )
-        self._data = {"train": self._scaled(splits.train) * self.repeats,
+        train = self._scaled(splits.train) * self.repeats
+        self._data = {"train": [train] if self.together else train,
                       "val": self._scaled(splits.val or splits.train)}
         log.info("simulation-error training on %d whole recording(s), validation on %d",
                  len(splits.train), len(self._data["val"]))
@@ -170,5 +174,6 @@ def simulation_data(windows: WindowDataModule, model: L.LightningModule, steps: 
     """The free-run training data a model takes: whole recordings for models that simulate
     from rest (``whole_recordings``), else ``steps``-sample segments."""
     if getattr(model, "whole_recordings", False):
-        return RecordingDataModule(windows, int(model.hparams.get("recording_repeats", 1)))
+        return RecordingDataModule(windows, int(getattr(model, "recordings_per_epoch", 1)),
+                                   together=bool(getattr(model, "full_batch_steps", False)))
     return SegmentDataModule(windows, steps)

@@ -85,6 +85,12 @@ class NarxModule(L.LightningModule, ModelContract, NetworkModel):
         # checked here, so a bad setting fails before any data is read
         model = ModelSettings.from_kwargs(nu, ny, settings)
         training = TrainingSettings.from_kwargs(settings)
+        if training.optimizer == "lbfgs" and not getattr(type(self), "whole_recordings", False):
+            raise ConfigError(
+                f"training.optimizer=lbfgs needs a model that trains on whole recordings (a "
+                f"full batch); {type(self).__name__} trains on batches of windows. Fix: "
+                "training.optimizer=adam, or model=greybox / model=linear."
+            )
         effect_settings = model.effects.checked(nu)
         self.window = model.window
         self.save_hyperparameters()

@@ -801,7 +801,7 @@ class GreyBox(PhysicalChainModule):
         frequency, and a lightly damped mode is ~1 % wide: at the full rate Adam's first
         steps throw the modes off their peaks)."""
         configured = super().configure_optimizers()
-        if not self.mimo:
+        if not self.mimo or self.uses_lbfgs:  # L-BFGS takes one group (its line search)
             return configured
         optimizer = configured["optimizer"] if isinstance(configured, dict) else configured
         frequencies = {id(mode.raw_frequency) for mode in self.dynamics.modes}

@@ -20,6 +20,7 @@ constant input reaches) instead of at rest. `initial_state` is that state for th
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -33,8 +34,9 @@ from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.effects.base import Effect, physical_order
 from hysteresis_lab.effects.registry import loaded_effects
 from hysteresis_lab.errors import ConfigError
-from hysteresis_lab.models.base import NarxModule
+from hysteresis_lab.models.base import NarxModule, batches_of
 from hysteresis_lab.models.export import export_chain_step
+from hysteresis_lab.models.full_batch import lbfgs_closure, make_lbfgs
 
 log = logging.getLogger(__name__)
 
@@ -122,6 +124,52 @@ class PhysicalChainModule(NarxModule):
         return ["base"] * self.nu
 
     # ------------------------------------------------------------------ training
+    @property
+    def uses_lbfgs(self) -> bool:
+        """True when it trains with L-BFGS (``training.optimizer=lbfgs``)."""
+        return self.training_settings.optimizer == "lbfgs"
+
+    @property
+    def full_batch_steps(self) -> bool:
+        """True when each step reads every training recording (L-BFGS)."""
+        return self.uses_lbfgs
+
+    @property
+    def recordings_per_epoch(self) -> int:
+        """How often an epoch visits each training recording: ``model.recording_repeats``
+        Adam steps, or one L-BFGS step of that many iterations."""
+        return 1 if self.uses_lbfgs else int(self.hparams.get("recording_repeats", 1))
+
+    def configure_optimizers(self) -> Any:
+        if not self.uses_lbfgs:
+            return super().configure_optimizers()
+        return make_lbfgs(self.parameters(), int(self.hparams.get("recording_repeats", 1)))
+
+    def training_step(self, batch: Any, batch_idx: int) -> torch.Tensor | None:
+        """Adam's steps (`NarxModule.training_step`), or one L-BFGS step on the free-run
+        error of every training recording (weighted by its samples); once an epoch starts no
+        lower than the one before (converged), the stage ends."""
+        if not self.uses_lbfgs:
+            return super().training_step(batch, batch_idx)
+        optimizer = self.optimizers()
+        parts = batches_of(batch)
+        weights = [part[0].shape[1] for part in parts]
+
+        def loss_of() -> torch.Tensor:
+            return sum(self._loss(part) * (w / sum(weights))
+                       for part, w in zip(parts, weights, strict=True))
+
+        closure = lbfgs_closure(optimizer.optimizer, loss_of, self.manual_backward)
+        value = float(optimizer.step(closure=closure))
+        if not math.isfinite(value):
+            return None
+        if not value < self._lbfgs_start_loss:
+            self.trainer.should_stop = True
+        self._lbfgs_start_loss = value
+        self._train_loss_sum += value
+        self._train_loss_count += 1
+        return torch.tensor(value)
+
     def _on_finite_loss(self) -> None:
         """Remember the weights whose free run was finite (`_on_non_finite_loss`)."""
         self._last_finite = {name: p.detach().clone() for name, p in self.named_parameters()}
@@ -145,6 +193,8 @@ class PhysicalChainModule(NarxModule):
                     MAX_STEP_BACKS)
 
     def on_fit_start(self) -> None:
+        #: the loss the last L-BFGS epoch started from (`training_step`)
+        self._lbfgs_start_loss = math.inf
         self._last_finite: dict[str, torch.Tensor] | None = None
         self._step_backs = 0
 

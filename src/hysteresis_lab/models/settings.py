@@ -22,6 +22,9 @@ from hysteresis_lab.effects.registry import check_effects, get_effect
 from hysteresis_lab.errors import ConfigError
 
 LR_SCHEDULES = ("cosine", "plateau", "none")
+#: ``adam`` for every model; ``lbfgs`` (full-batch, a line search) for models that train on
+#: whole recordings (`PhysicalChainModule`)
+OPTIMIZERS = ("adam", "lbfgs")
 OBJECTIVES = ("one_step", "simulation")
 EFFECT_PATHS = ("network", "linear")
 
@@ -35,6 +38,8 @@ class TrainingSettings:
     """Optimiser, schedule and objective of a network: the ``training`` config
     (``conf/training/default.yaml``; ``training.lr`` ... ``training.refit_lr``).
 
+    ``optimizer``: ``adam``, or ``lbfgs`` (L-BFGS with a strong-Wolfe line search over whole
+    recordings, for the physical models; ``lr`` and the schedule then do not apply);
     ``lr``: Adam's learning rate; ``lr_schedule``: cosine, plateau or none; ``objective``:
     ``one_step`` (the study's one-step error) or ``simulation`` (the free-run error over
     ``horizon`` samples); ``simulation_epochs``: with the simulation objective, a one-step
@@ -43,6 +48,7 @@ class TrainingSettings:
     free-run stage stops; ``refit_lr``: the rate of a warm-started refit (default a tenth).
     """
 
+    optimizer: str = "adam"
     lr: float = 1e-3
     lr_schedule: str = "cosine"
     weight_decay: float = 0.0
@@ -54,6 +60,11 @@ class TrainingSettings:
     refit_lr: float | None = None
 
     def __post_init__(self) -> None:
+        if self.optimizer not in OPTIMIZERS:
+            raise ConfigError(
+                f"unknown optimizer '{self.optimizer}'. Fix: training.optimizer=one of "
+                f"{list(OPTIMIZERS)} (lbfgs for model=greybox or model=linear only)."
+            )
         if self.lr_schedule not in LR_SCHEDULES:
             raise ConfigError(
                 f"unknown lr_schedule '{self.lr_schedule}'. Fix: training.lr_schedule=one of "

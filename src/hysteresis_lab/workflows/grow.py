@@ -105,6 +105,8 @@ def refit_rates(training: TrainingSettings,
                 factors: Sequence[float] = REFIT_LR_FACTORS) -> list[float]:
     """The learning rates a refit runs at: ``training.refit_lr`` if set, else ``factors``
     of ``training.lr``."""
+    if training.optimizer == "lbfgs":
+        return [float(training.lr)]  # the line search sets the step: one refit
     if training.refit_lr is not None:
         return [float(training.refit_lr)]
     return [factor * float(training.lr) for factor in factors]
