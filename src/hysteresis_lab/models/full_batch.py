@@ -3,8 +3,9 @@ physical models, whose few parameters and deterministic full-batch loss (each re
 simulated from rest) suit a quasi-Newton step with a line search better than Adam's fixed
 rate. `torch.optim.LBFGS` with the strong-Wolfe line search does the work.
 
-An epoch is one L-BFGS step of `iterations` iterations over each training recording; the
-learning rate and schedule do not apply (the line search sets each step's length). A trial
+An epoch is one L-BFGS step of `iterations` iterations over every training recording; the
+learning rate and schedule do not apply (the line search sets each step's length), and a
+stage ends once an epoch lowers the loss by less than `CONVERGED` of it. A trial
 point whose free run is not finite returns an infinite loss with no gradient, so the line
 search shortens its step instead of stopping the fit.
 """
@@ -22,6 +23,9 @@ HISTORY = 50
 #: `TOLERANCE_CHANGE` (the scaled free-run MSE of a good fit is ~1e-7: the defaults of
 #: `torch.optim.LBFGS`, 1e-7 and 1e-9, would stop far short of it)
 TOLERANCE_GRAD, TOLERANCE_CHANGE = 1e-12, 1e-15
+#: an epoch (one step of its iterations) that lowers the loss by less than this share of it:
+#: converged, the stage ends
+CONVERGED = 1e-4
 
 
 def make_lbfgs(parameters: Iterable[torch.nn.Parameter], iterations: int) -> torch.optim.LBFGS:

@@ -36,7 +36,7 @@ from hysteresis_lab.effects.registry import loaded_effects
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.base import NarxModule, batches_of
 from hysteresis_lab.models.export import export_chain_step
-from hysteresis_lab.models.full_batch import lbfgs_closure, make_lbfgs
+from hysteresis_lab.models.full_batch import CONVERGED, lbfgs_closure, make_lbfgs
 
 log = logging.getLogger(__name__)
 
@@ -147,8 +147,8 @@ class PhysicalChainModule(NarxModule):
 
     def training_step(self, batch: Any, batch_idx: int) -> torch.Tensor | None:
         """Adam's steps (`NarxModule.training_step`), or one L-BFGS step on the free-run
-        error of every training recording (weighted by its samples); once an epoch starts no
-        lower than the one before (converged), the stage ends."""
+        error of every training recording (weighted by its samples); once an epoch starts
+        less than `CONVERGED` lower than the one before, the stage ends."""
         if not self.uses_lbfgs:
             return super().training_step(batch, batch_idx)
         optimizer = self.optimizers()
@@ -160,10 +160,10 @@ class PhysicalChainModule(NarxModule):
                        for part, w in zip(parts, weights, strict=True))
 
         closure = lbfgs_closure(optimizer.optimizer, loss_of, self.manual_backward)
-        value = float(optimizer.step(closure=closure))
+        value = float(optimizer.step(closure=closure).detach())
         if not math.isfinite(value):
             return None
-        if not value < self._lbfgs_start_loss:
+        if not value < self._lbfgs_start_loss * (1.0 - CONVERGED):
             self.trainer.should_stop = True
         self._lbfgs_start_loss = value
         self._train_loss_sum += value
