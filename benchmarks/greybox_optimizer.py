@@ -1,7 +1,7 @@
 """The grey-box trained with Adam (its default) and with L-BFGS (``training.optimizer=lbfgs``),
 on zoo plants and on bundled data sets: error and CPU seconds.
 
-    python benchmarks/greybox_optimizer.py --seeds 0,1,2,3,4 --cases plants,default,p885 --root /tmp/gbo
+    python benchmarks/greybox_optimizer.py --cases plants,default,p885 --root /tmp/gbo
     python benchmarks/greybox_optimizer.py --seeds 0,1,2,3,4 --root /tmp/gbo --render
 
 Each case is fitted through the console app with ``model=greybox`` and default settings (a zoo

@@ -16,9 +16,9 @@ from helpers import data_overrides, run_app, small_dataset, sweep_args
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.tuning.bookkeeping import counted
 from hysteresis_lab.tuning.choices import make_pruner, resolve_pruner
-from hysteresis_lab.tuning.objectives import check_objectives
+from hysteresis_lab.tuning.objectives import STOPPED_EPOCHS, STOPPED_VALUES, check_objectives
 from hysteresis_lab.tuning.pareto import main as pareto_main
-from hysteresis_lab.tuning.pareto import pareto_front
+from hysteresis_lab.tuning.pareto import pareto_front, pareto_points
 from hysteresis_lab.tuning.storage import STORAGE_ENV
 
 OBJECTIVES = ["val_free_run_mse", "train_seconds"]
@@ -117,6 +117,20 @@ def test_pruning_is_on_by_default_on_the_cpu_and_prunes_a_clearly_bad_trial(
     study = optuna.load_study(study_name=name, storage=f"sqlite:///{results}/{name}.db")
     states = [t.state for t in study.get_trials() if counted(t)]
     assert states == [TrialState.COMPLETE, TrialState.PRUNED]
+    if search != "ffnn_pareto":
+        return
+    # the pruned trial is a point at its own fidelity: its model's objectives when pruned
+    complete, pruned = (t for t in study.get_trials() if counted(t))
+    stopped = pruned.user_attrs[STOPPED_VALUES]
+    assert len(stopped) == 2 and all(math.isfinite(v) and v > 0 for v in stopped)
+    assert pruned.user_attrs[STOPPED_EPOCHS] >= 1
+    assert stopped[0] > complete.values[0]  # lr 1e-9 learned nothing
+    with (results / name / "pareto.csv").open() as handle:
+        rows = {int(r["trial"]): r for r in csv.DictReader(handle)}
+    on_front = stopped[1] < complete.values[1]  # faster, if less accurate
+    assert (pruned.number in rows) == on_front
+    if on_front:
+        assert rows[pruned.number]["stopped"].startswith("pruned at epoch")
 
 
 def test_the_default_pruner_is_successive_halving_on_the_cpu_and_median_on_a_gpu():
@@ -157,12 +171,42 @@ def test_the_front_holds_the_non_dominated_trials_of_a_stored_study(tmp_path):
     assert [t.number for t in pareto_front(study)] == [1, 3, 4]
     assert study.trials[5].state == TrialState.COMPLETE
 
+    assert [p.number for p in pareto_points(study)] == [1, 3, 4]  # no pruned trial yet
+
     pareto_main([url, "s", str(tmp_path / "front")])
     with (tmp_path / "front" / "pareto.csv").open() as handle:
         rows = list(csv.DictReader(handle))
     assert [int(r["trial"]) for r in rows] == [1, 3, 4]
     assert [float(r["val_free_run_mse"]) for r in rows] == [0.2, 0.3, 0.9]
     assert (tmp_path / "front" / "pareto.png").stat().st_size > 0
+
+
+def test_a_pruned_trial_is_a_front_point_at_its_stop(tmp_path):
+    """Pruned trials that recorded their objectives when pruned join the table and figure;
+    the best trial stays the most accurate complete one."""
+    url = f"sqlite:///{tmp_path}/s.db"
+    study = optuna.create_study(study_name="s", storage=url, directions=["minimize"] * 2)
+    study.set_user_attr("objectives", OBJECTIVES)
+    lr = {"training.lr": FloatDistribution(1e-4, 1e-2, log=True)}
+    for values in [(0.2, 40.0), (0.5, 10.0)]:
+        study.add_trial(optuna.trial.create_trial(
+            params={"training.lr": 1e-3}, distributions=lr, values=list(values)))
+    # 2: cheaper than any complete trial; 3: beaten by 1; 4: pruned before it could record
+    for attrs in [{STOPPED_VALUES: [0.7, 2.0], STOPPED_EPOCHS: 3},
+                  {STOPPED_VALUES: [0.6, 12.0], STOPPED_EPOCHS: 9}, {}]:
+        study.add_trial(optuna.trial.create_trial(
+            params={"training.lr": 1e-3}, distributions=lr, state=TrialState.PRUNED,
+            user_attrs=attrs))
+    front = pareto_points(study)
+    assert [(p.number, p.stopped) for p in front] == [(0, ""), (1, ""), (2, "pruned at epoch 3")]
+    assert [t.number for t in pareto_front(study)] == [0, 1]
+
+    pareto_main([url, "s", str(tmp_path / "front")])
+    with (tmp_path / "front" / "pareto.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    assert [(int(r["trial"]), r["stopped"]) for r in rows] == [
+        (0, ""), (1, ""), (2, "pruned at epoch 3")]
+    assert "pruned at epoch 3" in (tmp_path / "front" / "pareto.md").read_text()
 
 
 @pytest.mark.slow

@@ -33,6 +33,10 @@ OBJECTIVES = {
 }
 #: the objectives of a study that sets none: the single-objective study of the paper
 DEFAULT_OBJECTIVES = ("val_mse",)
+#: user attributes of a pruned trial of a multi-objective study: its objectives as its model
+#: stood when pruned (a point at its own fidelity, `hysteresis_lab.tuning.pareto`), and the
+#: epochs it had trained
+STOPPED_VALUES, STOPPED_EPOCHS = "stopped_values", "stopped_epochs"
 
 
 def check_objectives(names: Sequence[str]) -> tuple[str, ...]:
@@ -62,6 +66,26 @@ def free_run_mse(model: Any, recordings: Sequence[Recording], window: WindowSpec
     with np.errstate(over="ignore", invalid="ignore"):
         mse = float(np.mean(np.square(np.concatenate(errors))))
     return mse if math.isfinite(mse) else math.inf
+
+
+def stopped_values(names: Sequence[str], model: Any, datamodule: Any, val_loss: float,
+                   seconds: float) -> list[float]:
+    """The objectives ``names`` of a trial pruned after ``seconds`` of training, for
+    ``model`` as it stands: ``val_loss`` (the epoch's validation loss), the free run over
+    the validation recordings of ``datamodule`` (a `WindowDataModule`, or a free-run
+    module over one), the seconds."""
+    windows = getattr(datamodule, "windows", datamodule)
+    values: list[float] = []
+    for name in names:
+        if name == "val_mse":
+            values.append(float(val_loss))
+        elif name == "train_seconds":
+            values.append(float(seconds))
+        else:
+            recordings = windows.splits.val
+            values.append(free_run_mse(model, recordings, model.window) if recordings
+                          else math.inf)
+    return values
 
 
 def trial_value(cfg: Mapping[str, Any], result: Any, output_dir: Path) -> float | list[float]:

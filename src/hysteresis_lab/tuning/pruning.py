@@ -9,22 +9,35 @@ from __future__ import annotations
 
 import math
 import os
+import time
+from collections.abc import Sequence
 
 import lightning as L
 import optuna
 
 from hysteresis_lab.tuning.choices import FIRST_RUNG_EPOCHS, make_pruner
+from hysteresis_lab.tuning.objectives import STOPPED_EPOCHS, STOPPED_VALUES, stopped_values
 from hysteresis_lab.tuning.storage import STORAGE_ENV
 
 
 class PruningCallback(L.Callback):
     """Report ``val_loss`` per epoch; raise `optuna.TrialPruned` when the pruner says so.
 
-    A NaN validation loss prunes the trial at once (the study goes on with the next).
+    A NaN validation loss prunes the trial at once (the study goes on with the next). With
+    several ``objectives`` (a Pareto study), a pruned trial first records them for its model
+    as it stands (`STOPPED_VALUES`: the free run over the validation recordings, the seconds
+    trained so far) on the trial it reports to.
     """
 
-    def __init__(self, trial: optuna.trial.Trial, monitor: str = "val_loss") -> None:
+    def __init__(self, trial: optuna.trial.Trial, monitor: str = "val_loss",
+                 objectives: Sequence[str] = ()) -> None:
         self.trial, self.monitor = trial, monitor
+        self.objectives = tuple(objectives)
+        self._started: float | None = None
+
+    def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if self._started is None:  # the first stage's start: the fit's clock
+            self._started = time.perf_counter()
 
     def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         if trainer.sanity_checking:
@@ -39,9 +52,20 @@ class PruningCallback(L.Callback):
             )
         self.trial.report(value, step=trainer.current_epoch)
         if self.trial.should_prune():
+            self._record_stop(trainer, pl_module, value)
             raise optuna.TrialPruned(
                 f"pruned at epoch {trainer.current_epoch} ({self.monitor}={value:.3e})"
             )
+
+    def _record_stop(self, trainer: L.Trainer, pl_module: L.LightningModule,
+                     value: float) -> None:
+        """A Pareto study's pruned trial: its objectives now (`STOPPED_VALUES`)."""
+        if len(self.objectives) < 2:
+            return
+        seconds = time.perf_counter() - (self._started or time.perf_counter())
+        values = stopped_values(self.objectives, pl_module, trainer.datamodule, value, seconds)
+        self.trial.set_user_attr(STOPPED_VALUES, values)
+        self.trial.set_user_attr(STOPPED_EPOCHS, trainer.current_epoch + 1)
 
 
 def pruning_study_name(study_name: str) -> str:
@@ -67,4 +91,5 @@ def trial_callback(sweep_trial: dict | None) -> PruningCallback | None:
         study._study_id,
         trial_number,  # noqa: SLF001
     )
-    return PruningCallback(optuna.trial.Trial(study, trial_id))
+    return PruningCallback(optuna.trial.Trial(study, trial_id),
+                           objectives=sweep_trial.get("objectives") or ())

@@ -123,8 +123,8 @@ def write_results(
     if len(objectives) > 1:
         front = write_front(study, directory, objectives)
         summary["pareto_front"] = [
-            {"trial": t.number, "values": dict(zip(objectives, t.values, strict=True)),
-             "params": t.params} for t in front]
+            {"trial": p.number, "values": dict(zip(objectives, p.values, strict=True)),
+             "params": p.params, "pruned_at_epoch": p.stopped_epochs} for p in front]
     try:
         best = best_trial(study)
     except ValueError:

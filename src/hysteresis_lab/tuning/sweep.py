@@ -41,6 +41,8 @@ from hysteresis_lab.tuning.choices import (
 )
 from hysteresis_lab.tuning.objectives import (
     OBJECTIVES,
+    STOPPED_EPOCHS,
+    STOPPED_VALUES,
     check_objectives,
     no_validation_recordings,
 )
@@ -200,6 +202,8 @@ def run_sweep(
         )
         with bookkeeping.Heartbeat(trial, settings.heartbeat_s):
             (result,) = launch([fixed_overrides + overrides])
+        if companion is not None:
+            _copy_stop(companion, reports_to, trial)
         _tell(study, trial, result, len(objectives))
         if companion is not None:
             _tell_companion(companion, reports_to, study, trial)
@@ -244,6 +248,16 @@ def _check_validation_recordings(config: DictConfig) -> None:
     splits = build_splits(DataSpec.from_config(config.data))
     if not splits.val:
         raise ConfigError(no_validation_recordings(splits.name))
+
+
+def _copy_stop(companion: optuna.Study, reports: optuna.trial.Trial,
+               trial: optuna.trial.Trial) -> None:
+    """A pruned trial's objectives at its stop (`STOPPED_VALUES`, recorded on the pruning
+    study's trial it reported to) onto the multi-objective trial itself."""
+    attrs = companion._storage.get_trial(reports._trial_id).user_attrs  # noqa: SLF001
+    for key in (STOPPED_VALUES, STOPPED_EPOCHS):
+        if key in attrs:
+            trial.set_user_attr(key, attrs[key])
 
 
 def _tell_companion(
