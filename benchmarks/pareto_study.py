@@ -32,7 +32,7 @@ import optuna
 
 from hysteresis_lab.evaluation.provenance import commit_stamp
 from hysteresis_lab.tuning.bookkeeping import counted
-from hysteresis_lab.tuning.pareto import objective_names, pareto_front
+from hysteresis_lab.tuning.pareto import objective_names, pareto_points
 
 log = logging.getLogger("pareto_study")
 
@@ -157,23 +157,27 @@ def write_page(rows: list[dict[str, Any]], args: argparse.Namespace, argv: list[
         "",
         "## Best trials (Pareto fronts)",
         "",
+        "Complete trials and pruned ones, each pruned trial at its stop (`stopped`: its model "
+        "as it stood when pruned, scored on the same objectives).",
+        "",
     ]
     for r in rows:
         study: optuna.Study = r["study"]
         names = objective_names(study)
-        front = pareto_front(study)
+        front = pareto_points(study)
         lines += [f"### {study.study_name}", ""]
         if not front:
-            lines += ["No complete trial.", ""]
+            lines += ["No trial with its objectives.", ""]
             continue
-        params = sorted({p for t in front for p in t.params})
-        header = ["trial", *names, *params]
+        params = sorted({name for point in front for name in point.params})
+        header = ["trial", *names, "stopped", *params]
         lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-        for t in front:
+        for point in front:
             cells = [
-                str(t.number),
-                *(f"{v:.4g}" for v in t.values),
-                *(_cell(t.params.get(p, "")) for p in params),
+                str(point.number),
+                *(f"{v:.4g}" for v in point.values),
+                point.stopped,
+                *(_cell(point.params.get(name, "")) for name in params),
             ]
             lines.append("| " + " | ".join(cells) + " |")
         lines.append("")
