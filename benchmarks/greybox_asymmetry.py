@@ -21,14 +21,13 @@ whether the square law belongs in the defaults (`verdict`).
 from __future__ import annotations
 
 import argparse
-import datetime
 import json
 import logging
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from greybox_structure import train_greybox
+from greybox_structure import page_header, train_greybox
 
 REPO = Path(__file__).resolve().parents[1]
 OUT = REPO / "docs" / "results" / "greybox_asymmetry.md"
@@ -128,15 +127,8 @@ def row(case: str, root: Path) -> dict[str, Any]:
 
 def render(rows: list[dict[str, Any]], command: str) -> str:
     """The page."""
-    from hysteresis_lab.evaluation.provenance import commit_stamp
-
     lines = [
-        "# The grey-box with the asymmetric loop's square law", "",
-        f"Command: `{command}`; commit `{commit_stamp(REPO)}`; "
-        f"{datetime.date.today().isoformat()}; shared 2-core CPU, one core per fit "
-        "(`OMP_NUM_THREADS=1`; CPU seconds of the whole `hysteresis-lab-train` process). "
-        "Fits found in the root are reused: the commit is the page's, a reused fit's may be "
-        "older.", "",
+        *page_header("The grey-box with the asymmetric loop's square law", command),
         "Each case fitted with `model=greybox` (zoo plants through `data=csv`, the bundled "
         "simulator and the other bundled data sets through `data=<name>` with the accuracy "
         "table's settings): *symmetric* with `model.effects=[]` (the bundled simulator also "

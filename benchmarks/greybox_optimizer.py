@@ -15,7 +15,6 @@ the validation free-run loss of the model kept.
 from __future__ import annotations
 
 import argparse
-import datetime
 import json
 import logging
 from pathlib import Path
@@ -23,7 +22,7 @@ from typing import Any
 
 import numpy as np
 from greybox_asymmetry import BUNDLED, data_overrides
-from greybox_structure import train_greybox
+from greybox_structure import page_header, train_greybox
 
 REPO = Path(__file__).resolve().parents[1]
 OUT = REPO / "docs" / "results" / "greybox_optimizer.md"
@@ -64,13 +63,8 @@ def row(case: str, root: Path) -> dict[str, Any]:
 
 def render(rows: list[dict[str, Any]], command: str) -> str:
     """The page."""
-    from hysteresis_lab.evaluation.provenance import commit_stamp
-
     lines = [
-        "# The grey-box with Adam and with L-BFGS", "",
-        f"Command: `{command}`; commit `{commit_stamp(REPO)}`; "
-        f"{datetime.date.today().isoformat()}; shared 2-core CPU, one core per fit "
-        "(`OMP_NUM_THREADS=1`; CPU seconds of the whole `hysteresis-lab-train` process).", "",
+        *page_header("The grey-box with Adam and with L-BFGS", command),
         "Each case fitted with `model=greybox` and its defaults (zoo plants through "
         "`data=csv`, bundled data sets with the accuracy table's settings), once with Adam "
         "(the default) and once with `training.optimizer=lbfgs`. Score: mean free-run RMSE "

@@ -120,7 +120,7 @@ def _structure(folder: Path) -> dict[str, Any]:
     return structure
 
 
-def _header(title: str, command: str) -> list[str]:
+def page_header(title: str, command: str) -> list[str]:
     """A page's title and provenance."""
     from hysteresis_lab.evaluation.provenance import commit_stamp
 
@@ -137,7 +137,7 @@ def _header(title: str, command: str) -> list[str]:
 def render_structure(rows: list[dict[str, Any]], command: str) -> str:
     """The page of ``--compare structure``."""
     lines = [
-        *_header("The grey-box's delay and modes from the data, on zoo plants", command),
+        *page_header("The grey-box's delay and modes from the data, on zoo plants", command),
         "Each plant fitted through `data=csv` with `model=greybox`: *fixed* is the former "
         "default structure (`model.delay=1 model.n_modes=1`), *auto* the default now "
         "(delay and modes chosen from the training data). Score: mean free-run RMSE over "
@@ -169,7 +169,7 @@ def _cell(plant: dict[str, Any]) -> str:
 def render_cell(rows: list[dict[str, Any]], command: str) -> str:
     """The page of ``--compare cell``."""
     lines = [
-        *_header("The grey-box's hysteresis cell on zoo plants: Bouc–Wen, "
+        *page_header("The grey-box's hysteresis cell on zoo plants: Bouc–Wen, "
                  "Prandtl–Ishlinskii or chosen from the data", command),
         "Each plant fitted through `data=csv` with `model=greybox` (its defaults: delay and "
         "modes from the data; the symmetric cell, `model.effects=[]`) and its Bouc–Wen cell "
