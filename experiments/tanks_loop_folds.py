@@ -147,12 +147,13 @@ def _decisions(report: dict[str, Any]) -> list[str]:
         decision = entry.get("decision") or {}
         effect = decision.get("effect")
         for c in entry.get("refit_candidates", []):
-            chosen = (c.get("refit_lr") == entry.get("refit_lr")
+            tried = c.get("effect", effect)  # a compared alternative names its own
+            chosen = (tried == effect and c.get("refit_lr") == entry.get("refit_lr")
                       and c.get("feedback_on") == (entry.get("refit_settings") or {}).get(
                           "feedback_on"))
             verdict = ("kept" if decision.get("kept") else "dropped") if chosen else "not best"
             lines.append(
-                f"| {number} | {effect} | {c.get('feedback_on', '')} | {c.get('refit_lr')} | "
+                f"| {number} | {tried} | {c.get('feedback_on', '')} | {c.get('refit_lr')} | "
                 f"{c['held_out_loss']:.4g} | "
                 f"{', '.join(f'{x:.4g}' for x in c['fold_losses'])} | {verdict} |")
         if decision:

@@ -165,6 +165,8 @@ def test_two_confounded_effects_are_both_refitted_and_the_folds_keep_the_better(
     for c in compared:  # each fitted on every fold, in its own folder
         assert len(c["fold_losses"]) == 3 and all(np.isfinite(c["fold_losses"]))
         assert list((tmp_path / "round_1" / c["effect"]).rglob("fold_2"))
+    # every refit candidate names the effect it adds: the alternatives' are told apart
+    assert {c["effect"] for c in refit["refit_candidates"]} == {c["effect"] for c in compared}
     page = (tmp_path / "loop_report.md").read_text()
     assert "each refitted on the folds" in page
 

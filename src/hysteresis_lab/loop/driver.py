@@ -560,8 +560,10 @@ def training_length(run: _LoopRun, model: ModelSpec, chosen: _Candidate,
 
 
 def _candidate_entry(candidate: _Candidate) -> dict[str, Any]:
-    """A refit candidate in the report: place, rate, losses (and where it diverged)."""
-    entry = {**candidate.variant, "refit_lr": candidate.rate,
+    """A refit candidate in the report: the effect it adds, place, rate, losses (and where
+    it diverged)."""
+    entry = {**({"effect": candidate.effect} if candidate.effect else {}),
+             **candidate.variant, "refit_lr": candidate.rate,
              "validation_loss": candidate.refit_loss(), "held_out_loss": candidate.check.loss,
              "fold_losses": candidate.check.fold_losses()}
     if any(r is None for r in candidate.folds):

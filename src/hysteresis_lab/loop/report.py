@@ -481,8 +481,13 @@ def _refit_rate_lines(entry: Mapping[str, Any]) -> list[str]:
         return []
     settings = entry.get("refit_settings") or {}
 
+    added = (entry.get("decision") or {}).get("effect")
+
     def label(c: Mapping[str, Any]) -> str:
+        """Rate and place; the effect too where a compared alternative's (`compared`)."""
         where = " ".join(f"{key}={c[key]}" for key in settings if key in c)
+        if c.get("effect") not in (None, added):
+            where = f"{c['effect']} {where}".strip()
         return f"{where} {c['refit_lr']:.0e}" if where else f"{c['refit_lr']:.0e}"
 
     tried = ", ".join(
