@@ -7,6 +7,7 @@ whose trial the sweeper names in ``sweep_trial``."""
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import time
@@ -18,6 +19,8 @@ import optuna
 from hysteresis_lab.tuning.choices import FIRST_RUNG_EPOCHS, make_pruner
 from hysteresis_lab.tuning.objectives import STOPPED_EPOCHS, STOPPED_VALUES, stopped_values
 from hysteresis_lab.tuning.storage import STORAGE_ENV
+
+log = logging.getLogger(__name__)
 
 
 class PruningCallback(L.Callback):
@@ -59,11 +62,18 @@ class PruningCallback(L.Callback):
 
     def _record_stop(self, trainer: L.Trainer, pl_module: L.LightningModule,
                      value: float) -> None:
-        """A Pareto study's pruned trial: its objectives now (`STOPPED_VALUES`)."""
+        """A Pareto study's pruned trial: its objectives now (`STOPPED_VALUES`); where they
+        cannot be scored, it is pruned without its point (a warning says why)."""
         if len(self.objectives) < 2:
             return
         seconds = time.perf_counter() - (self._started or time.perf_counter())
-        values = stopped_values(self.objectives, pl_module, trainer.datamodule, value, seconds)
+        try:
+            values = stopped_values(self.objectives, pl_module, trainer.datamodule, value,
+                                    seconds)
+        except Exception as exc:  # the trial is pruned all the same
+            log.warning("pruned trial %d not scored at its stop (%s: %s): it stays off the "
+                        "Pareto table", self.trial.number, type(exc).__name__, exc)
+            return
         self.trial.set_user_attr(STOPPED_VALUES, values)
         self.trial.set_user_attr(STOPPED_EPOCHS, trainer.current_epoch + 1)
 
