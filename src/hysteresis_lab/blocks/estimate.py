@@ -468,9 +468,10 @@ def select_chain_structure(
       first rises by more than `DELAY_JUMP` from one delay to the next (the scan stops
       there; `UNSEEN_DELAY` where it rises so at none up to ``max_delay``), then checked on
       the recording (`_checked_delay`);
-    * modes: one more mode is kept where it lowers the best misfit below `MODE_GAIN` of the
-      fewer modes'; it starts at the fewer modes' fit with the new mode at the best of
-      `EXTRA_MODE_STARTS` (no lower than half the first mode's frequency).
+    * modes: one more mode is kept where it lowers the misfit below `MODE_GAIN` of the
+      fewer modes' at the delay those chose (`more_modes_help`); it starts at the fewer
+      modes' fit with the new mode at the best of `EXTRA_MODE_STARTS` (no lower than half the
+      first mode's frequency).
 
     The first mode starts from `estimate_mode`.
     """
@@ -526,6 +527,18 @@ def select_chain_structure(
                 break
         return curve
 
+    def more_modes_help(more: int, fewer: int, start: np.ndarray) -> bool:
+        """Do ``more`` modes lower the misfit below `MODE_GAIN` of ``fewer`` modes' at the
+        delay the fewer modes chose? Compared at one delay: modes that only help at another
+        delay stand in for the delay's phase (a few near a one-mode plant's peak, at no
+        delay), not for dynamics the plant has. Fitted there if their scan stopped short."""
+        at = delays[_last_before_jump(curves[fewer])]
+        misfit = misfits.get((more, at))
+        if misfit is None:
+            last = fits[(more, delays[len(curves[more]) - 1])][0]
+            misfit = min(_fit_chain(f, h, fs, at, s, bounds(more))[0] for s in (start, last))
+        return misfit < MODE_GAIN * misfits[(fewer, at)]
+
     curves = {1: scan(1, np.r_[np.log(0.25 * fs), 0.05, np.log(f1), np.log(z1)])}
     chosen = 1 if 1 in counts else None
     for m in range(2, max(counts) + 1):
@@ -535,7 +548,7 @@ def select_chain_structure(
                   for k in EXTRA_MODE_STARTS]
         best_start = min(starts, key=lambda s: _fit_chain(f, h, fs, d_prev, s, bounds(m))[0])
         curves[m] = scan(m, best_start)
-        if m in counts and (chosen is None or min(curves[m]) < MODE_GAIN * min(curves[chosen])):
+        if m in counts and (chosen is None or more_modes_help(m, chosen, best_start)):
             chosen = m
     assert chosen is not None
     picked = delays[_last_before_jump(curves[chosen])]
