@@ -469,7 +469,7 @@ def select_chain_structure(
       there; `UNSEEN_DELAY` where it rises so at none up to ``max_delay``), then checked on
       the recording (`_checked_delay`);
     * modes: one more mode is kept where it lowers the misfit below `MODE_GAIN` of the
-      fewer modes' at the delay those chose (`more_modes_help`); it starts at the fewer
+      fewer modes', at best and at the delay those chose (`more_modes_help`); it starts at the fewer
       modes' fit with the new mode at the best of `EXTRA_MODE_STARTS` (no lower than half the
       first mode's frequency).
 
@@ -528,10 +528,12 @@ def select_chain_structure(
         return curve
 
     def more_modes_help(more: int, fewer: int, start: np.ndarray) -> bool:
-        """Do ``more`` modes lower the misfit below `MODE_GAIN` of ``fewer`` modes' at the
-        delay the fewer modes chose? Compared at one delay: modes that only help at another
-        delay stand in for the delay's phase (a few near a one-mode plant's peak, at no
-        delay), not for dynamics the plant has. Fitted there if their scan stopped short."""
+        """Do ``more`` modes lower the misfit below `MODE_GAIN` of ``fewer`` modes', both at
+        best and at the delay the fewer modes chose (fitted there if their scan stopped
+        short)? Modes that help only at another delay stand in for the delay's phase (a few
+        near a one-mode plant's peak, at no delay), not for dynamics the plant has."""
+        if not min(curves[more]) < MODE_GAIN * min(curves[fewer]):
+            return False
         at = delays[_last_before_jump(curves[fewer])]
         misfit = misfits.get((more, at))
         if misfit is None:
