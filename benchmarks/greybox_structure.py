@@ -24,7 +24,6 @@ import datetime
 import json
 import logging
 import os
-import resource
 import subprocess
 import sys
 from pathlib import Path
@@ -70,12 +69,15 @@ def train_greybox(overrides: list[str], folder: Path) -> float:
     command = [str(Path(sys.executable).parent / "hysteresis-lab-train"), "model=greybox",
                *overrides, *QUIET, f"hydra.run.dir={folder}"]
     env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     with (folder / "fit.log").open("w") as handle:
-        subprocess.run(command, cwd=REPO, env=env, stdout=handle, stderr=subprocess.STDOUT,
-                       check=True)
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+        proc = subprocess.Popen(command, cwd=REPO, env=env, stdout=handle,
+                                stderr=subprocess.STDOUT)
+        # this process's own resource use (fits run side by side share RUSAGE_CHILDREN)
+        _, status, usage = os.wait4(proc.pid, 0)
+        proc.returncode = os.waitstatus_to_exitcode(status)
+    if proc.returncode != 0:
+        raise subprocess.CalledProcessError(proc.returncode, command)
+    return usage.ru_utime + usage.ru_stime
 
 
 def row(seed: int, settings: list[str], root: Path) -> dict[str, Any]:
@@ -120,15 +122,19 @@ def _structure(folder: Path) -> dict[str, Any]:
     return structure
 
 
-def page_header(title: str, command: str) -> list[str]:
-    """A page's title and provenance."""
+#: what a page's times are, unless it says otherwise
+PROCESS_CPU = "CPU seconds of the whole `hysteresis-lab-train` process"
+
+
+def page_header(title: str, command: str, clock: str = PROCESS_CPU) -> list[str]:
+    """A page's title and provenance; ``clock``: what its times are."""
     from hysteresis_lab.evaluation.provenance import commit_stamp
 
     return [
         f"# {title}", "",
         f"Command: `{command}`; commit `{commit_stamp(REPO)}`; "
         f"{datetime.date.today().isoformat()}; shared 2-core CPU, one core per fit "
-        "(`OMP_NUM_THREADS=1`; CPU seconds of the whole `hysteresis-lab-train` process). "
+        f"(`OMP_NUM_THREADS=1`; {clock}). "
         "Fits found in the root are reused: the commit is the page's, a reused fit's may be "
         "older.", "",
     ]

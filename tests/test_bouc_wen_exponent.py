@@ -185,7 +185,22 @@ def test_a_cell_whose_exponent_left_1_refuses_onnx_tracing_with_the_fix():
     def one_step(v: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
         return bw.step(v, StepState(state.clone()))
 
-    with pytest.raises(ValueError, match="model.hysteresis=bouc_wen"):
+    with pytest.raises(ValueError, match="model.learn_exponent=false"):
         torch.jit.trace(one_step, (torch.tensor([0.3], dtype=torch.float64), state0))
     bw.raw_exponent.fill_(0.0)  # back at 1: the exact update traces
     torch.jit.trace(one_step, (torch.tensor([0.3], dtype=torch.float64), state0))
+
+
+def test_the_greybox_learns_the_exponent_of_any_bouc_wen_cell_it_is_told_to() -> None:
+    """``model.learn_exponent=true``: the Bouc–Wen cell built, and the one ``auto`` sets
+    once the data choose it, learn their exponent; by default they hold it at 1."""
+    from hysteresis_lab.models.greybox import GreyBox
+
+    settings = {"nu": 1, "ny": 1, "fs": 20_000.0, "delay": 1, "n_modes": 1}
+    assert GreyBox(**settings, hysteresis="bouc_wen").hysteresis.raw_exponent is None
+    assert GreyBox(**settings, hysteresis="bouc_wen",
+                   learn_exponent=True).hysteresis.raw_exponent is not None
+    chosen = GreyBox(**settings, hysteresis="auto", learn_exponent=True)
+    chosen._set_cell("prandtl_ishlinskii")
+    chosen._set_cell("bouc_wen")
+    assert chosen.hysteresis.raw_exponent is not None

@@ -246,8 +246,8 @@ class BoucWen(nn.Module):
             raise ValueError(
                 "a Bouc-Wen cell whose learned exponent is not 1 cannot be exported: its step "
                 "takes as many sub-steps as each input step needs, which a traced graph cannot "
-                "hold. Fix: fit with the exponent fixed at 1 (model.hysteresis=bouc_wen) to "
-                "export, or simulate the model in Python.")
+                "hold. Fix: fit with the exponent fixed at 1 (model.hysteresis=bouc_wen "
+                "model.learn_exponent=false) to export, or simulate the model in Python.")
         else:
             h = bouc_wen_advance_exponent(h, (v - v_prev)[:, None], a, r1[None], r2[None],
                                           n[None])

@@ -30,7 +30,7 @@ CHAIN_KEYS = ("amplifier", "delay", "bouc_wen", "creep", "mode")
 def _chain_kernel(
     u: np.ndarray, lag_pole: float, delay: int, d: float, a: np.ndarray, r1: np.ndarray,
     r2: np.ndarray, creep_poles: np.ndarray, creep_w: np.ndarray, mode_b: np.ndarray,
-    mode_a: np.ndarray, mode_w: np.ndarray,
+    mode_a: np.ndarray, mode_w: np.ndarray, mode_feedthrough: float,
 ) -> np.ndarray:
     n_b, n_t = u.shape
     n_c, n_p, n_m = a.shape[0], creep_poles.shape[0], mode_w.shape[0]
@@ -67,7 +67,7 @@ def _chain_kernel(
             if n_m == 0:
                 out[b, k] = xc
                 continue
-            y = 0.0
+            y = mode_feedthrough * xc
             for m in range(n_m):  # biquad, transposed direct form II (as lfilter)
                 ym = mode_b[m, 0] * xc + z1[m]
                 z1[m] = mode_b[m, 1] * xc - mode_a[m, 1] * ym + z2[m]
@@ -110,6 +110,7 @@ def simulate_chain(u: np.ndarray, params: Mapping[str, Any]) -> np.ndarray:
         creep_poles = np.exp(-1.0 / (float(p["fs"]) * taus))
         creep_w = np.asarray(p["weights"], dtype=float).reshape(len(taus))
     mode_b, mode_a, mode_w = np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
+    mode_feedthrough = 0.0
     if "mode" in params:
         p = params["mode"]
         freqs = np.atleast_1d(np.asarray(p["frequency_hz"], dtype=float))
@@ -119,8 +120,9 @@ def simulate_chain(u: np.ndarray, params: Mapping[str, Any]) -> np.ndarray:
         mode_b = np.array([c[0] for c in coeffs])
         mode_a = np.array([c[1] for c in coeffs])
         mode_w = np.atleast_1d(np.asarray(p.get("weights", np.ones(1)), dtype=float))
+        mode_feedthrough = float(p.get("feedthrough", 0.0))
     y = _chain_kernel(u, lag_pole, delay, d, a, r1, r2, creep_poles, creep_w, mode_b, mode_a,
-                      mode_w)
+                      mode_w, mode_feedthrough)
     return y[0] if squeeze else y
 
 

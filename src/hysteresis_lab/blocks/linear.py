@@ -127,7 +127,10 @@ class SecondOrderMode(nn.Module):
     ``n_modes > 1`` the modes act in parallel on the same input, ``y = sum_m w_m mode_m(x)``
     with ``w_1 = 1 - sum_{m>1} w_m`` (unit DC gain; the others free,
     default 0.05 each); a scalar ``frequency_hz`` places mode m at ``frequency * 3^(m-1)``
-    (clipped below ``fmax``).
+    (clipped below ``fmax``). ``feedthrough``: a share ``w_0`` of the input passed on
+    directly, ``y = w_0 x + sum_m w_m mode_m(x)`` with ``w_1 = 1 - w_0 - sum_{m>1} w_m`` (the
+    residual stiffness of the modes above the modelled ones, as `ModalDynamics`'
+    feedthrough), learnable from 0.
     """
 
     def __init__(
@@ -140,6 +143,7 @@ class SecondOrderMode(nn.Module):
         weights: Sequence[float] | None = None,
         fmin: float = 1.0,
         fmax: float | None = None,
+        feedthrough: bool = False,
     ) -> None:
         super().__init__()
         self.fs = float(fs)
@@ -168,6 +172,24 @@ class SecondOrderMode(nn.Module):
         if weights is not None and len(weights) != self.n_modes:
             raise ValueError(f"weights needs {self.n_modes} values, got {len(weights)}")
         self.raw_weights = nn.Parameter(torch.tensor(extra, dtype=torch.float64))
+        #: the share passed on directly (`feedthrough_share`); None: no feedthrough
+        self.raw_feedthrough = nn.Parameter(torch.zeros(1, dtype=torch.float64)) \
+            if feedthrough else None
+
+    def _load_from_state_dict(self, state_dict: dict[str, Any], prefix: str,
+                              *args: Any, **kwargs: Any) -> None:
+        """A state saved without a feedthrough passes nothing on directly (share 0)."""
+        key = prefix + "raw_feedthrough"
+        if self.raw_feedthrough is not None and key not in state_dict:
+            state_dict[key] = torch.zeros_like(self.raw_feedthrough)
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
+    @property
+    def feedthrough_share(self) -> Tensor:
+        """The input's share passed on directly, ``w_0`` (0 without a feedthrough)."""
+        if self.raw_feedthrough is None:
+            return torch.zeros((), dtype=torch.float64)
+        return self.raw_feedthrough.double()[0]
 
     @property
     def frequency_hz(self) -> Tensor:
@@ -180,18 +202,21 @@ class SecondOrderMode(nn.Module):
     @property
     def weights(self) -> Tensor:
         extra = self.raw_weights.double()
-        return torch.cat([(1.0 - extra.sum()).reshape(1), extra])
+        first = 1.0 - extra.sum() - self.feedthrough_share.to(extra.device)
+        return torch.cat([first.reshape(1), extra])
 
     def forward(self, x: Tensor) -> Tensor:
         """``x`` (B, T) -> (B, T)."""
         freqs, damp = self.frequency_hz, self.damping
-        if self.n_modes == 1:
+        if self.n_modes == 1 and self.raw_feedthrough is None:
             return iir_filter(x, *mode_coefficients(freqs[0], damp[0], self.fs))
-        w = self.weights
+        w = self.weights.to(device=x.device, dtype=x.dtype)
         out = 0.0
         for m in range(self.n_modes):
             y = iir_filter(x, *mode_coefficients(freqs[m], damp[m], self.fs))
-            out = out + w[m].to(device=x.device, dtype=x.dtype) * y
+            out = out + w[m] * y
+        if self.raw_feedthrough is not None:
+            out = out + self.feedthrough_share.to(device=x.device, dtype=x.dtype) * x
         return out
 
     def state_names(self) -> list[str]:
@@ -200,10 +225,10 @@ class SecondOrderMode(nn.Module):
     def step(self, x: Tensor, state: StepState) -> Tensor:
         """One sample (B,) -> (B,) (`hysteresis_lab.blocks.step`)."""
         freqs, damp = self.frequency_hz, self.damping
-        if self.n_modes == 1:
+        if self.n_modes == 1 and self.raw_feedthrough is None:
             return tdf2_step(*frozen(*mode_coefficients(freqs[0], damp[0], self.fs)), x, state)
-        (w,) = frozen(self.weights)
-        out = 0.0
+        w, share = frozen(self.weights, self.feedthrough_share)
+        out = share * x
         for m in range(self.n_modes):
             y = tdf2_step(*frozen(*mode_coefficients(freqs[m], damp[m], self.fs)), x, state)
             out = out + w[m] * y
@@ -216,6 +241,7 @@ class SecondOrderMode(nn.Module):
                 "frequency_hz": self.frequency_hz.cpu().numpy().copy(),
                 "damping": self.damping.cpu().numpy().copy(),
                 "weights": self.weights.cpu().numpy().copy(),
+                "feedthrough": float(self.feedthrough_share),
             }
 
 

@@ -114,15 +114,17 @@ AUTO = "auto"
 AUTO_MIMO = {"delay": 1, "n_modes": 1}
 
 
-def _hysteresis_cell(hysteresis: str, operators: int, alpha: float = 0.2) -> nn.Module | None:
+def _hysteresis_cell(hysteresis: str, operators: int, alpha: float = 0.2,
+                     learn_exponent: bool = False) -> nn.Module | None:
     """One input channel's hysteresis cell (None for ``hysteresis='none'``); ``alpha``: the
-    Bouc–Wen cell's hysteretic share; ``auto``: the `DEFAULT_CELL` until the data choose."""
+    Bouc–Wen cell's hysteretic share; ``auto``: the `DEFAULT_CELL` until the data choose;
+    ``learn_exponent``: a Bouc–Wen cell learns its exponent from 1 (as ``bouc_wen_exponent``)."""
     hysteresis = DEFAULT_CELL if hysteresis == AUTO_CELL else hysteresis
     if hysteresis in ("bouc_wen", "bouc_wen_exponent"):
         # a generic loop shape for an input of unit amplitude (not the simulator's values);
         # the gain after the cell is read off the data
         return BoucWen(**bouc_wen_scaled_params(1.0, alpha, 0.015, 0.003, 100.0, 100.0),
-                       learn_exponent=hysteresis == "bouc_wen_exponent")
+                       learn_exponent=learn_exponent or hysteresis == "bouc_wen_exponent")
     if hysteresis == "prandtl_ishlinskii":
         return PlayOperators(n_operators=operators, max_threshold=0.8)
     return None
@@ -197,9 +199,11 @@ class GreyBox(PhysicalChainModule):
         ny: int,
         fs: float = 20_000.0,
         hysteresis: str = "bouc_wen",
+        learn_exponent: bool = False,
         n_modes: int | str = AUTO,
         mode_hz: float | None = None,
         mode_damping: float | None = None,
+        feedthrough: bool = True,
         amplifier_hz: float | None = None,
         delay: int | str = AUTO,
         creep_time_constants_s: Sequence[float] = (0.1, 1.0, 10.0, 100.0),
@@ -288,7 +292,7 @@ class GreyBox(PhysicalChainModule):
         self.amplifier = FirstOrderLag(fs, amplifier_hz or 0.25 * fs,
                                        min_cutoff_hz=self.f_floor)
         self.delay = Delay(delay)
-        self.hysteresis = _hysteresis_cell(hysteresis, operators)
+        self.hysteresis = _hysteresis_cell(hysteresis, operators, learn_exponent=learn_exponent)
         for part in terms:
             setattr(self, part.attribute, part.cell_term(self._input_amplitude(0)))
             self.cell_terms.append((part.attribute, part.attribute))
@@ -296,11 +300,8 @@ class GreyBox(PhysicalChainModule):
         for part in series:
             setattr(self, part.attribute, part.series(fs, settings))
             self.series_blocks.append((part.attribute, part.attribute))
-        self.mode = (
-            SecondOrderMode(fs, mode_hz or 0.1 * nyquist, mode_damping or 0.05, n_modes=modes,
-                            fmin=self.f_floor)
-            if modes else None
-        )
+        self.mode = (self._modes(fs, mode_hz or 0.1 * nyquist, mode_damping or 0.05, modes)
+                     if modes else None)
         self.offset = nn.Parameter(torch.zeros((), dtype=torch.float64))
         self.residual: nn.Sequential | None = None
         if residual_neurons:
@@ -309,6 +310,15 @@ class GreyBox(PhysicalChainModule):
             with torch.no_grad():
                 self.residual[-1].weight.zero_()
                 self.residual[-1].bias.zero_()
+
+    def _modes(self, fs: float, frequency_hz: float | Sequence[float],
+               damping: float | Sequence[float], n_modes: int,
+               weights: Sequence[float] | None = None) -> SecondOrderMode:
+        """One input's modes (`SecondOrderMode`), with a feedthrough share from 0 unless
+        ``model.feedthrough=false``."""
+        return SecondOrderMode(fs, frequency_hz, damping, n_modes=n_modes, weights=weights,
+                               fmin=self.f_floor,
+                               feedthrough=bool(self.hparams.get("feedthrough", True)))
 
     def _input_amplitude(self, channel: int) -> float:
         """A measured input's amplitude over its scale (the training data's, saved with the
@@ -333,7 +343,8 @@ class GreyBox(PhysicalChainModule):
             FirstOrderLag(fs, amplifier_hz or 0.25 * fs, min_cutoff_hz=self.f_floor)
             for _ in range(n_in))
         self.delays = nn.ModuleList(Delay(delay) for _ in range(n_in))
-        cells = [_hysteresis_cell(hysteresis, operators, MIMO_BOUC_WEN_ALPHA)
+        cells = [_hysteresis_cell(hysteresis, operators, MIMO_BOUC_WEN_ALPHA,
+                                  bool(self.hparams.get("learn_exponent", False)))
                  for _ in range(n_in)]
         self.cells = None if hysteresis == "none" else nn.ModuleList(cells)
         for part in series:
@@ -525,6 +536,10 @@ class GreyBox(PhysicalChainModule):
         self.mode.raw_damping[:n] = fitted.raw_damping
         self.mode.raw_weights.zero_()
         self.mode.raw_weights[: n - 1] = fitted.raw_weights
+        if self.mode.raw_feedthrough is not None:
+            self.mode.raw_feedthrough.zero_()
+            if fitted.raw_feedthrough is not None:
+                self.mode.raw_feedthrough.copy_(fitted.raw_feedthrough)
 
     # ------------------------------------------------------------------ initial values
     def initialise_from_recordings(self, recordings: Sequence[Recording]) -> None:
@@ -560,8 +575,7 @@ class GreyBox(PhysicalChainModule):
                     log.warning("no resonance found in the training data (%s): the mode starts "
                                 "at %.0f Hz", exc, float(self.mode.frequency_hz[0]))
                 else:
-                    fresh = SecondOrderMode(fs, frequency, damping, n_modes=self.mode.n_modes,
-                                            fmin=self.f_floor)
+                    fresh = self._modes(fs, frequency, damping, self.mode.n_modes)
                     self.mode.load_state_dict(fresh.state_dict())
             base = self._chain(torch.as_tensor(u_s[None], dtype=torch.float64))[0].numpy()
             scale = estimate_static_gain(base - base.mean(), y_s - y_s.mean())
@@ -617,7 +631,9 @@ class GreyBox(PhysicalChainModule):
 
     def _set_cell(self, hysteresis: str) -> None:
         """Rebuild the (one-axis) hysteresis cell as ``hysteresis``, recorded in ``hparams``."""
-        self.hysteresis = _hysteresis_cell(hysteresis, int(self.hparams.get("operators", 8)))
+        self.hysteresis = _hysteresis_cell(hysteresis, int(self.hparams.get("operators", 8)),
+                                           learn_exponent=bool(self.hparams.get("learn_exponent",
+                                                                                False)))
         if self.hysteresis is not None:
             self.hysteresis.to(self.offset.device)
         self.hparams.update(hysteresis=hysteresis)
@@ -681,9 +697,9 @@ class GreyBox(PhysicalChainModule):
         self.delay = Delay(delay)
         modes = n_modes + self.extra_modes
         if self.mode is None or self.mode.n_modes != modes:
-            self.mode = (SecondOrderMode(fs, self.hparams.get("mode_hz") or 0.05 * fs,
-                                         self.hparams.get("mode_damping") or 0.05,
-                                         n_modes=modes, fmin=self.f_floor).to(self.offset.device)
+            self.mode = (self._modes(fs, self.hparams.get("mode_hz") or 0.05 * fs,
+                                     self.hparams.get("mode_damping") or 0.05,
+                                     modes).to(self.offset.device)
                          if modes else None)
         self.hparams.update(delay=int(delay), n_modes=int(n_modes))
         self.auto_settings = ()
@@ -707,8 +723,7 @@ class GreyBox(PhysicalChainModule):
         freqs = [float(np.clip(f, 1.01 * self.f_floor, ceiling)) for f in freqs]
         damps = [float(np.clip(z, 2e-4, 3.0)) for z in damps]
         weights = np.asarray(weights) / max(float(np.sum(weights[:n_fitted])), 1e-12)
-        fresh = SecondOrderMode(fs, freqs, damps, n_modes=self.mode.n_modes,
-                                weights=weights, fmin=self.f_floor)
+        fresh = self._modes(fs, freqs, damps, self.mode.n_modes, weights=weights)
         self.mode.load_state_dict(fresh.state_dict())
 
     def warm_start_from(self, previous: NarxModule) -> None:

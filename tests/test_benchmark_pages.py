@@ -1,0 +1,59 @@
+"""Benchmark pages say where their numbers come from: a zoo fit run again names its own
+commit; a grey-box comparison without CPU records times each run by its log."""
+
+from __future__ import annotations
+
+import copy
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _script(name: str, monkeypatch):
+    monkeypatch.syspath_prepend(str(REPO / "benchmarks"))
+    spec = importlib.util.spec_from_file_location(f"_page_{name}", REPO / "benchmarks" /
+                                                  f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, spec.name, module)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_a_refitted_zoo_model_names_its_own_commit(monkeypatch):
+    zoo = _script("zoo", monkeypatch)
+    kept = json.loads((REPO / "docs" / "results" / "zoo.json").read_text())
+    kept = copy.deepcopy({seed: kept[seed] for seed in list(kept)[:2]})
+    for row in kept.values():
+        row["fits"]["greybox"]["commit"] = "refit0a"
+    page = zoo.render(kept)
+    lines = {line.split("|")[1].strip(): line for line in page.splitlines()
+             if line.startswith("| greybox |") or line.startswith("| linear+hysteresis |")}
+    assert lines["greybox"].rstrip(" |").endswith("refit0a")
+    assert "refit0a" not in lines["linear+hysteresis"]
+    assert "refit0a" in page.splitlines()[2]  # the page's provenance lists it too
+
+
+def test_a_comparison_without_cpu_records_is_timed_by_its_logs(monkeypatch, tmp_path):
+    pair = _script("greybox_pair", monkeypatch)
+    comparison = pair.COMPARISONS["feedthrough"]
+    for setting, seconds in ((comparison.base, 7), (comparison.variant, 19)):
+        folder = tmp_path / "default" / setting.name
+        folder.mkdir(parents=True)
+        (folder / "metrics.json").write_text(json.dumps(
+            {"tests": {"a": {"rmse_free_run": 1.0}}, "val_mse_scaled": 1e-3}))
+        (folder / "fit.log").write_text(
+            "[2026-11-28 10:00:00,000][x][INFO] - start\nno stamp\n"
+            f"[2026-11-28 10:00:{seconds:02d},500][x][INFO] - end\n")
+    (tmp_path / "default" / comparison.base.name / "cputime").write_text("3.0\n")
+    row = pair.row("default", comparison, tmp_path)
+    assert row[comparison.variant.name]["wall_s"] == pytest.approx(19.5)
+    label, key, _ = pair.time_column([row], comparison)
+    assert (label, key) == ("wall s", "wall_s")  # one fit lacks its CPU record
+    (tmp_path / "default" / comparison.variant.name / "cputime").write_text("5.0\n")
+    row = pair.row("default", comparison, tmp_path)
+    assert pair.time_column([row], comparison)[1] == "cpu_s"
