@@ -28,6 +28,7 @@ from scipy import signal
 from scipy.optimize import least_squares, nnls
 
 from hysteresis_lab.physics.filters import mode_coefficients_np
+from hysteresis_lab.physics.play import play_operators, spread_thresholds
 
 log = logging.getLogger(__name__)
 
@@ -280,9 +281,11 @@ FIT_BINS = 256
 #: lag, which a delay too long would otherwise hide in (it lags the band's top by about a
 #: sample at 500 Hz and 20 kHz)
 MAX_HYSTERESIS_LAG = 0.5
-#: play operators' thresholds (over the input's standard deviation) of the hysteresis
-#: stand-in with which `select_chain_structure` checks the delay on the recording itself
-CHECK_PLAY_THRESHOLDS = (0.3, 0.8, 1.5)
+#: play operators of the hysteresis stand-in with which `select_chain_structure` checks the
+#: delay on the recording itself, their thresholds spread over the input's range (a stand-in
+#: whose thresholds the input barely opens leaves a wider loop unexplained, which a sample
+#: more delay can hide: zoo plant 11, an amplifier at 2.2 kHz and no delay, read 1 sample)
+CHECK_PLAY_OPERATORS = 8
 #: most samples of the recording, and evaluations of each fit, of that check
 CHECK_SAMPLES = 40_000
 CHECK_EVALUATIONS = 20
@@ -359,15 +362,8 @@ def _fit_chain(
 
 def _plays(v: np.ndarray, thresholds: Sequence[float]) -> np.ndarray:
     """``v`` (T,) and its play operators' outputs (T, 1 + thresholds), from rest."""
-    out = np.empty((len(v), len(thresholds) + 1))
-    out[:, 0] = v
-    for i, r in enumerate(thresholds, start=1):
-        state = 0.0
-        column = out[:, i]
-        for k, x in enumerate(v):
-            state = min(max(state, x - r), x + r)
-            column[k] = state
-    return out
+    return np.c_[v, play_operators(np.ascontiguousarray(v, dtype=float),
+                                   np.asarray(thresholds, dtype=float))]
 
 
 def _time_domain_misfit(
@@ -430,7 +426,7 @@ def _checked_delay(
     stand-in misses hides the delay), ``picked`` stays."""
     n = min(len(u), CHECK_SAMPLES)
     v = (u[:n] - np.mean(u[:n])) / max(float(np.std(u[:n])), 1e-12)
-    x = _plays(v, CHECK_PLAY_THRESHOLDS)
+    x = _plays(v, spread_thresholds(max(float(np.max(np.abs(v))), 1e-12), CHECK_PLAY_OPERATORS))
     misfits: dict[int, float] = {}
     tried = [d for d in fitted if picked - 1 <= d <= picked + 1]
     while True:

@@ -215,13 +215,14 @@ def trained_on(data: DatasetSplits) -> dict[str, Any]:
     in them); and whether every recording starts from one shared unknown state, with the
     longest training recording's length for the burn-in to it, and whether the output
     integrates (only where the data set says so, so other models keep the settings they
-    had)."""
+    had); and each input's peak ``u_amplitude`` (what the training data swept)."""
     shared = {"shared_initial_state": True,
               "burn_in_samples": max(r.n_samples for r in data.train)} \
         if data.shared_initial_state else {}
     integrates = {"output_integrates": True} if data.output_integrates else {}
+    peaks = np.max([np.max(np.abs(r.u), axis=0) for r in data.train], axis=0)
     return {"fs": data.fs, **{f"{k}_units": v for k, v in data.units.items()}, **shared,
-            **integrates}
+            **integrates, "u_amplitude": [float(p) if p > 0 else 1.0 for p in peaks]}
 
 
 def for_model(model: Any, recordings: Sequence[Recording]) -> list[Recording]:

@@ -85,6 +85,7 @@ from hysteresis_lab.models.augment import context_from_dict
 from hysteresis_lab.models.base import NarxModule, mlp
 from hysteresis_lab.models.greybox_cell import CELLS, CLEAR_RATIO, cell_evidence
 from hysteresis_lab.models.physical_chain import FromEffects, PhysicalChainModule
+from hysteresis_lab.physics.play import spread_thresholds
 
 log = logging.getLogger(__name__)
 
@@ -115,10 +116,12 @@ AUTO_MIMO = {"delay": 1, "n_modes": 1}
 
 
 def _hysteresis_cell(hysteresis: str, operators: int, alpha: float = 0.2,
-                     learn_exponent: bool = False) -> nn.Module | None:
+                     learn_exponent: bool = False, amplitude: float = 1.0) -> nn.Module | None:
     """One input channel's hysteresis cell (None for ``hysteresis='none'``); ``alpha``: the
     Bouc–Wen cell's hysteretic share; ``auto``: the `DEFAULT_CELL` until the data choose;
-    ``learn_exponent``: a Bouc–Wen cell learns its exponent from 1 (as ``bouc_wen_exponent``)."""
+    ``learn_exponent``: a Bouc–Wen cell learns its exponent from 1 (as ``bouc_wen_exponent``);
+    ``amplitude``: the input's peak over its scale, over which play operators' thresholds
+    start spread (`spread_thresholds`)."""
     hysteresis = DEFAULT_CELL if hysteresis == AUTO_CELL else hysteresis
     if hysteresis in ("bouc_wen", "bouc_wen_exponent"):
         # a generic loop shape for an input of unit amplitude (not the simulator's values);
@@ -126,7 +129,8 @@ def _hysteresis_cell(hysteresis: str, operators: int, alpha: float = 0.2,
         return BoucWen(**bouc_wen_scaled_params(1.0, alpha, 0.015, 0.003, 100.0, 100.0),
                        learn_exponent=learn_exponent or hysteresis == "bouc_wen_exponent")
     if hysteresis == "prandtl_ishlinskii":
-        return PlayOperators(n_operators=operators, max_threshold=0.8)
+        return PlayOperators(n_operators=operators,
+                             max_threshold=float(spread_thresholds(amplitude, operators)[-1]))
     return None
 
 
@@ -292,7 +296,8 @@ class GreyBox(PhysicalChainModule):
         self.amplifier = FirstOrderLag(fs, amplifier_hz or 0.25 * fs,
                                        min_cutoff_hz=self.f_floor)
         self.delay = Delay(delay)
-        self.hysteresis = _hysteresis_cell(hysteresis, operators, learn_exponent=learn_exponent)
+        self.hysteresis = _hysteresis_cell(hysteresis, operators, learn_exponent=learn_exponent,
+                                           amplitude=self._input_amplitude(0))
         for part in terms:
             setattr(self, part.attribute, part.cell_term(self._input_amplitude(0)))
             self.cell_terms.append((part.attribute, part.attribute))
@@ -321,14 +326,19 @@ class GreyBox(PhysicalChainModule):
                                feedthrough=bool(self.hparams.get("feedthrough", True)))
 
     def _input_amplitude(self, channel: int) -> float:
-        """A measured input's amplitude over its scale (the training data's, saved with the
-        model as its ``feature_context``; 1 without one): a cell term's scale."""
+        """A measured input's amplitude over its scale (the training data's peak, saved with
+        the model in its ``feature_context`` or ``trained_on``; 1 without either): a cell
+        term's scale and the span of the play operators' thresholds."""
         context = self.hparams.get("feature_context")
+        peaks = (self.hparams.get("trained_on") or {}).get("u_amplitude")
         scale = float(self.u_scale[channel])
-        if context is None or not scale > 0:
+        if context is not None:
+            amplitude = float(context_from_dict(context).u_amplitude[channel])
+        elif peaks is not None and channel < len(peaks):
+            amplitude = float(peaks[channel])
+        else:
             return 1.0
-        amplitude = float(context_from_dict(context).u_amplitude[channel])
-        return max(amplitude / scale, 1e-6)
+        return max(amplitude / scale, 1e-6) if scale > 0 else 1.0
 
     def _build_mimo(
         self, fs: float, hysteresis: str, n_modes: int, mode_hz: float | None,
@@ -344,8 +354,9 @@ class GreyBox(PhysicalChainModule):
             for _ in range(n_in))
         self.delays = nn.ModuleList(Delay(delay) for _ in range(n_in))
         cells = [_hysteresis_cell(hysteresis, operators, MIMO_BOUC_WEN_ALPHA,
-                                  bool(self.hparams.get("learn_exponent", False)))
-                 for _ in range(n_in)]
+                                  bool(self.hparams.get("learn_exponent", False)),
+                                  amplitude=self._input_amplitude(j))
+                 for j in range(n_in)]
         self.cells = None if hysteresis == "none" else nn.ModuleList(cells)
         for part in series:
             setattr(self, part.attribute_mimo, nn.ModuleList(
@@ -633,7 +644,8 @@ class GreyBox(PhysicalChainModule):
         """Rebuild the (one-axis) hysteresis cell as ``hysteresis``, recorded in ``hparams``."""
         self.hysteresis = _hysteresis_cell(hysteresis, int(self.hparams.get("operators", 8)),
                                            learn_exponent=bool(self.hparams.get("learn_exponent",
-                                                                                False)))
+                                                                                False)),
+                                           amplitude=self._input_amplitude(0))
         if self.hysteresis is not None:
             self.hysteresis.to(self.offset.device)
         self.hparams.update(hysteresis=hysteresis)

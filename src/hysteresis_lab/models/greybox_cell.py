@@ -4,8 +4,8 @@ A cheap test before any training (`cell_evidence`, a second or two on one core):
 grey-box's linear chain (amplifier lag, delay, modes: `select_chain_structure` on the
 training recording, the structure the model starts from anyway) carries, beside its input,
 
-* play operators of the input at fixed thresholds (`PLAY_THRESHOLDS`, a Prandtl–Ishlinskii
-  cell), or
+* play operators of the input at thresholds spread over its range (`PLAY_OPERATORS` of
+  them, `spread_thresholds`, as the model's cell starts: a Prandtl–Ishlinskii cell), or
 * one Bouc–Wen state of the input (exponent 1), the best shape of a grid (`BOUC_WEN_RATES`,
   `BOUC_WEN_RATIOS`),
 
@@ -33,7 +33,7 @@ from scipy.optimize import least_squares
 from hysteresis_lab.blocks import bouc_wen_free_run
 from hysteresis_lab.blocks.estimate import DAMPING_RANGE, ChainStructure
 from hysteresis_lab.physics.filters import mode_coefficients_np
-from hysteresis_lab.physics.play import play_operators
+from hysteresis_lab.physics.play import play_operators, spread_thresholds
 
 log = logging.getLogger(__name__)
 
@@ -42,8 +42,8 @@ CELLS = ("bouc_wen", "prandtl_ishlinskii")
 #: the test decides where one cell's held-out misfit is below this share of the other's and
 #: of the chain alone's
 CLEAR_RATIO = 0.8
-#: play thresholds of the test, over the input's standard deviation
-PLAY_THRESHOLDS = tuple(0.17 * k for k in range(1, 9))
+#: play operators of the test, their thresholds spread over the input's range
+PLAY_OPERATORS = 8
 #: Bouc–Wen shapes of the test (input over its standard deviation, ``alpha d = 1``): the
 #: rate ``beta`` and ``gamma / beta``
 BOUC_WEN_RATES = (0.1, 0.3, 1.0, 3.0, 10.0, 30.0)
@@ -119,9 +119,9 @@ def cell_evidence(
         return chain.held_out_misfit(cell, target, cell_val, target_val, refine)
 
     misfits = {"none": score(v[:, None], v_val[:, None])}
-    misfits["prandtl_ishlinskii"] = score(
-        np.c_[v, play_operators(v, np.asarray(PLAY_THRESHOLDS))],
-        np.c_[v_val, play_operators(v_val, np.asarray(PLAY_THRESHOLDS))])
+    thresholds = spread_thresholds(max(float(np.max(np.abs(v))), 1e-12), PLAY_OPERATORS)
+    misfits["prandtl_ishlinskii"] = score(np.c_[v, play_operators(v, thresholds)],
+                                          np.c_[v_val, play_operators(v_val, thresholds)])
 
     def bouc_wen_state(x: np.ndarray, beta: float, ratio: float) -> np.ndarray:
         return np.c_[x, bouc_wen_free_run(x[None], 1.0, 1.0, beta, ratio * beta)[0]]

@@ -58,6 +58,16 @@ def play_operators(u: np.ndarray, thresholds: np.ndarray) -> np.ndarray:
     return out
 
 
+def spread_thresholds(amplitude: float, n_operators: int) -> np.ndarray:
+    """``n_operators`` play thresholds evenly over an input of peak ``amplitude``:
+    ``r_i = i amplitude / (n + 1)``, i = 1 ... n (Kuhnen's choice): every operator opens
+    within the range the input sweeps, whatever its units or scaling."""
+    if n_operators < 1 or not amplitude > 0:
+        raise ValueError(f"need n_operators >= 1 and amplitude > 0, not {n_operators}, "
+                         f"{amplitude}")
+    return amplitude * np.arange(1, n_operators + 1) / (n_operators + 1)
+
+
 @numba.njit(cache=True)
 def play_batch(v: np.ndarray, thresholds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Play outputs (B, T, m) of ``v`` (B, T), at rest, and the branches (int8)."""
