@@ -7,6 +7,8 @@ import json
 from dataclasses import replace
 from pathlib import Path
 
+import pytest
+
 import hysteresis_lab as hl
 from hysteresis_lab import fit_record
 from hysteresis_lab.data.spec import DataSpec
@@ -46,6 +48,43 @@ def test_a_run_scores_writes_its_folder_and_is_reused_with_the_same_settings(tmp
     assert again.document == result.document and again.val_mse == result.val_mse
     assert "reusing the finished fit" in caplog.text
     assert (tmp_path / "run" / "model.ckpt").stat().st_mtime_ns == saved
+
+
+class _Killed(BaseException):
+    """A process stopped where it stands: no ``except Exception`` clean-up runs."""
+
+
+def test_a_run_stopped_once_its_fit_is_recorded_leaves_nothing_to_resume(tmp_path, monkeypatch):
+    """Stopped right after the fit record is written, a run leaves no ``last.ckpt`` or
+    unfinished-fit mark beside it: a rerun that cannot load the recorded model trains afresh
+    to the same model, not "resumes" a finished stage (nothing left to train, its weights
+    lost)."""
+    splits = narx_data(600)
+    settings = RunSettings(seed=3, use_tensorboard=False, plots=False, reuse=True, resume=True)
+    trainer = TRAINER.with_changes(max_epochs=2)
+
+    def config(name):
+        return RunConfig.build(dict(CONFIGS["ffnn"]), DATA, trainer, tmp_path / name,
+                               **dataclasses.asdict(settings))
+
+    expected = run_model(config("whole"), splits=splits).document
+    written = fit_record.write_record
+
+    def write_then_stop(*args, **kwargs):
+        written(*args, **kwargs)
+        raise _Killed
+
+    monkeypatch.setattr(fit_record, "write_record", write_then_stop)
+    with pytest.raises(_Killed):
+        run_model(config("stopped"), splits=splits)
+    monkeypatch.undo()
+    folder = RunFolder(tmp_path / "stopped")
+    assert folder.fit_record.is_file()
+    assert folder.last_checkpoints() == [] and not folder.fit_in_progress.exists()
+    model = folder.model_file()
+    model.write_bytes(model.read_bytes()[:100])  # damaged since: the record cannot be reused
+    again = run_model(config("stopped"), splits=splits).document
+    assert again["tests"] == expected["tests"]
 
 
 def test_a_run_without_evaluation_reports_its_validation_loss_only(tmp_path):

@@ -165,7 +165,12 @@ def _keep_rejected_refit(
 def _write_fit_record(
     output_dir: Path, key: str, model_path: Path, trained: TrainResult, rejected: bool
 ) -> None:
-    """Record the finished fit (its files and what `RunResult` needs) for a later reuse."""
+    """Record the finished fit (its files and what `RunResult` needs) for a later reuse. Its
+    resume state goes first (`RunFolder.finish_fit`): a process stopped between the two
+    leaves either nothing to reuse or a record with nothing to resume (a record beside a
+    finished stage's ``last.ckpt`` had a rerun that could not reuse the model "resume" that
+    stage: nothing left to train, the free-run fine-tuning's weights lost)."""
+    RunFolder(output_dir).finish_fit()
     files = [model_path.name, RunFolder.METRICS]
     files += [RunFolder.REJECTED_REFIT_METRICS] if rejected else []
     fit_record.write_record(output_dir, key, {
