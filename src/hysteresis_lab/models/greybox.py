@@ -332,7 +332,7 @@ class GreyBox(PhysicalChainModule):
         context = self.hparams.get("feature_context")
         peaks = (self.hparams.get("trained_on") or {}).get("u_amplitude")
         scale = float(self.u_scale[channel])
-        if context is not None:
+        if context:  # an empty one (no effects' operators) says nothing
             amplitude = float(context_from_dict(context).u_amplitude[channel])
         elif peaks is not None and channel < len(peaks):
             amplitude = float(peaks[channel])
