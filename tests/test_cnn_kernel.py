@@ -25,10 +25,10 @@ IDS = ["default", "masked_1conv", "na0_3conv_k3", "nk0_mimo_k3", "masked_mimo_k3
 
 
 def random_model(window: WindowSpec, nu: int, ny: int, num_layers: int, conv_layers: int,
-                 kernel_size: int, seed: int = 0) -> CNNNet:
+                 kernel_size: int, seed: int = 0, units: int = 12) -> CNNNet:
     torch.manual_seed(seed)
     return CNNNet(nu=nu, ny=ny, na=window.na, nb=window.nb, nk=window.nk,
-                  num_layers=num_layers, conv_layers=conv_layers, units=12,
+                  num_layers=num_layers, conv_layers=conv_layers, units=units,
                   kernel_size=kernel_size).eval()
 
 
@@ -36,6 +36,15 @@ def random_model(window: WindowSpec, nu: int, ny: int, num_layers: int, conv_lay
 def test_run_all_equals_the_step_kernel_and_torch(setup, monkeypatch):
     window, nu, ny = setup[:3]
     model = random_model(window, nu, ny, *setup[3:])
+    check_run_all(model, _CNNKernel, window, nu, ny, monkeypatch)
+
+
+@pytest.mark.parametrize("setup", [SETUPS[0], SETUPS[1], SETUPS[5]], ids=[IDS[0], IDS[1], IDS[5]])
+def test_wide_layers_take_the_blas_path_to_the_same_numbers(setup, monkeypatch):
+    """The study's width (83 units): the layers wide enough for the BLAS products and the
+    reused rows of the sliding window."""
+    window, nu, ny = setup[:3]
+    model = random_model(window, nu, ny, *setup[3:], units=83)
     check_run_all(model, _CNNKernel, window, nu, ny, monkeypatch)
 
 

@@ -56,18 +56,29 @@ def dense_head(
     d_in: np.ndarray, d_out: np.ndarray,
 ) -> np.ndarray:
     """ReLU, then each dense layer (ReLU between); returns a view of ``d_in`` (ny,)."""
-    d_in[: h.shape[0]] = h
+    for i in range(h.shape[0]):
+        d_in[i] = h[i]
     offset_w, offset_b = 0, 0
     for d in range(dims.shape[0] - 1):
         fan_in, fan_out = dims[d], dims[d + 1]
-        d_out[:fan_out] = 0.0
-        for i in range(fan_in):
-            a = np.float32(0.0) if d_in[i] < 0.0 else d_in[i]  # ReLU (NaN stays NaN)
-            w_i = dense_w[offset_w + i * fan_out : offset_w + (i + 1) * fan_out]
+        w = dense_w[offset_w : offset_w + fan_in * fan_out]
+        b = dense_b[offset_b : offset_b + fan_out]
+        if fan_out == 1:  # one output: a scalar sum (the same additions, in the same order)
+            acc = np.float32(0.0)
+            for i in range(fan_in):
+                a = np.float32(0.0) if d_in[i] < 0.0 else d_in[i]  # ReLU (NaN stays NaN)
+                acc += a * w[i]
+            d_in[0] = acc + b[0]
+        else:
             for j in range(fan_out):
-                d_out[j] += a * w_i[j]
-        for j in range(fan_out):
-            d_in[j] = d_out[j] + dense_b[offset_b + j]
+                d_out[j] = 0.0
+            for i in range(fan_in):
+                a = np.float32(0.0) if d_in[i] < 0.0 else d_in[i]  # ReLU (NaN stays NaN)
+                w_i = w[i * fan_out : (i + 1) * fan_out]
+                for j in range(fan_out):
+                    d_out[j] += a * w_i[j]
+            for j in range(fan_out):
+                d_in[j] = d_out[j] + b[j]
         offset_w += fan_in * fan_out
         offset_b += fan_out
     return d_in[: dims[-1]]
