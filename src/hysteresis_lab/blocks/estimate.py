@@ -28,7 +28,7 @@ from scipy import signal
 from scipy.optimize import least_squares, nnls
 
 from hysteresis_lab.physics.filters import mode_coefficients_np
-from hysteresis_lab.physics.play import play_operators, spread_thresholds
+from hysteresis_lab.physics.play import play_operators, spread_over
 
 log = logging.getLogger(__name__)
 
@@ -442,7 +442,7 @@ def _checked_delay(
     stand-in misses hides the delay), ``picked`` stays."""
     n = min(len(u), CHECK_SAMPLES)
     v = (u[:n] - np.mean(u[:n])) / max(float(np.std(u[:n])), 1e-12)
-    x = _plays(v, spread_thresholds(max(float(np.max(np.abs(v))), 1e-12), CHECK_PLAY_OPERATORS))
+    x = _plays(v, spread_over(v, CHECK_PLAY_OPERATORS))
     misfits: dict[int, float] = {}
     tried = [d for d in fitted if picked - 1 <= d <= picked + 1]
     while True:

@@ -50,12 +50,17 @@ CHANNEL_PREFIX = "baseline_"
 ModelLoader = Callable[[Path], SystemModel]
 
 
+def input_peaks(recordings: Sequence[Recording]) -> np.ndarray:
+    """Each input channel's peak ``max |u|`` over ``recordings`` (1 where it is 0)."""
+    peaks = np.max([np.max(np.abs(r.u), axis=0) for r in recordings], axis=0)
+    return np.where(peaks > 0, peaks, 1.0)
+
+
 def feature_context(recordings: Sequence[Recording]) -> FeatureContext:
     """Operator settings fixed from the training recordings (saved with the model)."""
-    u_amplitude = np.max([np.max(np.abs(r.u), axis=0) for r in recordings], axis=0)
     return FeatureContext(
         fs=recordings[0].fs,
-        u_amplitude=np.where(u_amplitude > 0, u_amplitude, 1.0),
+        u_amplitude=input_peaks(recordings),
         duration_s=max(r.duration for r in recordings),
         y_low=np.min([np.min(r.y, axis=0) for r in recordings], axis=0),
         y_high=np.max([np.max(r.y, axis=0) for r in recordings], axis=0),
@@ -220,9 +225,8 @@ def trained_on(data: DatasetSplits) -> dict[str, Any]:
               "burn_in_samples": max(r.n_samples for r in data.train)} \
         if data.shared_initial_state else {}
     integrates = {"output_integrates": True} if data.output_integrates else {}
-    peaks = np.max([np.max(np.abs(r.u), axis=0) for r in data.train], axis=0)
     return {"fs": data.fs, **{f"{k}_units": v for k, v in data.units.items()}, **shared,
-            **integrates, "u_amplitude": [float(p) if p > 0 else 1.0 for p in peaks]}
+            **integrates, "u_amplitude": input_peaks(data.train).tolist()}
 
 
 def for_model(model: Any, recordings: Sequence[Recording]) -> list[Recording]:

@@ -5,7 +5,7 @@ grey-box's linear chain (amplifier lag, delay, modes: `select_chain_structure` o
 training recording, the structure the model starts from anyway) carries, beside its input,
 
 * play operators of the input at thresholds spread over its range (`PLAY_OPERATORS` of
-  them, `spread_thresholds`, as the model's cell starts: a Prandtl–Ishlinskii cell), or
+  them, `spread_over`, as the model's cell starts: a Prandtl–Ishlinskii cell), or
 * one Bouc–Wen state of the input (exponent 1), the best shape of a grid (`BOUC_WEN_RATES`,
   `BOUC_WEN_RATIOS`),
 
@@ -33,7 +33,7 @@ from scipy.optimize import least_squares
 from hysteresis_lab.blocks import bouc_wen_free_run
 from hysteresis_lab.blocks.estimate import DAMPING_RANGE, ChainStructure
 from hysteresis_lab.physics.filters import mode_coefficients_np
-from hysteresis_lab.physics.play import play_operators, spread_thresholds
+from hysteresis_lab.physics.play import play_operators, spread_over
 
 log = logging.getLogger(__name__)
 
@@ -119,7 +119,7 @@ def cell_evidence(
         return chain.held_out_misfit(cell, target, cell_val, target_val, refine)
 
     misfits = {"none": score(v[:, None], v_val[:, None])}
-    thresholds = spread_thresholds(max(float(np.max(np.abs(v))), 1e-12), PLAY_OPERATORS)
+    thresholds = spread_over(v, PLAY_OPERATORS)
     misfits["prandtl_ishlinskii"] = score(np.c_[v, play_operators(v, thresholds)],
                                           np.c_[v_val, play_operators(v_val, thresholds)])
 

@@ -68,6 +68,11 @@ def spread_thresholds(amplitude: float, n_operators: int) -> np.ndarray:
     return amplitude * np.arange(1, n_operators + 1) / (n_operators + 1)
 
 
+def spread_over(signal: np.ndarray, n_operators: int) -> np.ndarray:
+    """`spread_thresholds` over ``signal``'s own peak ``max |signal|``."""
+    return spread_thresholds(max(float(np.max(np.abs(signal))), 1e-12), n_operators)
+
+
 @numba.njit(cache=True)
 def play_batch(v: np.ndarray, thresholds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Play outputs (B, T, m) of ``v`` (B, T), at rest, and the branches (int8)."""
