@@ -4,12 +4,14 @@ in the simulator, play operators as evidence).
 Faces: Prandtl–Ishlinskii play operators of the input as operators and evidence, and of the
 model's own output as state evidence; the simulator's hysteresis cell (Bouc–Wen of any admissible
 exponent, or Prandtl–Ishlinskii with any thresholds), which turns the drive into a
-displacement (``data.effects.hysteresis``); ``model=linear``'s Bouc–Wen cell on each
-input (`HysteresisCell`) and Bouc–Wen restoring force in the dynamics' feedback
+displacement (``data.effects.hysteresis``); ``model=linear``'s cell on each input (Bouc–Wen,
+`HysteresisCell`, or Prandtl–Ishlinskii, `PlayCell`: ``model.hysteresis``, by default read off
+the data as the grey-box's is) and Bouc–Wen restoring force in the dynamics' feedback
 (`StateHysteresis`); the grey-box's own hysteresis cell carries it."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -40,10 +42,13 @@ from hysteresis_lab.physics.bouc_wen import (
     bouc_wen_advance,
     bouc_wen_state,
 )
-from hysteresis_lab.physics.play import play_operators
+from hysteresis_lab.physics.play import play, play_operators, play_step, spread_thresholds
 
-#: the simulator's hysteresis cells (``data.effects.hysteresis.cell``)
+#: the simulator's hysteresis cells (``data.effects.hysteresis.cell``), and those of
+#: ``model=linear``'s input cell (``model.hysteresis``)
 CELLS = ("bouc_wen", "prandtl_ishlinskii")
+#: play operators of ``model=linear``'s Prandtl–Ishlinskii input cell (`PlayCell`)
+PLAY_CELL_OPERATORS = 8
 
 
 @dataclass
@@ -170,6 +175,51 @@ class HysteresisCell(nn.Module):
         return out
 
 
+class PlayCell(nn.Module):
+    """``v - sum_i w_i (v - play_{r_i}(v))``: a Prandtl–Ishlinskii cell grown from zero weight
+    (``model=linear``'s input cell where ``model.hysteresis=prandtl_ishlinskii``).
+
+    Each ``v - play_r(v)`` is bounded by its threshold ``r``, so the cell adds a loop without
+    changing the slope far from the turning points; the thresholds are fixed, spread over the
+    training input's ``amplitude`` (`spread_thresholds`), the weights ``w_i`` learnable and
+    signed, from zero (the cell starts as the identity). ``square_amplitude``: the asymmetric
+    square law as in `HysteresisCell`."""
+
+    def __init__(self, amplitude: float = 1.0, square_amplitude: float | None = None,
+                 n_operators: int = PLAY_CELL_OPERATORS) -> None:
+        super().__init__()
+        self.register_buffer("thresholds", torch.tensor(spread_thresholds(amplitude,
+                                                                          n_operators)))
+        self.weights = nn.Parameter(torch.zeros(n_operators, dtype=torch.float64))
+        self.square_weight: nn.Parameter | None = None
+        if square_amplitude is not None:
+            if not square_amplitude > 0:
+                raise ValueError(f"square_amplitude must be > 0 (got {square_amplitude})")
+            self.square_weight = nn.Parameter(torch.zeros((), dtype=torch.float64))
+            self.register_buffer("square_amplitude",
+                                 torch.tensor(float(square_amplitude), dtype=torch.float64))
+
+    def forward(self, v: torch.Tensor) -> torch.Tensor:
+        v64 = v.double()
+        out = v64 - (v64[..., None] - play(v64, self.thresholds)) @ self.weights
+        if self.square_weight is not None:
+            out = out + HysteresisCell._square_law(v64, self.square_weight,
+                                                   self.square_amplitude)
+        return out.to(v.dtype)
+
+    def state_names(self) -> list[str]:
+        return [f"play{i}" for i in range(self.weights.shape[0])]
+
+    def step(self, v: torch.Tensor, state: StepState) -> torch.Tensor:
+        """One sample (B,) -> (B,); state: the operators' outputs."""
+        thresholds, weights = frozen(self.thresholds, self.weights)
+        out = v - (v[:, None] - play_step(v, thresholds, state)) @ weights
+        if self.square_weight is not None:
+            out = out + HysteresisCell._square_law(v, *frozen(self.square_weight,
+                                                              self.square_amplitude))
+        return out
+
+
 class StateHysteresis(nn.Module):
     """Hysteresis in the dynamics' feedback: a Bouc–Wen restoring force of the output fed
     back into the dynamics' input, ``e = x - w (d y - h(y))``, ``y = dynamics(e)`` — the
@@ -234,12 +284,31 @@ class StateHysteresis(nn.Module):
             k: np.asarray(v).tolist() for k, v in self.bouc_wen.export().items()}}
 
 
-def hysteresis_cell(ctx: LinearContext, j: int) -> HysteresisCell:
-    """Input ``j``'s hysteresis cell, rate-dependent or asymmetric where an effect declared
-    with it makes it so (``makes_cell_rate_dependent``, ``makes_cell_asymmetric``)."""
-    rate = any(getattr(e, "makes_cell_rate_dependent", False) for e in ctx.declared)
+def rate_dependent_cell(declared: Sequence[Effect]) -> bool:
+    """Whether an effect declared makes the input cell rate-dependent
+    (``makes_cell_rate_dependent``: a Bouc–Wen ``alpha`` per sample)."""
+    return any(getattr(e, "makes_cell_rate_dependent", False) for e in declared)
+
+
+def input_cell_kind(settings: Mapping[str, Any], declared: Sequence[Effect]) -> str:
+    """The cell ``model=linear`` puts on each input: ``model.hysteresis`` where it names one
+    of `CELLS`, else (``auto`` not yet read off the data) Bouc–Wen; always Bouc–Wen where the
+    cell is rate-dependent (`rate_dependent_cell`: a play has no ``alpha`` to scale)."""
+    if rate_dependent_cell(declared):
+        return "bouc_wen"
+    cell = settings.get("hysteresis")
+    return cell if cell in CELLS else "bouc_wen"
+
+
+def hysteresis_cell(ctx: LinearContext, j: int) -> HysteresisCell | PlayCell:
+    """Input ``j``'s hysteresis cell (`input_cell_kind`), rate-dependent or asymmetric where
+    an effect declared with it makes it so (``makes_cell_rate_dependent``,
+    ``makes_cell_asymmetric``)."""
+    rate = rate_dependent_cell(ctx.declared)
     asymmetric = any(getattr(e, "makes_cell_asymmetric", False) for e in ctx.declared)
     amplitude = ctx.input_amplitude(j)
+    if input_cell_kind(ctx.settings, ctx.declared) == "prandtl_ishlinskii":
+        return PlayCell(amplitude, amplitude if asymmetric else None)
     return HysteresisCell(HysteresisCell.rate_step_for(amplitude) if rate else None,
                           amplitude if asymmetric else None, amplitude)
 

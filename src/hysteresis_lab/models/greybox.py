@@ -46,7 +46,6 @@ amplitudes beyond the training data as its physics does.
 
 from __future__ import annotations
 
-import hashlib
 import logging
 import math
 import re
@@ -72,7 +71,6 @@ from hysteresis_lab.blocks.estimate import (
     MAX_AUTO_DELAY,
     ChainStructure,
     estimate_modes,
-    select_chain_structure,
 )
 from hysteresis_lab.blocks.modal import ModalDynamics
 from hysteresis_lab.blocks.step import StepState, frozen
@@ -83,7 +81,7 @@ from hysteresis_lab.effects.registry import get_effect
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.augment import context_from_dict
 from hysteresis_lab.models.base import NarxModule, mlp
-from hysteresis_lab.models.greybox_cell import CELLS, CLEAR_RATIO, cell_evidence
+from hysteresis_lab.models.greybox_cell import cell_evidence, cells_from_data, chain_structure
 from hysteresis_lab.models.physical_chain import FromEffects, PhysicalChainModule
 from hysteresis_lab.physics.play import spread_thresholds
 
@@ -137,28 +135,6 @@ def _hysteresis_cell(hysteresis: str, operators: int, alpha: float = 0.2,
 def _cell_problem(hysteresis: Any) -> str:
     """What is wrong with a ``model.hysteresis`` value that is no cell."""
     return f"model.hysteresis={hysteresis!r} (one of {list(HYSTERESIS)})"
-
-
-#: the structures chosen for the last few training recordings (`_chain_structure`)
-_CHOSEN: dict[tuple[Any, ...], ChainStructure] = {}
-_CHOSEN_KEPT = 4
-
-
-def _chain_structure(
-    u: np.ndarray, y: np.ndarray, fs: float, delay: int | None, n_modes: int | None
-) -> ChainStructure:
-    """`select_chain_structure` of a training recording, remembered for the process: the
-    stages of a grown model and the fit at once (``model.grow=best``) start from the same
-    recording and choose alike."""
-    key = (hashlib.sha1(np.ascontiguousarray(u, dtype=float).tobytes()).hexdigest(),
-           hashlib.sha1(np.ascontiguousarray(y, dtype=float).tobytes()).hexdigest(),
-           float(fs), delay, n_modes)
-    if key not in _CHOSEN:
-        if len(_CHOSEN) >= _CHOSEN_KEPT:
-            _CHOSEN.pop(next(iter(_CHOSEN)))
-        _CHOSEN[key] = select_chain_structure(u, y, fs, delay=delay, n_modes=n_modes,
-                                              fmin=min(50.0, 0.01 * fs))
-    return _CHOSEN[key]
 
 
 def _whole(value: Any) -> bool:
@@ -607,7 +583,7 @@ class GreyBox(PhysicalChainModule):
         say nothing (the placeholders stay: one sample, one mode)."""
         delay, n_modes = self.hparams.get("delay"), self.hparams.get("n_modes")
         try:
-            structure = _chain_structure(u, y, fs, None if delay == AUTO else int(delay),
+            structure = chain_structure(u, y, fs, None if delay == AUTO else int(delay),
                                          None if n_modes == AUTO else max(int(n_modes), 1))
         except ValueError as exc:
             log.warning("the delay and modes cannot be read off the training data (%s): %s",
@@ -630,7 +606,7 @@ class GreyBox(PhysicalChainModule):
         of the data test on this recording (`cell_evidence`), set in the model."""
         delay, n_modes = self.hparams.get("delay"), self.hparams.get("n_modes")
         try:
-            structure = _chain_structure(u, y, fs, int(delay), max(int(n_modes), 1))
+            structure = chain_structure(u, y, fs, int(delay), max(int(n_modes), 1))
             evidence = cell_evidence(u, y, fs, structure)
         except ValueError as exc:
             log.warning("model.hysteresis=auto: the data test failed (%s): %s", exc, DEFAULT_CELL)
@@ -674,34 +650,9 @@ class GreyBox(PhysicalChainModule):
                 "hysteresis": {"chosen": DEFAULT_CELL, "by": "MIMO data: the default cell"}}
         delay, n_modes = settings.get("delay", AUTO), settings.get("n_modes", AUTO)
         val = max(splits.val, key=lambda rec: rec.n_samples) if splits.val else None
-        try:
-            structure = _chain_structure(train.u[:, 0], train.y[:, 0], train.fs,
-                                         None if delay == AUTO else int(delay),
-                                         None if n_modes == AUTO else max(int(n_modes), 1))
-            evidence = cell_evidence(train.u[:, 0], train.y[:, 0], train.fs, structure,
-                                     None if val is None else val.u[:, 0],
-                                     None if val is None else val.y[:, 0])
-        except ValueError as exc:  # e.g. too few samples for the linear chain's spectra
-            why = f"the training data could not be read for the data test ({exc})"
-            log.info("model.hysteresis=auto: %s; both cells are fitted", why)
-            return ([{**settings, "hysteresis": cell} for cell in CELLS],
-                    {"hysteresis": {"by": "validation free-run loss", "data_test": why}})
-        found = evidence.to_dict()
-        if evidence.decided is not None:
-            log.info("model.hysteresis=auto: %s, by the data test (held-out misfit Bouc–Wen "
-                     "%.4g, Prandtl–Ishlinskii %.4g, chain alone %.4g: ratio %.3g)",
-                     evidence.decided, evidence.misfits["bouc_wen"],
-                     evidence.misfits["prandtl_ishlinskii"], evidence.misfits["none"],
-                     evidence.ratio)
-            return [{**settings, "hysteresis": evidence.decided}], {
-                "hysteresis": {"chosen": evidence.decided, "by": "data test", **found}}
-        log.info("model.hysteresis=auto: the data test leaves the cell open (held-out misfit "
-                 "Bouc–Wen %.4g, Prandtl–Ishlinskii %.4g, chain alone %.4g: the lower not "
-                 "below %.3g of the others): both cells are fitted, the lower validation "
-                 "free-run loss kept", evidence.misfits["bouc_wen"],
-                 evidence.misfits["prandtl_ishlinskii"], evidence.misfits["none"], CLEAR_RATIO)
-        return ([{**settings, "hysteresis": cell} for cell in CELLS],
-                {"hysteresis": {"by": "validation free-run loss", **found}})
+        cells, found = cells_from_data(train, val, None if delay == AUTO else int(delay),
+                                       None if n_modes == AUTO else max(int(n_modes), 1))
+        return [{**settings, "hysteresis": cell} for cell in cells], {"hysteresis": found}
 
     def _set_structure(self, delay: int, n_modes: int, fs: float) -> None:
         """Rebuild the delay and the modes (placeholders) for ``delay`` samples and

@@ -1,4 +1,5 @@
-"""``model.hysteresis=auto``: the grey-box's hysteresis cell read off the training data.
+"""``model.hysteresis=auto``: the hysteresis cell read off the training data (the grey-box's
+cell, and the cell ``model=linear`` puts on its input with ``effects=[hysteresis]``).
 
 A cheap test before any training (`cell_evidence`, a second or two on one core): the
 grey-box's linear chain (amplifier lag, delay, modes: `select_chain_structure` on the
@@ -22,18 +23,26 @@ cell the free-run training takes further.
 
 from __future__ import annotations
 
+import hashlib
 import logging
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy import signal
 from scipy.optimize import least_squares
 
 from hysteresis_lab.blocks import bouc_wen_free_run
-from hysteresis_lab.blocks.estimate import DAMPING_RANGE, ChainStructure
+from hysteresis_lab.blocks.estimate import (
+    DAMPING_RANGE,
+    ChainStructure,
+    select_chain_structure,
+)
 from hysteresis_lab.physics.filters import mode_coefficients_np
 from hysteresis_lab.physics.play import play_operators, spread_over
+
+if TYPE_CHECKING:
+    from hysteresis_lab.data.recording import Recording
 
 log = logging.getLogger(__name__)
 
@@ -53,6 +62,28 @@ TEST_SAMPLES = 40_000
 REFINE_EVALUATIONS = 20
 #: the share of the training recording held out when there is no validation recording
 HELD_OUT_SHARE = 0.2
+
+
+#: the structures chosen for the last few training recordings (`chain_structure`)
+_CHOSEN: dict[tuple[Any, ...], ChainStructure] = {}
+_CHOSEN_KEPT = 4
+
+
+def chain_structure(
+    u: np.ndarray, y: np.ndarray, fs: float, delay: int | None, n_modes: int | None
+) -> ChainStructure:
+    """`select_chain_structure` of a training recording, remembered for the process: the
+    stages of a grown model and the fit at once (``model.grow=best``) start from the same
+    recording and choose alike."""
+    key = (hashlib.sha1(np.ascontiguousarray(u, dtype=float).tobytes()).hexdigest(),
+           hashlib.sha1(np.ascontiguousarray(y, dtype=float).tobytes()).hexdigest(),
+           float(fs), delay, n_modes)
+    if key not in _CHOSEN:
+        if len(_CHOSEN) >= _CHOSEN_KEPT:
+            _CHOSEN.pop(next(iter(_CHOSEN)))
+        _CHOSEN[key] = select_chain_structure(u, y, fs, delay=delay, n_modes=n_modes,
+                                              fmin=min(50.0, 0.01 * fs))
+    return _CHOSEN[key]
 
 
 @dataclass(frozen=True)
@@ -178,3 +209,34 @@ class _Chain:
         coef, *_ = np.linalg.lstsq(self.design(cell, theta), target, rcond=None)
         misfit = float(np.mean((self.design(cell_val, theta) @ coef - target_val) ** 2))
         return misfit if np.isfinite(misfit) else np.inf
+
+
+def cells_from_data(
+    train: Recording, val: Recording | None, delay: int | None = None,
+    n_modes: int | None = None,
+) -> tuple[list[str], dict[str, Any]]:
+    """``auto``'s cells on one-axis recordings: the one the data test decides, or both where
+    it leaves the choice open (or cannot read the data); and what it found (for
+    ``metrics.json``). ``delay`` / ``n_modes``: the chain's, None to read them off the data."""
+    try:
+        structure = chain_structure(train.u[:, 0], train.y[:, 0], train.fs, delay, n_modes)
+        evidence = cell_evidence(train.u[:, 0], train.y[:, 0], train.fs, structure,
+                                 None if val is None else val.u[:, 0],
+                                 None if val is None else val.y[:, 0])
+    except ValueError as exc:  # e.g. too few samples for the linear chain's spectra
+        why = f"the training data could not be read for the data test ({exc})"
+        log.info("hysteresis=auto: %s; both cells are fitted", why)
+        return list(CELLS), {"by": "validation free-run loss", "data_test": why}
+    found = evidence.to_dict()
+    if evidence.decided is not None:
+        log.info("hysteresis=auto: %s, by the data test (held-out misfit Bouc–Wen %.4g, "
+                 "Prandtl–Ishlinskii %.4g, chain alone %.4g: ratio %.3g)", evidence.decided,
+                 evidence.misfits["bouc_wen"], evidence.misfits["prandtl_ishlinskii"],
+                 evidence.misfits["none"], evidence.ratio)
+        return [evidence.decided], {"chosen": evidence.decided, "by": "data test", **found}
+    log.info("hysteresis=auto: the data test leaves the cell open (held-out misfit Bouc–Wen "
+             "%.4g, Prandtl–Ishlinskii %.4g, chain alone %.4g: the lower not below %.3g of "
+             "the others): both cells are fitted, the lower validation free-run loss kept",
+             evidence.misfits["bouc_wen"], evidence.misfits["prandtl_ishlinskii"],
+             evidence.misfits["none"], CLEAR_RATIO)
+    return list(CELLS), {"by": "validation free-run loss", **found}

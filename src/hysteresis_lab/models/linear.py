@@ -20,7 +20,9 @@ refit that adds an effect starts exactly from the model it grows:
 
 * ``saturation``: ``v - w (v - clip(v, ±c))``, amplifier clipping ahead of the actuator;
 * ``dead_zone``: ``v - w clip(v, ±c)``; ``backlash``: ``v + w (play_c(v) - v)``;
-* ``hysteresis``: ``v - w h(v)``, ``h`` the Bouc–Wen state (the grey-box's cell), and
+* ``hysteresis``: ``v - w h(v)``, ``h`` the Bouc–Wen state (the grey-box's cell), or
+  ``v - sum_i w_i (v - play_i(v))`` (Prandtl–Ishlinskii, `PlayCell`) as ``model.hysteresis``
+  says (``auto``: read off the data, `settings_from_data`), and
   inside the dynamics' feedback: the dynamics in a closed loop with a Bouc–Wen restoring
   force of their output, weighted from zero (`StateHysteresis`; per output and input pair,
   each on its own part of the output). The loop refits the whole model when it adds it
@@ -56,7 +58,7 @@ from __future__ import annotations
 
 import logging
 import re
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -73,10 +75,13 @@ from hysteresis_lab.blocks.sections import (
 from hysteresis_lab.blocks.step import StepState, frozen
 from hysteresis_lab.blocks.storage import StorageCascade
 from hysteresis_lab.data.recording import Recording
+from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.effects.base import Effect, LinearBlock, LinearContext, physical_order
+from hysteresis_lab.effects.hysteresis import CELLS, rate_dependent_cell
 from hysteresis_lab.effects.registry import get_effect
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.augment import context_from_dict
+from hysteresis_lab.models.greybox_cell import cells_from_data
 from hysteresis_lab.models.physical_chain import FromEffects, PhysicalChainModule
 from hysteresis_lab.physics.filters import iir_filter, tdf2_step
 
@@ -104,6 +109,9 @@ NYQUIST_GAIN_SHARE = 1.0
 #: the start (a fit barely better than ARX's can park a pole at the radius limit, which the
 #: refits of the input blocks then cannot move)
 NYQUIST_CLEAR_SHARE = 0.9
+
+#: ``model.hysteresis``: the input cell read off the data (`LinearModel.settings_from_data`)
+AUTO_CELL = "auto"
 
 #: where the loop forces (hysteresis in the feedback, nonlinear_feedback) act: around the whole
 #: dynamics, or on the output stage's own level (`StorageCascade`). A refit that adds an effect
@@ -148,6 +156,7 @@ class LinearModel(PhysicalChainModule):
         feedback_knots: int = 6,
         feedback_on: str = "dynamics",
         integrator: bool | None = None,
+        hysteresis: str = AUTO_CELL,
         objective: str = "simulation",
         lr: float = 0.002,
         **kwargs: Any,
@@ -175,6 +184,9 @@ class LinearModel(PhysicalChainModule):
         elif feedback_on == "output_stage" and isinstance(order, int) and order < 2:
             problems.append(f"model.feedback_on=output_stage with model.order={order} (the "
                             "output stage and the upstream storage take a pole each: order >= 2)")
+        if hysteresis not in (*CELLS, AUTO_CELL):
+            problems.append(f"model.hysteresis={hysteresis!r} (the input's hysteresis cell: "
+                            f"one of {[*CELLS, AUTO_CELL]})")
         if not isinstance(integrator, bool):
             problems.append(f"model.integrator={integrator!r} (true, false, or null: as the data "
                             "set says)")
@@ -209,7 +221,7 @@ class LinearModel(PhysicalChainModule):
             output_extremes=extremes, forced_extremes=forced, declared=declared,
             settings={"creep_time_constants_s": creep_time_constants_s,
                       "feedback_knots": feedback_knots, "order": order,
-                      "integrator": integrator})
+                      "integrator": integrator, "hysteresis": hysteresis})
         sites = self._sites(declared, context)
         #: the containers of the effects' blocks per site (attribute names)
         self.effect_sites: dict[str, list[str]] = {site: [] for site in SITES}
@@ -474,17 +486,56 @@ class LinearModel(PhysicalChainModule):
         physics deciding where a law sits: the tanks' outflow law reads the output stage's
         own level, a spring's force the whole oscillator's. Otherwise (and always with an
         integrator) the place the last model was fitted with (``model.feedback_on`` at the
-        start)."""
+        start). Each place with each input cell `_refit_cells` names."""
+        cells = [{"hysteresis": cell} for cell in cls._refit_cells(model_cfg, previous, added)]
         place = (previous.hparams.get("feedback_on") if previous is not None
                  else None) or model_cfg.get("feedback_on", "dynamics")
         order = model_cfg.get("order", 6)
-        if model_cfg.get("integrator") or getattr(previous, "integrator", False):
-            return [{"feedback_on": place}]  # the forces read the integrand: no output stage
-        if (added is not None and get_effect(added).linear_tries_output_stage
+        places = [place]
+        if (not (model_cfg.get("integrator") or getattr(previous, "integrator", False))
+                and added is not None and get_effect(added).linear_tries_output_stage
                 and place == "dynamics" and previous is not None
                 and isinstance(order, int) and order >= 2):
-            return [{"feedback_on": p} for p in FEEDBACK_PLACES]
-        return [{"feedback_on": place}]
+            places = list(FEEDBACK_PLACES)  # with an integrator the forces read the integrand
+        return [{"feedback_on": p, **cell} for p in places for cell in cells]
+
+    @staticmethod
+    def _refit_cells(model_cfg: dict[str, Any], previous: Any | None,
+                     added: str | None) -> list[str]:
+        """The input cells a loop refit tries (``model.hysteresis``): as set; with ``auto``,
+        both `CELLS` when the refit adds ``hysteresis`` (the folds' held-out loss chooses, as
+        they choose an effect), else the cell the last model was fitted with."""
+        cell = model_cfg.get("hysteresis", AUTO_CELL)
+        if cell != AUTO_CELL:
+            return [cell]
+        if added == "hysteresis" and not rate_dependent_cell(
+                [get_effect(e) for e in model_cfg.get("effects") or []]):
+            return list(CELLS)
+        fitted = previous.hparams.get("hysteresis") if previous is not None else None
+        return [fitted if fitted in CELLS else AUTO_CELL]
+
+    @classmethod
+    def settings_from_data(
+        cls, settings: Mapping[str, Any], splits: DatasetSplits
+    ) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+        """``model.hysteresis=auto`` with ``hysteresis`` declared, on one input and output:
+        the input cell the data test decides, or both where it leaves the choice open (each
+        fitted, the lower validation loss kept), as the grey-box chooses its cell
+        (`hysteresis_lab.models.greybox_cell.cells_from_data`). Otherwise the settings as
+        they are (``auto`` builds a Bouc–Wen cell; an effect that makes the cell
+        rate-dependent needs one)."""
+        settings = dict(settings)
+        declared = [get_effect(e) for e in settings.get("effects") or []]
+        if (settings.get("hysteresis", AUTO_CELL) != AUTO_CELL
+                or "hysteresis" not in [e.name for e in declared]
+                or rate_dependent_cell(declared)):
+            return [settings], {}
+        train = max(splits.train, key=lambda rec: rec.n_samples)
+        if train.u.shape[1] != 1 or train.y.shape[1] != 1:
+            return [settings], {}
+        val = max(splits.val, key=lambda rec: rec.n_samples) if splits.val else None
+        cells, found = cells_from_data(train, val)
+        return [{**settings, "hysteresis": cell} for cell in cells], {"hysteresis": found}
 
     def warm_start_from(self, previous: Any) -> None:
         """`PhysicalChainModule.warm_start_from`; from a model whose forces act on the whole
