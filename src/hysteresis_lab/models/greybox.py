@@ -103,6 +103,9 @@ MIMO_BOUC_WEN_ALPHA = 0.05
 #: ``alpha`` is log-parametrised: it cannot start at zero; Adam's steps on its logarithm grow
 #: it by a factor per step, so it still reaches an O(0.1) share within a short refit)
 GROWN_CELL_SHARE = 1e-3
+#: ``model.learn_exponent``: a Bouc–Wen cell's exponent stays 1 while Adam trains and is
+#: learned in the L-BFGS polish (`GreyBox.polish_settings`)
+EXPONENT_IN_POLISH = "polish"
 #: the MIMO modes' frequencies learn at this share of ``training.lr`` (`configure_optimizers`)
 MODE_FREQUENCY_LR_FACTOR = 0.02
 #: ``model.delay`` / ``model.n_modes``: chosen from the training data
@@ -179,7 +182,7 @@ class GreyBox(PhysicalChainModule):
         ny: int,
         fs: float = 20_000.0,
         hysteresis: str = "bouc_wen",
-        learn_exponent: bool = False,
+        learn_exponent: bool | str = EXPONENT_IN_POLISH,
         n_modes: int | str = AUTO,
         mode_hz: float | None = None,
         mode_damping: float | None = None,
@@ -228,6 +231,9 @@ class GreyBox(PhysicalChainModule):
                             f"{residual_layers!r} (>= 0 / >= 1; 0 neurons: no network)")
         if not (isinstance(recording_repeats, int) and recording_repeats >= 1):
             problems.append(f"model.recording_repeats={recording_repeats!r} (>= 1)")
+        if not (isinstance(learn_exponent, bool) or learn_exponent == EXPONENT_IN_POLISH):
+            problems.append(f"model.learn_exponent={learn_exponent!r} (true, false, or "
+                            f"{EXPONENT_IN_POLISH}: learned in the L-BFGS polish only)")
         if problems:
             raise ConfigError(
                 "model=greybox cannot take " + "; ".join(problems) + ". Fix: change those "
@@ -272,7 +278,8 @@ class GreyBox(PhysicalChainModule):
         self.amplifier = FirstOrderLag(fs, amplifier_hz or 0.25 * fs,
                                        min_cutoff_hz=self.f_floor)
         self.delay = Delay(delay)
-        self.hysteresis = _hysteresis_cell(hysteresis, operators, learn_exponent=learn_exponent,
+        self.hysteresis = _hysteresis_cell(hysteresis, operators,
+                                           learn_exponent=self._learns_exponent(),
                                            amplitude=self._input_amplitude(0))
         for part in terms:
             setattr(self, part.attribute, part.cell_term(self._input_amplitude(0)))
@@ -330,7 +337,7 @@ class GreyBox(PhysicalChainModule):
             for _ in range(n_in))
         self.delays = nn.ModuleList(Delay(delay) for _ in range(n_in))
         cells = [_hysteresis_cell(hysteresis, operators, MIMO_BOUC_WEN_ALPHA,
-                                  bool(self.hparams.get("learn_exponent", False)),
+                                  self._learns_exponent(),
                                   amplitude=self._input_amplitude(j))
                  for j in range(n_in)]
         self.cells = None if hysteresis == "none" else nn.ModuleList(cells)
@@ -459,6 +466,21 @@ class GreyBox(PhysicalChainModule):
             state.put(x_lags[:, 1:])
             x = x + self.residual(torch.cat([v_lags, x_lags], dim=-1))[:, 0]
         return x[:, None]
+
+    def _learns_exponent(self) -> bool:
+        """Whether a Bouc–Wen cell learns its exponent in this fit: ``model.learn_exponent``
+        true (``polish``: only in the polish, `polish_settings`, which sets it true)."""
+        return self.hparams.get("learn_exponent") is True
+
+    @classmethod
+    def polish_settings(cls, settings: Mapping[str, Any]) -> dict[str, Any]:
+        """The polish frees a Bouc–Wen cell's exponent (``model.learn_exponent=polish``):
+        learned with Adam from the start it moves slowly and disturbs the rest of the fit
+        (`docs/results/greybox_exponent.md`); from the fitted model L-BFGS lands on it."""
+        settings = dict(settings)
+        if settings.get("learn_exponent", EXPONENT_IN_POLISH) == EXPONENT_IN_POLISH:
+            settings["learn_exponent"] = True
+        return settings
 
     @classmethod
     def growth_stages(
@@ -619,8 +641,7 @@ class GreyBox(PhysicalChainModule):
     def _set_cell(self, hysteresis: str) -> None:
         """Rebuild the (one-axis) hysteresis cell as ``hysteresis``, recorded in ``hparams``."""
         self.hysteresis = _hysteresis_cell(hysteresis, int(self.hparams.get("operators", 8)),
-                                           learn_exponent=bool(self.hparams.get("learn_exponent",
-                                                                                False)),
+                                           learn_exponent=self._learns_exponent(),
                                            amplitude=self._input_amplitude(0))
         if self.hysteresis is not None:
             self.hysteresis.to(self.offset.device)

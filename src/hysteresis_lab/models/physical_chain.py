@@ -75,20 +75,33 @@ class PhysicalChainModule(NarxModule):
     new_block_lr_factor = 10.0
     predicts_from_outputs = False
 
-    def __init__(self, *args: Any, grow: bool | str = "best", **kwargs: Any) -> None:
+    def __init__(self, *args: Any, grow: bool | str = "best", polish: bool = True,
+                 **kwargs: Any) -> None:
         """``grow``: how declared effects are fitted (`hysteresis_lab.workflows.grow`):
         ``"best"`` grown on the fitted linear model one stage each (`growth_stages`) and
-        trained at once, the lower validation loss kept; true: grown; false: at once."""
+        trained at once, the lower validation loss kept; true: grown; false: at once.
+        ``polish``: the fitted model refined by L-BFGS at the end (`polish_settings`), kept
+        where it lowers the validation free-run loss."""
         super().__init__(*args, **kwargs)
         if not (grow == "best" or isinstance(grow, bool)):
             raise ConfigError(f"model.grow={grow!r} must be best, true or false. Fix: "
                               "model.grow=best (grow the declared effects on the fitted "
                               "linear model and train them at once, keep the better), true "
                               "(grow only) or false (train at once only).")
+        if not isinstance(polish, bool):
+            raise ConfigError(f"model.polish={polish!r} must be true or false. Fix: "
+                              "model.polish=true (refine the fitted model with L-BFGS, kept "
+                              "where it lowers the validation loss) or false.")
         #: the learned input the shared initial state settles at (None: from rest)
         self.start_input: nn.Parameter | None = None
         if (self.hparams.get("trained_on") or {}).get("shared_initial_state"):
             self._learn_initial_state()
+
+    @classmethod
+    def polish_settings(cls, settings: Mapping[str, Any]) -> dict[str, Any]:
+        """The model settings of the L-BFGS polish (``model.polish``): ``settings`` as they
+        are; a class may free there what Adam leaves fixed."""
+        return dict(settings)
 
     def _learn_initial_state(self) -> None:
         """``start_input`` from the training inputs' mean (over their scales), the burn-in
