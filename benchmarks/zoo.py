@@ -218,13 +218,15 @@ def _without(effects: dict[str, Any], gap: str) -> dict[str, Any] | None:
 PIECES = ("exponent", "asymmetry", "creep", "modes", "delay")
 #: pieces outside each model's class with its defaults: the greybox reads its delay and 1-3
 #: modes (a feedthrough beside them) off the data and carries an asymmetric term, its cell a
-#: Bouc-Wen one of exponent 1 or a Prandtl-Ishlinskii one; model=linear's cell is Bouc-Wen of
-#: exponent 1 without an asymmetric term; none carries creep undeclared
-GAPS = {"greybox": ("exponent", "creep"),
+#: Bouc-Wen one whose exponent the L-BFGS polish learns or a Prandtl-Ishlinskii one;
+#: model=linear's cell is Bouc-Wen of exponent 1 or Prandtl-Ishlinskii, without an asymmetric
+#: term; none carries creep undeclared
+GAPS = {"greybox": ("creep",),
         "linear+hysteresis": ("exponent", "asymmetry", "creep"),
         "loop": ("exponent", "asymmetry", "creep")}
-#: the models whose cell can be a Prandtl-Ishlinskii one (model.hysteresis=auto)
-HOLD_PLAYS = ("greybox",)
+#: the models whose cell can be a Prandtl-Ishlinskii one (model.hysteresis=auto; the loop
+#: tries both cells when it adds hysteresis)
+HOLD_PLAYS = ("greybox", "linear+hysteresis", "loop")
 
 
 def gap_sizes(effects: dict[str, Any], sigma: float) -> dict[str, float]:
@@ -393,8 +395,9 @@ def render(kept: dict[str, dict]) -> str:
               "start: the loop's grown path does better from the same data; structure: what "
               "the plant has that the model cannot hold with its defaults (the greybox: the "
               "delay and 1–3 modes with a feedthrough read off the data, an asymmetric term, "
-              "a Bouc–Wen cell of exponent 1 or a Prandtl–Ishlinskii cell; `model=linear`: a "
-              "Bouc–Wen cell of exponent 1, no asymmetric term; neither carries creep "
+              "a Bouc–Wen cell whose exponent the L-BFGS polish learns or a "
+              "Prandtl–Ishlinskii cell; `model=linear`: a Bouc–Wen cell of exponent 1 or a "
+              "Prandtl–Ishlinskii cell, no asymmetric term; neither carries creep "
               "undeclared); optimiser: validation far above σ with "
               "nothing structural missing. Validation RMSE is read from the fit's scaled "
               "validation loss times the training output's standard deviation (the CSV path's "
