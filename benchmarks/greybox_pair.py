@@ -1,4 +1,4 @@
-"""A physical model fitted two ways on zoo plants and on bundled data sets: error and CPU seconds.
+"""The grey-box fitted two ways on zoo plants and on bundled data sets: error and CPU seconds.
 
     python benchmarks/greybox_pair.py --compare optimizer --cases plants,p885 --root /tmp/gbo
     python benchmarks/greybox_pair.py --compare feedthrough --seeds 0,1,2 --jobs 2 --root /tmp/gbf
@@ -9,10 +9,8 @@
 modes alone, ``model.feedthrough=false``, against the default's modes with a feedthrough
 share; ``docs/results/greybox_feedthrough.md``) or ``exponent`` (the default against
 ``model.learn_exponent=true``; ``docs/results/greybox_exponent.md``; its first setting is
-``feedthrough``'s second, so one root serves both) or ``linear_optimizer`` (``model=linear
-model.effects=[hysteresis]`` with Adam against L-BFGS; ``docs/results/linear_optimizer.md``).
-Each case is fitted through the console app with the comparison's model (``model=greybox``
-unless it says) and default settings (a zoo plant through ``data=csv``, a bundled data
+``feedthrough``'s second, so one root serves both). Each case is fitted through the console app
+with ``model=greybox`` and default settings (a zoo plant through ``data=csv``, a bundled data
 set with the accuracy table's settings, `greybox_asymmetry.BUNDLED`), once per setting; a fit
 found in the root is reused. The page gives the mean free-run RMSE over the test recordings
 (over the plant's noise σ for the zoo), the process's CPU seconds (one core) and the
@@ -56,9 +54,6 @@ class Comparison:
     base: Setting
     variant: Setting
     what: str
-    #: the model fitted (``model=<model>``) and its declared effects' override, if any
-    model: str = "greybox"
-    effects: tuple[str, ...] = ()
 
 
 COMPARISONS = {
@@ -81,12 +76,6 @@ COMPARISONS = {
         "once with the Bouc–Wen cell's exponent at 1 and once with `model.learn_exponent=true` "
         "(the exponent learned from 1; `model.hysteresis=auto` still chooses the cell, a "
         "Prandtl–Ishlinskii cell has none)"),
-    "linear_optimizer": Comparison(
-        "The linear model with a hysteresis cell, with Adam and with L-BFGS",
-        "linear_optimizer.md",
-        Setting("adam", "Adam", ()), Setting("lbfgs", "L-BFGS", ("training.optimizer=lbfgs",)),
-        "once with Adam (the default) and once with `training.optimizer=lbfgs`",
-        model="linear", effects=("model.effects=[hysteresis]",)),
 }
 
 #: a change of error within this share counts as none
@@ -95,13 +84,13 @@ SAME = 0.005
 log = logging.getLogger("greybox_pair")
 
 
-def fit(case: str, setting: Setting, root: Path, pair: Comparison) -> Path:
-    """``case`` fitted with ``setting`` of ``pair`` into its folder (reused when done)."""
+def fit(case: str, setting: Setting, root: Path) -> Path:
+    """``case`` fitted with ``setting`` into its folder (reused when done)."""
     folder = root / case / setting.name
     if (folder / "metrics.json").is_file():
         return folder
     data = ["data=default"] if case == "default" else data_overrides(case, root)
-    cpu = train_greybox([*pair.effects, *setting.overrides, *data], folder, model=pair.model)
+    cpu = train_greybox([*setting.overrides, *data], folder)
     (folder / "cputime").write_text(f"{cpu:.1f}\n")
     return folder
 
@@ -151,8 +140,7 @@ def render(rows: list[dict[str, Any]], pair: Comparison, command: str) -> str:
     label, key, clock = time_column(rows, pair)
     lines = [
         *page_header(pair.title, command, clock),
-        f"Each case fitted with `{' '.join([f'model={pair.model}', *pair.effects])}` and its "
-        "defaults (zoo plants through "
+        "Each case fitted with `model=greybox` and its defaults (zoo plants through "
         f"`data=csv`, bundled data sets with the accuracy table's settings), {pair.what}. "
         "Score: mean free-run RMSE over the test recordings (over the plant's noise σ for the "
         "zoo; a bundled data set's in its units); validation: the kept model's validation "
@@ -214,8 +202,7 @@ def main(argv: list[str] | None = None) -> None:
         jobs = [(case, setting) for case in cases for setting in (pair.base, pair.variant)]
         with ThreadPoolExecutor(max(1, args.jobs)) as pool:
             for (case, setting), folder in zip(
-                    jobs, pool.map(lambda job: fit(job[0], job[1], root, pair), jobs),
-                    strict=True):
+                    jobs, pool.map(lambda job: fit(job[0], job[1], root), jobs), strict=True):
                 log.info("%s: %s -> %s", case, setting.name, folder)
     done = [c for c in cases if all((root / c / s.name / "metrics.json").is_file()
                                     for s in (pair.base, pair.variant))]

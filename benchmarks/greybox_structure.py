@@ -62,11 +62,11 @@ def fit(seed: int, setting: str, overrides: list[str], root: Path) -> Path:
     return folder
 
 
-def train_greybox(overrides: list[str], folder: Path, model: str = "greybox") -> float:
-    """``hysteresis-lab-train model=<model> <overrides>`` on one core into ``folder`` (its
+def train_greybox(overrides: list[str], folder: Path) -> float:
+    """``hysteresis-lab-train model=greybox <overrides>`` on one core into ``folder`` (its
     output in ``fit.log``); the process's CPU seconds."""
     folder.mkdir(parents=True, exist_ok=True)
-    command = [str(Path(sys.executable).parent / "hysteresis-lab-train"), f"model={model}",
+    command = [str(Path(sys.executable).parent / "hysteresis-lab-train"), "model=greybox",
                *overrides, *QUIET, f"hydra.run.dir={folder}"]
     env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
     with (folder / "fit.log").open("w") as handle:
