@@ -486,18 +486,22 @@ class LinearModel(PhysicalChainModule):
         physics deciding where a law sits: the tanks' outflow law reads the output stage's
         own level, a spring's force the whole oscillator's. Otherwise (and always with an
         integrator) the place the last model was fitted with (``model.feedback_on`` at the
-        start). Each place with each input cell `_refit_cells` names."""
-        cells = [{"hysteresis": cell} for cell in cls._refit_cells(model_cfg, previous, added)]
+        start). Each place with each input cell `_refit_cells` names (named in the settings
+        only where it is not the model's own setting)."""
+        cells = cls._refit_cells(model_cfg, previous, added)
+        set_cell = [model_cfg.get("hysteresis", AUTO_CELL)]
+        cell_settings = [{}] if cells == set_cell else [{"hysteresis": c} for c in cells]
         place = (previous.hparams.get("feedback_on") if previous is not None
                  else None) or model_cfg.get("feedback_on", "dynamics")
         order = model_cfg.get("order", 6)
         places = [place]
+        # with an integrator the forces read the integrand: no output stage
         if (not (model_cfg.get("integrator") or getattr(previous, "integrator", False))
                 and added is not None and get_effect(added).linear_tries_output_stage
                 and place == "dynamics" and previous is not None
                 and isinstance(order, int) and order >= 2):
-            places = list(FEEDBACK_PLACES)  # with an integrator the forces read the integrand
-        return [{"feedback_on": p, **cell} for p in places for cell in cells]
+            places = list(FEEDBACK_PLACES)
+        return [{"feedback_on": p, **cell} for p in places for cell in cell_settings]
 
     @staticmethod
     def _refit_cells(model_cfg: dict[str, Any], previous: Any | None,
