@@ -399,10 +399,10 @@ def render(kept: dict[str, dict]) -> str:
               "a Bouc–Wen cell whose exponent the L-BFGS polish learns or a "
               "Prandtl–Ishlinskii cell; `model=linear`: a Bouc–Wen cell of exponent 1 or a "
               "Prandtl–Ishlinskii cell, no asymmetric term; the loop's kept fits: a Bouc–Wen "
-              "cell of exponent 1; none carries creep undeclared); optimiser: validation far above σ with "
-              "nothing structural missing. Validation RMSE is read from the fit's scaled "
-              "validation loss times the training output's standard deviation (the CSV path's "
-              "standard scaling); the loop's is its held-out RMSE.", ""]
+              "cell of exponent 1; none carries creep undeclared); optimiser: validation far "
+              "above σ with nothing structural missing. Validation RMSE is read from the "
+              "fit's scaled validation loss times the training output's standard deviation "
+              "(the CSV path's standard scaling); the loop's is its held-out RMSE.", ""]
     for row in rows:
         for fit in FITS:
             s = score(row, fit)

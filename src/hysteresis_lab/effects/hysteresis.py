@@ -83,6 +83,19 @@ class HysteresisConfig:
         self.weights = [float(w) for w in self.weights]
 
 
+def _register_square_law(cell: nn.Module, square_amplitude: float | None) -> None:
+    """``cell.square_weight`` (from zero) and ``cell.square_amplitude`` of the asymmetric square
+    law ``q A (v / A)^2`` (`HysteresisCell._square_law`); ``square_weight`` None without one."""
+    cell.square_weight = None
+    if square_amplitude is None:
+        return
+    if not square_amplitude > 0:
+        raise ValueError(f"square_amplitude must be > 0 (got {square_amplitude})")
+    cell.square_weight = nn.Parameter(torch.zeros((), dtype=torch.float64))
+    cell.register_buffer("square_amplitude",
+                         torch.tensor(float(square_amplitude), dtype=torch.float64))
+
+
 class HysteresisCell(nn.Module):
     """``v - w h(v)``: the Bouc–Wen state ``h`` (`hysteresis_lab.blocks.BoucWen`) subtracted
     with a weight from zero.
@@ -119,13 +132,7 @@ class HysteresisCell(nn.Module):
                 raise ValueError(f"rate_step must be > 0 (got {rate_step})")
             self.rate_gain = nn.Parameter(torch.zeros((), dtype=torch.float64))
             self.register_buffer("rate_step", torch.tensor(float(rate_step), dtype=torch.float64))
-        self.square_weight: nn.Parameter | None = None
-        if square_amplitude is not None:
-            if not square_amplitude > 0:
-                raise ValueError(f"square_amplitude must be > 0 (got {square_amplitude})")
-            self.square_weight = nn.Parameter(torch.zeros((), dtype=torch.float64))
-            self.register_buffer("square_amplitude",
-                                 torch.tensor(float(square_amplitude), dtype=torch.float64))
+        _register_square_law(self, square_amplitude)
 
     @staticmethod
     def _square_law(v: torch.Tensor, q: torch.Tensor, amplitude: torch.Tensor) -> torch.Tensor:
@@ -191,13 +198,7 @@ class PlayCell(nn.Module):
         self.register_buffer("thresholds", torch.tensor(spread_thresholds(amplitude,
                                                                           n_operators)))
         self.weights = nn.Parameter(torch.zeros(n_operators, dtype=torch.float64))
-        self.square_weight: nn.Parameter | None = None
-        if square_amplitude is not None:
-            if not square_amplitude > 0:
-                raise ValueError(f"square_amplitude must be > 0 (got {square_amplitude})")
-            self.square_weight = nn.Parameter(torch.zeros((), dtype=torch.float64))
-            self.register_buffer("square_amplitude",
-                                 torch.tensor(float(square_amplitude), dtype=torch.float64))
+        _register_square_law(self, square_amplitude)
 
     def forward(self, v: torch.Tensor) -> torch.Tensor:
         v64 = v.double()

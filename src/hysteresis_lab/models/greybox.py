@@ -606,7 +606,7 @@ class GreyBox(PhysicalChainModule):
         delay, n_modes = self.hparams.get("delay"), self.hparams.get("n_modes")
         try:
             structure = chain_structure(u, y, fs, None if delay == AUTO else int(delay),
-                                         None if n_modes == AUTO else max(int(n_modes), 1))
+                                        None if n_modes == AUTO else max(int(n_modes), 1))
         except ValueError as exc:
             log.warning("the delay and modes cannot be read off the training data (%s): %s",
                         exc, ", ".join(f"model.{name}={value}" for name, value in
