@@ -2,6 +2,7 @@
 
     python benchmarks/zoo.py --plants 30 --seed 0 --jobs 2     # plants 0 ... 29
     python benchmarks/zoo.py --refit greybox --jobs 2          # one model again, same plants
+    python benchmarks/zoo.py --plants 17 --seed 13 --fits greybox  # one model on new plants
     python benchmarks/zoo.py --render                          # only rewrite the page
 
 Each plant (`hysteresis_lab.sim.zoo.draw_plant`, seeds ``seed ... seed + plants - 1``) is
@@ -15,7 +16,9 @@ to ``<root>/plant_<seed>/result.json`` and are skipped when they exist (resume);
 finished plant is merged into ``docs/results/zoo.json`` and ``docs/results/zoo.md`` is
 regenerated from it. ``--refit FIT`` fits one of the three again on every plant kept in
 ``zoo.json`` (after a change to that model) and keeps the others' results; each fit records
-its own commit. Scores are free-run RMSE over the plant's sensor noise σ.
+its own commit. ``--fits`` fits only some of the three on new plants (the page counts each
+model over the plants it was fitted on). Scores are free-run RMSE over the plant's sensor
+noise σ.
 """
 
 from __future__ import annotations
@@ -130,8 +133,10 @@ def finished_fit(fit: str, folder: Path) -> dict[str, Any] | None:
             **read_scores(fit, folder)}
 
 
-def run_plant(seed: int, root: Path, stamp: dict[str, str]) -> dict[str, Any]:
-    """Export plant ``seed`` and fit it three ways (a fit done before is reused)."""
+def run_plant(seed: int, root: Path, stamp: dict[str, str],
+              fits: tuple[str, ...] = tuple(FITS)) -> dict[str, Any]:
+    """Export plant ``seed`` and fit it the ways ``fits`` names (a fit done before is
+    reused)."""
     folder = root / f"plant_{seed}"
     result_path = folder / "result.json"
     if result_path.is_file():
@@ -149,12 +154,15 @@ def run_plant(seed: int, root: Path, stamp: dict[str, str]) -> dict[str, Any]:
         if partial.is_file():
             row["fits"][fit] = json.loads(partial.read_text())
             continue
+        if fit not in fits:
+            continue
         log.info("plant %d: %s", seed, fit)
         fit_folder = folder / fit.replace("+", "_")
         row["fits"][fit] = finished_fit(fit, fit_folder) or run_fit(fit, files, fit_folder)
         partial.write_text(json.dumps(row["fits"][fit], indent=1) + "\n")
         log.info("plant %d: %s %s", seed, fit, summary(row, fit))
-    result_path.write_text(json.dumps(row, indent=1) + "\n")
+    if set(row["fits"]) == set(FITS):  # a plant missing a fit is run again for it
+        result_path.write_text(json.dumps(row, indent=1) + "\n")
     return row
 
 
@@ -162,7 +170,9 @@ def run_plant(seed: int, root: Path, stamp: dict[str, str]) -> dict[str, Any]:
 def score(row: dict[str, Any], fit: str) -> dict[str, Any]:
     """A fit's free-run RMSE over σ: mean over the tests, worst test, validation; diverged
     where a test is not finite or worse than its mean (R² < 0)."""
-    result = row["fits"].get(fit) or {}
+    if fit not in row["fits"]:
+        return {"absent": True, "diverged": False}
+    result = row["fits"][fit]
     sigma = row["noise_um"]
     if "tests" not in result:
         return {"failed": result.get("failed", "not run"), "diverged": True}
@@ -322,6 +332,8 @@ def plant_cell(row: dict[str, Any]) -> str:
 
 def fit_cell(row: dict[str, Any], fit: str) -> str:
     s = score(row, fit)
+    if s.get("absent"):
+        return "not fitted"
     if "ratio" not in s:
         return f"failed ({s['failed']})"
     mark = " **diverged**" if s["diverged"] else ""
@@ -334,6 +346,8 @@ def fit_commits(row: dict[str, Any], fit: str) -> str:
 
 
 def statistics(kept: dict[str, dict], fit: str) -> str:
+    """The model's row of the summary, over the plants it was fitted on."""
+    kept = {seed: row for seed, row in kept.items() if fit in row["fits"]}
     scores = [score(row, fit) for row in kept.values()]
     commits = sorted({fit_commits(row, fit) for row in kept.values()})
     ratios = np.array([s.get("ratio", math.inf) for s in scores])
@@ -342,16 +356,23 @@ def statistics(kept: dict[str, dict], fit: str) -> str:
     met = median <= MEDIAN_TARGET and p90 <= P90_TARGET and diverged == 0
     seconds = [s["seconds"] for s in scores if "seconds" in s]
     outside = sum(bool(structure_gaps(row, fit)) for row in kept.values())
-    return (f"| {fit} | {median:.3g} σ | {p90:.3g} σ | {diverged} | "
+    return (f"| {fit} ({len(kept)} plants) | {median:.3g} σ | {p90:.3g} σ | {diverged} | "
             f"{'met' if met else 'missed'} | {outside} of {len(kept)} | "
             f"{np.median(seconds):.0f} s | {', '.join(commits)} |")
 
 
+def fewer_fits(rows: list[dict[str, Any]]) -> str:
+    """The models fitted on fewer plants than the page shows (``--fits``), with their count."""
+    counts = {fit: sum(fit in r["fits"] for r in rows) for fit in FITS}
+    fewer = [f"`{fit}` on {n}" for fit, n in counts.items() if n < len(rows)]
+    return f" Fitted on fewer plants: {', '.join(fewer)}." if fewer else ""
+
+
 def render(kept: dict[str, dict]) -> str:
     rows = list(kept.values())
-    commits = sorted({fit_commits(r, fit) for r in rows for fit in FITS})
+    commits = sorted({fit_commits(r, fit) for r in rows for fit in FITS if fit in r["fits"]})
     dates = sorted({(r["fits"].get(fit) or {}).get("date", r["date"]) for r in rows
-                    for fit in FITS})
+                    for fit in FITS if fit in r["fits"]})
     lines = [
         "# The physical models on a zoo of positioners",
         "",
@@ -366,7 +387,8 @@ def render(kept: dict[str, dict]) -> str:
         "default settings: trained on the 500-line multisine, validated on a second "
         "realisation, tested on the study's twelve ±100 V sines. The issue asks for at least "
         "30 plants; " + ("this run has them." if len(rows) >= 30 else "this run has fewer "
-                         "(the machine was shared; rerun with more plants to extend it)."),
+                         "(the machine was shared; rerun with more plants to extend it).")
+        + fewer_fits(rows),
         "",
         "Scores are the mean free-run RMSE (from rest, `evaluation.initial_state=rest`) over "
         "the twelve tests divided by the plant's "
@@ -406,6 +428,8 @@ def render(kept: dict[str, dict]) -> str:
     for row in rows:
         for fit in FITS:
             s = score(row, fit)
+            if s.get("absent"):
+                continue
             if "ratio" not in s or s["ratio"] > P90_TARGET or s["diverged"]:
                 lines.append(f"- plant {row['seed']}, {fit}: {why(row, fit)}")
     return "\n".join(lines) + "\n"
@@ -420,6 +444,8 @@ def main() -> None:
     parser.add_argument("--render", action="store_true", help="only rewrite the page")
     parser.add_argument("--refit", choices=sorted(FITS),
                         help="fit this model again on every plant kept in zoo.json")
+    parser.add_argument("--fits", default=",".join(FITS),
+                        help=f"which of {', '.join(FITS)} to fit on new plants")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     if args.refit and not args.render:
@@ -429,8 +455,14 @@ def main() -> None:
                  "date": datetime.date.today().isoformat()}
         seeds = range(args.seed, args.seed + args.plants)
 
+        fits = tuple(args.fits.split(","))
+        unknown = sorted(set(fits) - set(FITS))
+        if unknown:
+            raise SystemExit(f"--fits {args.fits}: no fit {unknown}; choose from "
+                             f"{', '.join(FITS)}")
+
         def one(seed: int) -> dict[str, Any]:
-            row = run_plant(seed, args.root, stamp)
+            row = run_plant(seed, args.root, stamp, fits)
             with WRITING:  # a finished plant is kept at once (the page survives a stop)
                 OUT.write_text(render(keep([row])))
             return row
