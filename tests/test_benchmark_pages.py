@@ -31,11 +31,32 @@ def test_a_refitted_zoo_model_names_its_own_commit(monkeypatch):
     for row in kept.values():
         row["fits"]["greybox"]["commit"] = "refit0a"
     page = zoo.render(kept)
-    lines = {line.split("|")[1].strip(): line for line in page.splitlines()
-             if line.startswith("| greybox |") or line.startswith("| linear+hysteresis |")}
+    lines = summary_lines(page)
     assert lines["greybox"].rstrip(" |").endswith("refit0a")
     assert "refit0a" not in lines["linear+hysteresis"]
     assert "refit0a" in page.splitlines()[2]  # the page's provenance lists it too
+
+
+def summary_lines(page: str) -> dict[str, str]:
+    """The zoo page's summary rows by model (``| greybox (13 plants) | ...``)."""
+    return {line.split("|")[1].split(" (")[0].strip(): line for line in page.splitlines()
+            if line.startswith("| ") and " plants) |" in line.split("|")[1] + "|"}
+
+
+def test_a_model_fitted_on_fewer_plants_is_counted_over_its_own(monkeypatch):
+    """``--fits``: a plant without the loop's fit shows none, and the loop's statistics count
+    only the plants it was fitted on."""
+    zoo = _script("zoo", monkeypatch)
+    kept = json.loads((REPO / "docs" / "results" / "zoo.json").read_text())
+    kept = copy.deepcopy({seed: kept[seed] for seed in list(kept)[:3]})
+    del kept[list(kept)[0]]["fits"]["loop"]
+    page = zoo.render(kept)
+    lines = summary_lines(page)
+    assert "(3 plants)" in lines["greybox"]
+    assert "(2 plants)" in lines["loop"]
+    assert "| 0 |" in lines["loop"]  # no plant counted as diverged for a fit never run
+    assert "not fitted" in page
+    assert "Fitted on fewer plants: `loop` on 2." in page
 
 
 def test_a_comparison_without_cpu_records_is_timed_by_its_logs(monkeypatch, tmp_path):
