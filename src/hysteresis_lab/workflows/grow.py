@@ -168,8 +168,7 @@ def polishes(config: RunConfig) -> bool:
     """Whether ``config``'s fit ends with the L-BFGS polish: a physical model
     (``model.polish``, on by default) trained with Adam."""
     return bool(config.model.settings.get(POLISH_SETTING, False)) and \
-        config.training.optimizer == "adam" and \
-        POLISH_SETTING in config.model.cls.settings_keys()
+        config.training.optimizer == "adam"
 
 
 def _polished(config: RunConfig, data: ModelData, fitted: TrainResult,
