@@ -208,6 +208,8 @@ def test_paper_experiment_writes_table2_and_figure1(tmp_path):
     args = ["train", "experiment=paper", "trainer.max_epochs=1", "logger=none",
             "+data.splits.n_train=4000", "+data.splits.test_frequencies=[1,50,500]",
             "+data.splits.max_test_samples=1500", "paper.models.svm.n_components=100",
+            # the grey-box fitted once (not grown, not polished): the table is checked here
+            "paper.models.greybox.grow=false", "paper.models.greybox.polish=false",
             f"hydra.run.dir={tmp_path}", *QUIET]
     proc = run_app(*args, timeout=900)
     assert proc.returncode == 0, proc.stderr[-3000:]

@@ -210,7 +210,7 @@ def test_the_loop_setting_reads_the_residual_through_the_model_dynamics(tmp_path
                                 max_test_samples=2000, val_samples=4000)
     scores = {}
     for through in (False, True):
-        report = run_loop({"name": "linear", "effects": [], "lr": 0.005},
+        report = run_loop({"name": "linear", "effects": [], "lr": 0.005, "polish": False},
                           DataSpec.from_config({"name": "small"}), TRAINER, data,
                           tmp_path / str(through),
                           LoopSettings(max_rounds=0, diagnosis_through_dynamics=through),

@@ -18,7 +18,8 @@ A setting the model's class reads off the data (``settings_from_data``: the grey
 ``model.hysteresis=auto``) is settled first; where the data leave several candidates, each
 is fitted in ``<run>/grow/candidates/<setting>/`` and the lowest validation loss kept.
 
-Trained with Adam, the kept model is then polished (``model.polish``, on by default): refined
+Trained with Adam, the kept model is then polished (``model.polish``, on by default), a
+warm-started refit (the loop's) too: refined
 by full-batch L-BFGS in ``<run>/grow/polish/`` with the settings the class gives it
 (``polish_settings``: the grey-box frees its Bouc–Wen exponent there) and kept where it
 lowers the validation free-run loss. Adam brings the few parameters of a physical model near
@@ -156,7 +157,7 @@ def train_model(
         if config.model.settings.get(SETTING, "best") == "best":
             trained = _better_of_grown_and_at_once(config, data, trained, callbacks)
         window = model_window(trained.model)
-    if warm_start is None and polishes(config):
+    if polishes(config):
         trained = _polished(config, data, trained, callbacks)
         window = model_window(trained.model)
     if choices:
@@ -181,20 +182,38 @@ def _polished(config: RunConfig, data: ModelData, fitted: TrainResult,
     folder = config.output_dir / STAGES_FOLDER / POLISH_FOLDER
     settings = config.model.cls.polish_settings(config.model.settings)
     log.info("%s: the fitted model polished by L-BFGS", name)
+    # the polish keeps its best weights, even after a fit that kept its last (a loop's)
+    config = dataclasses.replace(config, settings=dataclasses.replace(config.settings,
+                                                                      keep_last=False))
     try:
         polished = _fit_stage(config, data, settings, config.training.with_changes(
             optimizer="lbfgs"), folder, fitted.model, "full", callbacks)
     except DivergedError as exc:
         log.warning("%s: the polish diverged; the fitted model stays (%s)", name, exc)
         return fitted
-    before, after = kept_loss(fitted), kept_loss(polished)
-    kept = polished if polished.improved and after < before else fitted
+    kept = kept_after_polish(fitted, polished, config.settings.min_refit_gain)
     log.info("%s: validation free-run loss %.4e before the polish, %.4e after: the %s model "
-             "is kept", name, before, after, "polished" if kept is polished else "fitted")
-    if kept is fitted:
+             "is kept", name, kept_loss(fitted), kept_loss(polished),
+             "polished" if kept is not fitted else "fitted")
+    return kept
+
+
+def kept_after_polish(fitted: TrainResult, polished: TrainResult, min_gain: float) -> TrainResult:
+    """The fit to keep: ``polished`` where it lowers ``fitted``'s validation loss, with
+    ``fitted``'s training epochs (the Adam stages': a loop's final refit trains for the
+    folds' epochs) and both fits' seconds. A warm-started fit (a refit, which keeps its start
+    unless it beats it by the share ``min_gain``) takes the polish only where the polished
+    model beats that start by as much, and reports its loss against that start."""
+    before, after = kept_loss(fitted), kept_loss(polished)
+    if not (polished.improved and after < before):
         return fitted
+    start = fitted.refit_validation and fitted.refit_validation["start"]
+    if start is not None and after >= (1.0 - min_gain) * start:
+        return fitted  # a refit's start stays unless beaten, polished or not
     seconds = fitted.train_seconds + polished.train_seconds
-    return dataclasses.replace(polished, train_seconds=seconds)
+    refit = None if start is None else {"start": float(start), "refit": after}
+    return dataclasses.replace(polished, train_seconds=seconds, epochs=dict(fitted.epochs),
+                               refit_validation=refit, improved=True, rejected_state=None)
 
 
 def settings_from_data(
