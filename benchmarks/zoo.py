@@ -34,6 +34,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -443,13 +444,15 @@ def main() -> None:
     parser.add_argument("--root", type=Path, default=REPO / "outputs" / "zoo")
     parser.add_argument("--render", action="store_true", help="only rewrite the page")
     parser.add_argument("--refit", choices=sorted(FITS),
-                        help="fit this model again on every plant kept in zoo.json")
+                        help="fit this model again on the plants kept in zoo.json whose seeds "
+                             "--seed and --plants name (by default every kept plant)")
     parser.add_argument("--fits", default=",".join(FITS),
                         help=f"which of {', '.join(FITS)} to fit on new plants")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     if args.refit and not args.render:
-        refit_kept(args.refit, args.root, args.jobs)
+        refit_kept(args.refit, args.root, args.jobs,
+                   range(args.seed, args.seed + args.plants))
     elif not args.render:
         stamp = {"commit": commit_stamp(REPO, ["src", "benchmarks"]),
                  "date": datetime.date.today().isoformat()}
@@ -473,9 +476,10 @@ def main() -> None:
     log.info("wrote %s", OUT)
 
 
-def refit_kept(fit: str, root: Path, jobs: int) -> None:
-    """``fit`` again on every plant kept in ``zoo.json``, its result (with its commit and
-    date) replacing the kept one; each plant is kept as soon as it is done."""
+def refit_kept(fit: str, root: Path, jobs: int, seeds: Sequence[int]) -> None:
+    """``fit`` again on the plants kept in ``zoo.json`` whose seed is in ``seeds``, its result
+    (with its commit and date) replacing the kept one; each plant is kept as soon as it is
+    done."""
     stamp = {"commit": commit_stamp(REPO, ["src", "benchmarks"]),
              "date": datetime.date.today().isoformat()}
 
@@ -495,7 +499,7 @@ def refit_kept(fit: str, root: Path, jobs: int) -> None:
         log.info("plant %d: %s %s", seed, fit, summary(fresh, fit))
 
     with ThreadPoolExecutor(max_workers=jobs) as pool:
-        list(pool.map(one, load_kept().values()))
+        list(pool.map(one, [row for row in load_kept().values() if row["seed"] in seeds]))
 
 
 def backfill_gaps(kept: dict[str, dict], root: Path) -> dict[str, dict]:
