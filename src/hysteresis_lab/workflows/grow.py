@@ -18,13 +18,13 @@ A setting the model's class reads off the data (``settings_from_data``: the grey
 ``model.hysteresis=auto``) is settled first; where the data leave several candidates, each
 is fitted in ``<run>/grow/candidates/<setting>/`` and the lowest validation loss kept.
 
-Trained with Adam, the kept model is then polished (``model.polish``, on by default), a
-warm-started refit (the loop's) too: refined
-by full-batch L-BFGS in ``<run>/grow/polish/`` with the settings the class gives it
-(``polish_settings``: the grey-box frees its Bouc–Wen exponent there) and kept where it
-lowers the validation free-run loss. Adam brings the few parameters of a physical model near
-their optimum; the second-order steps land on it (the grey-box on zoo plant 0, a Bouc–Wen
-cell of exponent 1.56: 156 σ before, 7.4 σ after, `docs/results/zoo.md`).
+Trained with Adam, the kept model (a warm-started refit's too: the loop's) is then polished
+(``model.polish``, on by default): refined by full-batch L-BFGS in ``<run>/grow/polish/``
+with the settings the class gives it (``polish_settings``: the grey-box frees its Bouc–Wen
+exponent there) and kept where it lowers the validation free-run loss. Adam brings the few
+parameters of a physical model near their optimum; the second-order steps land on it (the
+grey-box on zoo plant 0, a Bouc–Wen cell of exponent 1.56: 156 σ before, 7.4 σ after,
+`docs/results/zoo.md`).
 
 Every stage trains in ``<run>/grow/<k>_<label>/`` (a refit: one folder per learning rate),
 the fit at once in ``<run>/grow/at_once/``; the chosen model is the run's model, saved and
@@ -207,7 +207,7 @@ def kept_after_polish(fitted: TrainResult, polished: TrainResult, min_gain: floa
     before, after = kept_loss(fitted), kept_loss(polished)
     if not (polished.improved and after < before):
         return fitted
-    start = fitted.refit_validation and fitted.refit_validation["start"]
+    start = None if fitted.refit_validation is None else fitted.refit_validation["start"]
     if start is not None and after >= (1.0 - min_gain) * start:
         return fitted  # a refit's start stays unless beaten, polished or not
     seconds = fitted.train_seconds + polished.train_seconds
