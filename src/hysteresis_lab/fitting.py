@@ -178,6 +178,12 @@ def fit(
     return result
 
 
+def beats_by(loss: float, other: float, min_gain: float) -> bool:
+    """Whether ``loss`` is below ``other`` by more than the share ``min_gain`` of it (the
+    rule by which a refit, polished or not, replaces the model it started from)."""
+    return loss < (1.0 - min_gain) * other
+
+
 def _keep_start_unless_beaten(
     result: TrainResult,
     start: dict[str, torch.Tensor],
@@ -195,7 +201,7 @@ def _keep_start_unless_beaten(
         losses[name] = _selection_loss(model, datamodule, settings)
     trained_loss, start_loss = losses["refit"], losses["start"]
     result.refit_validation = {"start": start_loss, "refit": trained_loss}
-    result.improved = trained_loss < (1.0 - min_gain) * start_loss
+    result.improved = beats_by(trained_loss, start_loss, min_gain)
     if result.improved:
         model.load_state_dict(trained)
         log.info("refit: validation loss %.4e -> %.4e (scaled)", start_loss, trained_loss)

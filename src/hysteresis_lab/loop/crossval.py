@@ -17,6 +17,7 @@ import numpy as np
 
 from hysteresis_lab.evaluation.evaluate import scoring_start
 from hysteresis_lab.evaluation.predict import free_run
+from hysteresis_lab.fitting import beats_by
 from hysteresis_lab.loop.data import Stretch
 from hysteresis_lab.models.augment import for_model
 from hysteresis_lab.workflows.pipeline import RunResult
@@ -137,7 +138,7 @@ def _beats(refit: FoldsCheck, other: FoldsCheck, min_gain: float,
     k = len(refit.folds)
     wins = sum(r < s for r, s in zip(refit.fold_losses(), other.fold_losses(), strict=True))
     gain = f" by more than loop.min_refit_gain={min_gain:g} of it" if min_gain else ""
-    pooled = refit.loss < (1.0 - min_gain) * other.loss
+    pooled = beats_by(refit.loss, other.loss, min_gain)
     verb = "beats" if pooled else "does not beat"
     reason = (f"the refit's pooled held-out loss over {k} folds {refit.loss:.4g} {verb} "
               f"{whose} {other.loss:.4g}{gain}; it is lower on {wins} of {k} folds")

@@ -46,7 +46,7 @@ from hysteresis_lab.data.windows import WindowSpec
 from hysteresis_lab.effects.base import MODEL_OUTPUT_BLOCKS
 from hysteresis_lab.effects.registry import get_effect
 from hysteresis_lab.errors import DivergedError
-from hysteresis_lab.fitting import TrainResult, fit_run
+from hysteresis_lab.fitting import TrainResult, beats_by, fit_run
 from hysteresis_lab.models.augment import ModelData
 from hysteresis_lab.models.io import model_window
 from hysteresis_lab.models.settings import TrainingSettings
@@ -208,7 +208,7 @@ def kept_after_polish(fitted: TrainResult, polished: TrainResult, min_gain: floa
     if not (polished.improved and after < before):
         return fitted
     start = None if fitted.refit_validation is None else fitted.refit_validation["start"]
-    if start is not None and after >= (1.0 - min_gain) * start:
+    if start is not None and not beats_by(after, start, min_gain):
         return fitted  # a refit's start stays unless beaten, polished or not
     seconds = fitted.train_seconds + polished.train_seconds
     refit = None if start is None else {"start": float(start), "refit": after}
