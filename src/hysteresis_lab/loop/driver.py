@@ -72,8 +72,10 @@ from hysteresis_lab.models.settings import TrainingSettings
 from hysteresis_lab.models.spec import ModelSpec
 from hysteresis_lab.run_folder import LoopFolder
 from hysteresis_lab.workflows.grow import (
+    POLISHED_REFIT_LR_FACTORS,
     REFIT_LR_FACTORS,
     growth_stages,
+    polishes_fits,
     refit_mode,
     refit_rates,
 )
@@ -111,8 +113,9 @@ class LoopSettings:
     min_refit_gain: float = 0.0
     #: a refit runs at each of these multiples of ``training.lr`` and the one with the lowest
     #: validation free-run loss goes on to the keep-or-reject test (``training.refit_lr``,
-    #: when set, is the only rate tried)
-    refit_lr_factors: tuple[float, ...] = REFIT_LR_FACTORS
+    #: when set, is the only rate tried); None: `POLISHED_REFIT_LR_FACTORS` for a model
+    #: whose fits end with the L-BFGS polish, else `REFIT_LR_FACTORS`
+    refit_lr_factors: tuple[float, ...] | None = None
     #: run again in the folder of a stopped loop (``hydra.run.dir``), each fit that finished
     #: there with the same settings, data and start is reused, not trained again
     resume: bool = True
@@ -158,12 +161,14 @@ class LoopSettings:
                 f"loop.folds={self.folds} must be at least 2: each fold holds out a share of "
                 "the identification record. Fix: e.g. loop.folds=3."
             )
-        self.refit_lr_factors = tuple(float(f) for f in self.refit_lr_factors)
-        if not self.refit_lr_factors or min(self.refit_lr_factors) <= 0:
-            raise ConfigError(
-                f"loop.refit_lr_factors={list(self.refit_lr_factors)} must be a non-empty list "
-                "of positive numbers. Fix: e.g. loop.refit_lr_factors=[0.1,1.0]."
-            )
+        if self.refit_lr_factors is not None:
+            self.refit_lr_factors = tuple(float(f) for f in self.refit_lr_factors)
+            if not self.refit_lr_factors or min(self.refit_lr_factors) <= 0:
+                raise ConfigError(
+                    f"loop.refit_lr_factors={list(self.refit_lr_factors)} must be a non-empty "
+                    "list of positive numbers, or null (automatic). Fix: e.g. "
+                    "loop.refit_lr_factors=[0.1,1.0]."
+                )
         if self.refit not in REFITS:
             raise ConfigError(
                 f"unknown loop.refit '{self.refit}'. Fix: loop.refit=one of {list(REFITS)}."
@@ -274,6 +279,10 @@ class _LoopState:
     diagnosis: list[EffectScore] = dataclasses.field(default_factory=list)
     #: effects tried on the standing model
     tried: set[str] = dataclasses.field(default_factory=set)
+    #: effects the folds rejected on any model: not tried again (on plants where one came
+    #: back after another effect was kept, the folds rejected it again, at a refit per fold
+    #: and rate each time)
+    rejected: set[str] = dataclasses.field(default_factory=set)
     #: the effects the next round refits, one at a time (the top one and those the evidence
     #: does not tell apart from it); the folds keep at most one
     trying: list[str] = dataclasses.field(default_factory=list)
@@ -393,7 +402,7 @@ def _fit_round_and_decide(
     warm = (settings.warm_start and standing is not None
             and bool(standing.final.model.warm_starts))
     rates: list[float] | list[None] = (
-        _refit_rates(run.training, settings) if warm else [None])
+        _refit_rates(run.model, run.training, settings) if warm else [None])
     round_dir = run.folder.round_dir(number)
     candidates, variants = [], [{}]
     for effect in trying or [None]:
@@ -443,6 +452,7 @@ def _fit_round_and_decide(
         entry["compared"] = compared_effects(candidates)
     state.rounds.append(entry)
     if trying and not kept:
+        state.rejected |= set(trying)
         entry["rejected"] = best.effect
         entry["rejected_held_out"] = best.check.to_dict()
         entry["note"] = (f"the refit with '{best.effect}' did not pass the folds: "
@@ -575,13 +585,13 @@ def _candidate_entry(candidate: _Candidate) -> dict[str, Any]:
 def _choose_next_effect(run: _LoopRun, state: _LoopState, entry: dict[str, Any]) -> bool:
     """Pick the effect the next round adds from the standing diagnosis (recorded in
     ``entry``); False when the loop ends here (nothing significant, or enough rounds)."""
-    uncarried = _not_carried(run.model, state.diagnosis, state.tried,
+    uncarried = _not_carried(run.model, state.diagnosis, state.tried | state.rejected,
                              run.data.fit.output_integrates)
     if uncarried:
         entry["not_carried"] = uncarried
         log.info("model '%s' has no block for the significant effect(s) %s: not added",
                  run.model.name, uncarried)
-    excluded = state.tried | set(uncarried)
+    excluded = state.tried | state.rejected | set(uncarried)
     top, reported = next_effect(state.diagnosis, excluded)
     plant = run.data_spec.plant
     while top is not None and not run.settings.add_under_excited:
@@ -912,10 +922,17 @@ def _refit_variants(model: ModelSpec, previous: Any | None,
     return model.cls.refit_variants(model.to_config(), previous, added) or [{}]
 
 
-def _refit_rates(training: TrainingSettings, settings: LoopSettings) -> list[float]:
+def _refit_rates(model: ModelSpec, training: TrainingSettings,
+                 settings: LoopSettings) -> list[float]:
     """The learning rates a refit runs at: ``training.refit_lr`` if set, else the loop's
-    multiples of ``training.lr`` (`grow.refit_rates`)."""
-    return refit_rates(training, settings.refit_lr_factors)
+    multiples of ``training.lr`` (`grow.refit_rates`); where ``loop.refit_lr_factors`` is
+    null, one rate for a model whose fits the L-BFGS polish ends (its line search lands on
+    the optimum from either rate's fit), two for others."""
+    factors = settings.refit_lr_factors
+    if factors is None:
+        polished = polishes_fits(model.settings, training)
+        factors = POLISHED_REFIT_LR_FACTORS if polished else REFIT_LR_FACTORS
+    return refit_rates(training, factors)
 
 
 def _refit_loss(result: RunResult) -> float:
