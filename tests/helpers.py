@@ -8,8 +8,10 @@ import importlib
 import io
 import logging
 import os
+import site
 import subprocess
 import sys
+import sysconfig
 import traceback
 import warnings
 from collections.abc import Iterator
@@ -83,7 +85,7 @@ def run_app_in_process(
     script would, in ``cwd``, with ``env`` added to the environment and its stdout/stderr
     captured. Everything a run changes in the process is put back afterwards: the
     environment, working directory, logging, warning filters, signal handlers, Hydra's
-    singletons and torch's thread count."""
+    singletons, ``sys.path`` and torch's thread count."""
     args = [f"hysteresis-lab-{module}", *overrides]
     stdout, stderr = io.StringIO(), io.StringIO()
     with _process_state_restored(cwd, env), contextlib.redirect_stdout(stdout), \
@@ -126,9 +128,12 @@ def _process_state_restored(cwd: Path, env: dict[str, str]) -> Iterator[None]:
         if isinstance(logger, logging.Logger)
     }
     saved_environ, saved_argv, saved_cwd = dict(os.environ), list(sys.argv), os.getcwd()
-    saved_threads = torch.get_num_threads()
+    saved_threads, saved_path = torch.get_num_threads(), list(sys.path)
     os.environ.update(env)
     os.chdir(cwd)
+    # packages installed since this process started (a test's `pip install -e <plugin>`), as
+    # a fresh interpreter would see them: their .pth entries
+    site.addsitedir(sysconfig.get_paths()["purelib"])
     root.handlers[:] = []  # a fresh interpreter's logging: no handler (pytest's are put back)
     root.setLevel(logging.WARNING)
     try:
@@ -152,7 +157,7 @@ def _process_state_restored(cwd: Path, env: dict[str, str]) -> Iterator[None]:
             logger.propagate, logger.disabled = propagate, disabled
         os.environ.clear()
         os.environ.update(saved_environ)
-        sys.argv = saved_argv
+        sys.argv, sys.path[:] = saved_argv, saved_path
         os.chdir(saved_cwd)
         torch.set_num_threads(saved_threads)
         GlobalHydra.instance().clear()  # as after a fresh interpreter's app: no Hydra set up

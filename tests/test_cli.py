@@ -243,7 +243,8 @@ def test_plugin_registers_an_architecture_and_its_config(csv_data, tmp_path):
          str(plugin)], capture_output=True, text=True, timeout=600)
     assert install.returncode == 0, install.stderr[-2000:]
     proc = run_app("train", *data_overrides(*csv_data), "model=gru", "model.units=16",
-                   "training.lr=0.005", "trainer.max_epochs=6", f"hydra.run.dir={tmp_path}", *QUIET)
+                   "training.lr=0.005", "trainer.max_epochs=6", f"hydra.run.dir={tmp_path}", *QUIET,
+                   subprocess_only=True)  # as a user runs it after installing: a new process
     assert proc.returncode == 0, proc.stderr[-3000:]
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert metrics["model"] == "gru" and metrics["mean"]["r2_one_step"] > 0.5
