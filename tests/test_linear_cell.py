@@ -164,6 +164,13 @@ def test_the_loop_tries_both_cells_when_it_adds_hysteresis_and_keeps_the_fitted_
     assert isinstance(fitted.input_blocks[0]["hysteresis"], PlayCell)
     rate_model = linear_model(["rate"], "prandtl_ishlinskii")
     assert isinstance(rate_model.input_blocks[0]["hysteresis"], HysteresisCell)
+    # a cell that asymmetry brought is fitted: hysteresis added to it keeps the cell's kind
+    # (the other kind would start from a cell at zero, not from the fitted model)
+    asymmetric = linear_model(["asymmetry"], "prandtl_ishlinskii")
+    assert isinstance(asymmetric.input_blocks[0]["hysteresis"], PlayCell)
+    grown = LinearModel.refit_variants({**auto, "effects": ["asymmetry", "hysteresis"]},
+                                       asymmetric, "hysteresis")
+    assert [v["hysteresis"] for v in grown] == ["prandtl_ishlinskii"]
 
 
 def test_a_value_that_is_no_cell_is_refused_with_the_choices():

@@ -291,6 +291,14 @@ def rate_dependent_cell(declared: Sequence[Effect]) -> bool:
     return any(getattr(e, "makes_cell_rate_dependent", False) for e in declared)
 
 
+def brings_cell(declared: Sequence[Effect]) -> bool:
+    """Whether ``model=linear`` with the effects ``declared`` has an input hysteresis cell:
+    ``hysteresis``, or an effect that shapes the cell and brings it where declared alone
+    (``makes_cell_rate_dependent``, ``makes_cell_asymmetric``)."""
+    return any(e.name == "hysteresis" or getattr(e, "makes_cell_rate_dependent", False)
+               or getattr(e, "makes_cell_asymmetric", False) for e in declared)
+
+
 def input_cell_kind(settings: Mapping[str, Any], declared: Sequence[Effect]) -> str:
     """The cell ``model=linear`` puts on each input: ``model.hysteresis`` where it names one
     of `CELLS`, else (``auto`` not yet read off the data) Bouc–Wen; always Bouc–Wen where the

@@ -77,7 +77,7 @@ from hysteresis_lab.blocks.storage import StorageCascade
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.effects.base import Effect, LinearBlock, LinearContext, physical_order
-from hysteresis_lab.effects.hysteresis import CELLS, rate_dependent_cell
+from hysteresis_lab.effects.hysteresis import CELLS, brings_cell, rate_dependent_cell
 from hysteresis_lab.effects.registry import get_effect
 from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.models.augment import context_from_dict
@@ -507,13 +507,16 @@ class LinearModel(PhysicalChainModule):
     def _refit_cells(model_cfg: dict[str, Any], previous: Any | None,
                      added: str | None) -> list[str]:
         """The input cells a loop refit tries (``model.hysteresis``): as set; with ``auto``,
-        both `CELLS` when the refit adds ``hysteresis`` (the folds' held-out loss chooses, as
-        they choose an effect), else the cell the last model was fitted with."""
+        both `CELLS` when the refit adds ``hysteresis`` to a model without a cell (the folds'
+        held-out loss chooses, as they choose an effect), else the cell the last model was
+        fitted with: a cell that ``rate`` or ``asymmetry`` brought is fitted, and a refit
+        in the other kind would start from a cell at zero, not from the fitted model."""
         cell = model_cfg.get("hysteresis", AUTO_CELL)
         if cell != AUTO_CELL:
             return [cell]
-        if added == "hysteresis" and not rate_dependent_cell(
-                [get_effect(e) for e in model_cfg.get("effects") or []]):
+        declared = [get_effect(e) for e in model_cfg.get("effects") or []]
+        if added == "hysteresis" and not rate_dependent_cell(declared) \
+                and not brings_cell([e for e in declared if e.name != added]):
             return list(CELLS)
         fitted = previous.hparams.get("hysteresis") if previous is not None else None
         return [fitted if fitted in CELLS else AUTO_CELL]
