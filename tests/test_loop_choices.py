@@ -1,5 +1,6 @@
 """What the loop tries next and at which refit rates: an effect the folds rejected is not
-tried again; a model whose fits end with the L-BFGS polish refits at one rate."""
+tried again; a model whose fits end with the L-BFGS polish refits at one rate, then at a
+tenth of it only where that refit fails the folds."""
 
 from __future__ import annotations
 
@@ -8,7 +9,12 @@ from types import SimpleNamespace
 import pytest
 
 from hysteresis_lab.loop.diagnosis.ranking import EffectScore
-from hysteresis_lab.loop.driver import LoopSettings, _choose_next_effect, _LoopState, _refit_rates
+from hysteresis_lab.loop.driver import (
+    LoopSettings,
+    _choose_next_effect,
+    _LoopState,
+    _refit_rate_stages,
+)
 from hysteresis_lab.models.spec import ModelSpec
 
 
@@ -38,15 +44,18 @@ def test_an_effect_the_folds_rejected_is_not_tried_again():
     assert _next_round(rejected={"overflow"})["added"] == "nonlinear_feedback"
 
 
-@pytest.mark.parametrize(("model", "factors", "rates"), [
-    ({"name": "linear", "polish": True}, None, [1e-3]),  # polished (the packaged configs)
-    ({"name": "greybox", "polish": True}, None, [1e-3]),
-    ({"name": "linear", "polish": False}, None, [1e-4, 1e-3]),
-    ({"name": "ffnn"}, None, [1e-4, 1e-3]),
-    ({"name": "linear", "polish": True}, (0.1, 1.0), [1e-4, 1e-3]),  # set: as set
+@pytest.mark.parametrize(("model", "training", "factors", "stages"), [
+    # polished (the packaged configs' model.polish): the first rate, a tenth where it fails
+    ({"name": "linear", "polish": True}, {}, None, [[1e-3], [1e-4]]),
+    ({"name": "greybox", "polish": True}, {}, None, [[1e-3], [1e-4]]),
+    ({"name": "linear", "polish": True}, {"refit_lr": 5e-4}, None, [[5e-4]]),
+    ({"name": "linear", "polish": False}, {}, None, [[1e-4, 1e-3]]),  # both at once
+    ({"name": "ffnn"}, {}, None, [[1e-4, 1e-3]]),
+    ({"name": "linear", "polish": True}, {}, (0.1, 1.0), [[1e-4, 1e-3]]),  # set: as set
 ])
-def test_refit_rates_one_where_the_polish_ends_each_fit(model, factors, rates):
+def test_refit_rates_one_after_the_other_where_the_polish_ends_each_fit(
+        model, training, factors, stages):
     spec = ModelSpec.from_config(model)
-    training = spec.training_settings({"lr": 1e-3})
     settings = LoopSettings(refit_lr_factors=factors)
-    assert _refit_rates(spec, training, settings) == pytest.approx(rates)
+    found = _refit_rate_stages(spec, spec.training_settings({"lr": 1e-3, **training}), settings)
+    assert [pytest.approx(stage) for stage in stages] == found

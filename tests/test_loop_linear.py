@@ -135,18 +135,22 @@ def test_the_default_loop_starts_linear_and_names_its_start(tmp_path):
     assert "- fitted the result (the whole identification record): train" in markdown
 
 
-def _dead_zone_loop(tmp_path, factors: tuple[float, ...]) -> dict:
+def _dead_zone_loop(tmp_path, factors: tuple[float, ...] | None, polish: bool = False,
+                    min_refit_gain: float = 0.0, epochs: int = 5, folds: int = 3,
+                    n_train: int = 8000) -> dict:
     """One round of the loop from model=linear on short simulator records with a dead zone
-    (which the round-0 diagnosis names), its refit at ``factors`` times model.lr."""
+    (which the round-0 diagnosis names), its refit at ``factors`` times model.lr, each fit
+    ``epochs`` long."""
     effects = {"hysteresis": {"enabled": False}, "creep": {"enabled": False},
                "dead_zone": {"enabled": True}}
-    splits = make_default_dataset(effects=effects, n_train=8000, test_frequencies=(10.0,),
-                                  max_test_samples=3000, val_samples=4000)
-    # no L-BFGS polish: how the loop treats a diverging refit is checked, not the fit
-    model = {"name": "linear", "effects": [], "lr": 0.02, "polish": False}
-    settings = LoopSettings(max_rounds=1, refit_lr_factors=factors)
+    splits = make_default_dataset(effects=effects, n_train=n_train, test_frequencies=(10.0,),
+                                  max_test_samples=3000, val_samples=n_train // 2)
+    # by default no L-BFGS polish: how the loop treats a diverging refit is checked, not the fit
+    model = {"name": "linear", "effects": [], "lr": 0.02, "polish": polish}
+    settings = LoopSettings(max_rounds=1, refit_lr_factors=factors,
+                            min_refit_gain=min_refit_gain, folds=folds)
     return run_loop(model, DataSpec.from_config({"name": "small"}),
-                    TRAINER.with_changes(max_epochs=5), splits, tmp_path, settings,
+                    TRAINER.with_changes(max_epochs=epochs), splits, tmp_path, settings,
                     use_tensorboard=False)
 
 
@@ -168,3 +172,17 @@ def test_when_every_refit_diverges_the_folds_drop_it_and_the_start_stands(tmp_pa
     assert refit["rejected"] == refit["decision"]["effect"]
     assert "the refit's free run diverges on fold" in refit["decision"]["reason"]
     assert report["result"] == 0 and "stopped" not in report
+
+
+def test_a_polished_refit_that_fails_the_folds_is_tried_again_at_a_tenth_of_the_rate(tmp_path):
+    """A polished model=linear refits at training.lr; only where that refit does not pass the
+    folds (here none can: 99 % must come off) at a tenth of it, and the best of both is
+    judged."""
+    report = _dead_zone_loop(tmp_path, None, polish=True, min_refit_gain=0.99, epochs=1,
+                             folds=2, n_train=4000)
+    refit = report["rounds"][1]
+    assert refit["rejected"] == refit["decision"]["effect"]
+    rates = [c["refit_lr"] for c in refit["refit_candidates"]]
+    assert rates == pytest.approx([0.02, 0.002])  # the first rate, then the fallback
+    assert refit["decision"]["held_out_loss"]["after"] == min(
+        c["held_out_loss"] for c in refit["refit_candidates"])

@@ -113,8 +113,9 @@ class LoopSettings:
     min_refit_gain: float = 0.0
     #: a refit runs at each of these multiples of ``training.lr`` and the one with the lowest
     #: validation free-run loss goes on to the keep-or-reject test (``training.refit_lr``,
-    #: when set, is the only rate tried); None: `POLISHED_REFIT_LR_FACTORS` for a model
-    #: whose fits end with the L-BFGS polish, else `REFIT_LR_FACTORS`
+    #: when set, is the only rate tried); None: `POLISHED_REFIT_LR_FACTORS` one after the
+    #: other (the next where the refit fails the folds) for a model whose fits end with the
+    #: L-BFGS polish, else `REFIT_LR_FACTORS`
     refit_lr_factors: tuple[float, ...] | None = None
     #: run again in the folder of a stopped loop (``hydra.run.dir``), each fit that finished
     #: there with the same settings, data and start is reused, not trained again
@@ -401,30 +402,25 @@ def _fit_round_and_decide(
     standing = state.kept[-1] if state.kept else None
     warm = (settings.warm_start and standing is not None
             and bool(standing.final.model.warm_starts))
-    rates: list[float] | list[None] = (
-        _refit_rates(run.model, run.training, settings) if warm else [None])
+    stages: list[list[float]] | list[list[None]] = (
+        _refit_rate_stages(run.model, run.training, settings) if warm else [[None]])
+    rates = [rate for stage in stages for rate in stage]
     round_dir = run.folder.round_dir(number)
-    candidates, variants = [], [{}]
-    for effect in trying or [None]:
-        effects = state.effects + ([effect] if effect else [])
-        model = run.model.with_settings({**run.model.settings, "effects": effects})
-        variants = _refit_variants(model, standing.final.model if warm else None, effect)
-        refit = _refit_mode(settings.refit, effect, run.model.cls)
-        folder = round_dir / effect if len(trying) > 1 else round_dir
-        candidates += [
-            _fit_on_folds(run, model, variant, rate,
-                          _candidate_dir(folder, variant, rate, variants, rates),
-                          standing if warm else None, refit, effect)
-            for variant, rate in itertools.product(variants, rates)
-        ]
-    best = min(candidates, key=lambda c: (c.check.loss, c.refit_loss()))
+    candidates: list[_Candidate] = []
+    for stage in stages:  # a later stage's rates only where the earlier ones' refit fails
+        candidates += _fit_candidates(run, state, standing if warm else None, stage, rates,
+                                      round_dir)
+        best = min(candidates, key=lambda c: (c.check.loss, c.refit_loss()))
+        if standing is None:
+            kept, reason = True, ""
+        else:
+            kept, reason = keep_refit(best.check, standing.check, settings.min_refit_gain,
+                                      start=state.kept[0].check)
+        if kept:
+            break
     model, round_effects = best.model, best.model.effects
     refit = _refit_mode(settings.refit, best.effect, run.model.cls)
-    if standing is None:
-        kept, reason = True, ""
-    else:
-        kept, reason = keep_refit(best.check, standing.check, settings.min_refit_gain,
-                                  start=state.kept[0].check)
+    variants = {tuple(sorted(c.variant.items())) for c in candidates if c.effect == best.effect}
     fitted_on = None
     if kept:
         final, samples, length = _fit_final(run, model, best, round_dir,
@@ -439,7 +435,7 @@ def _fit_round_and_decide(
                           "held_out": [fold.describe() for fold in run.data.folds]}
     entry["fitted_on"] = fitted_on
     entry["held_out"] = (best.check if kept else standing.check).to_dict()
-    if rates[0] is not None:
+    if warm:
         entry["refit_lr"] = best.rate
         entry["refit_candidates"] = [_candidate_entry(c) for c in candidates]
     if len(variants) > 1 or best.variant:
@@ -484,6 +480,29 @@ def _fit_round_and_decide(
         entry["under_excited"] = advice
     entry["figures"] = {"diagnostics": run.folder.relative(round_dir / DIAGNOSTICS_FIGURE)}
     return entry, True
+
+
+def _fit_candidates(run: _LoopRun, state: _LoopState, standing: _Standing | None,
+                    rates: Sequence[float] | Sequence[None], all_rates: Sequence[Any],
+                    round_dir: Path) -> list[_Candidate]:
+    """The round's model with each effect it tries, at each place and each of ``rates``,
+    fitted on the folds (warm from ``standing`` where given); ``all_rates``: every rate the
+    round may fit (their folders)."""
+    candidates = []
+    trying = state.trying
+    for effect in trying or [None]:
+        effects = state.effects + ([effect] if effect else [])
+        model = run.model.with_settings({**run.model.settings, "effects": effects})
+        variants = _refit_variants(model, standing.final.model if standing else None, effect)
+        refit = _refit_mode(run.settings.refit, effect, run.model.cls)
+        folder = round_dir / effect if len(trying) > 1 else round_dir
+        candidates += [
+            _fit_on_folds(run, model, variant, rate,
+                          _candidate_dir(folder, variant, rate, variants, all_rates),
+                          standing, refit, effect)
+            for variant, rate in itertools.product(variants, rates)
+        ]
+    return candidates
 
 
 def _candidate_dir(round_dir: Path, variant: Mapping[str, Any], rate: float | None,
@@ -922,17 +941,19 @@ def _refit_variants(model: ModelSpec, previous: Any | None,
     return model.cls.refit_variants(model.to_config(), previous, added) or [{}]
 
 
-def _refit_rates(model: ModelSpec, training: TrainingSettings,
-                 settings: LoopSettings) -> list[float]:
-    """The learning rates a refit runs at: ``training.refit_lr`` if set, else the loop's
-    multiples of ``training.lr`` (`grow.refit_rates`); where ``loop.refit_lr_factors`` is
-    null, one rate for a model whose fits the L-BFGS polish ends (its line search lands on
-    the optimum from either rate's fit), two for others."""
+def _refit_rate_stages(model: ModelSpec, training: TrainingSettings,
+                       settings: LoopSettings) -> list[list[float]]:
+    """The learning rates a refit runs at, in stages: a later stage runs only where the
+    refit at the earlier ones does not pass the folds. ``training.refit_lr`` if set, else
+    ``loop.refit_lr_factors`` of ``training.lr`` (`grow.refit_rates`), all in one stage;
+    where those are null, `POLISHED_REFIT_LR_FACTORS` one after the other for a model whose
+    fits the L-BFGS polish ends (a second rate rarely helps a polished refit, but where the
+    first fails it can: zoo plant 4), else `REFIT_LR_FACTORS` in one stage."""
     factors = settings.refit_lr_factors
-    if factors is None:
-        polished = polishes_fits(model.settings, training)
-        factors = POLISHED_REFIT_LR_FACTORS if polished else REFIT_LR_FACTORS
-    return refit_rates(training, factors)
+    if factors is None and polishes_fits(model.settings, training):
+        rates = refit_rates(training, POLISHED_REFIT_LR_FACTORS)
+        return [[rate] for rate in dict.fromkeys(rates)]
+    return [refit_rates(training, REFIT_LR_FACTORS if factors is None else factors)]
 
 
 def _refit_loss(result: RunResult) -> float:
