@@ -139,8 +139,8 @@ def _dead_zone_loop(tmp_path, factors: tuple[float, ...] | None, polish: bool = 
                     min_refit_gain: float = 0.0, epochs: int = 5, folds: int = 3,
                     n_train: int = 8000) -> dict:
     """One round of the loop from model=linear on short simulator records with a dead zone
-    (which the round-0 diagnosis names), its refit at ``factors`` times model.lr, each fit
-    ``epochs`` long."""
+    (which the round-0 diagnosis names), its refit at ``factors`` times model.lr (None: the
+    loop's default), each fit ``epochs`` long."""
     effects = {"hysteresis": {"enabled": False}, "creep": {"enabled": False},
                "dead_zone": {"enabled": True}}
     splits = make_default_dataset(effects=effects, n_train=n_train, test_frequencies=(10.0,),
@@ -174,6 +174,7 @@ def test_when_every_refit_diverges_the_folds_drop_it_and_the_start_stands(tmp_pa
     assert report["result"] == 0 and "stopped" not in report
 
 
+@pytest.mark.slow
 def test_a_polished_refit_that_fails_the_folds_is_tried_again_at_a_tenth_of_the_rate(tmp_path):
     """A polished model=linear refits at training.lr; only where that refit does not pass the
     folds (here none can: 99 % must come off) at a tenth of it, and the best of both is

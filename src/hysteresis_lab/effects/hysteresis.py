@@ -291,12 +291,18 @@ def rate_dependent_cell(declared: Sequence[Effect]) -> bool:
     return any(getattr(e, "makes_cell_rate_dependent", False) for e in declared)
 
 
+def asymmetric_cell(declared: Sequence[Effect]) -> bool:
+    """Whether an effect declared gives the input cell a square law of its input
+    (``makes_cell_asymmetric``)."""
+    return any(getattr(e, "makes_cell_asymmetric", False) for e in declared)
+
+
 def brings_cell(declared: Sequence[Effect]) -> bool:
     """Whether ``model=linear`` with the effects ``declared`` has an input hysteresis cell:
     ``hysteresis``, or an effect that shapes the cell and brings it where declared alone
-    (``makes_cell_rate_dependent``, ``makes_cell_asymmetric``)."""
-    return any(e.name == "hysteresis" or getattr(e, "makes_cell_rate_dependent", False)
-               or getattr(e, "makes_cell_asymmetric", False) for e in declared)
+    (`rate_dependent_cell`, `asymmetric_cell`)."""
+    return (any(e.name == "hysteresis" for e in declared) or rate_dependent_cell(declared)
+            or asymmetric_cell(declared))
 
 
 def input_cell_kind(settings: Mapping[str, Any], declared: Sequence[Effect]) -> str:
@@ -314,7 +320,7 @@ def hysteresis_cell(ctx: LinearContext, j: int) -> HysteresisCell | PlayCell:
     an effect declared with it makes it so (``makes_cell_rate_dependent``,
     ``makes_cell_asymmetric``)."""
     rate = rate_dependent_cell(ctx.declared)
-    asymmetric = any(getattr(e, "makes_cell_asymmetric", False) for e in ctx.declared)
+    asymmetric = asymmetric_cell(ctx.declared)
     amplitude = ctx.input_amplitude(j)
     if input_cell_kind(ctx.settings, ctx.declared) == "prandtl_ishlinskii":
         return PlayCell(amplitude, amplitude if asymmetric else None)

@@ -514,9 +514,8 @@ class LinearModel(PhysicalChainModule):
         cell = model_cfg.get("hysteresis", AUTO_CELL)
         if cell != AUTO_CELL:
             return [cell]
-        declared = [get_effect(e) for e in model_cfg.get("effects") or []]
-        if added == "hysteresis" and not rate_dependent_cell(declared) \
-                and not brings_cell([e for e in declared if e.name != added]):
+        standing = [get_effect(e) for e in model_cfg.get("effects") or [] if e != added]
+        if added == "hysteresis" and not brings_cell(standing):
             return list(CELLS)
         fitted = previous.hparams.get("hysteresis") if previous is not None else None
         return [fitted if fitted in CELLS else AUTO_CELL]
