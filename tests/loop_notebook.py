@@ -56,13 +56,16 @@ def check_loop_notebook(run: Path) -> dict[str, Any]:
     markdown = (run / "loop_report.md").read_text()
     sections = round_sections(markdown)
     assert sorted(sections) == list(range(len(report["rounds"])))
+    plots = report.get("plots", True)
+    if not plots:  # plots=false: no figure drawn, none linked
+        assert not list(run.rglob("*.png")) and "![" not in markdown
     for number, entry in enumerate(report["rounds"]):
         section = sections[number]
         figures = entry.get("figures", {})
-        if entry["diagnosis"]:
+        if entry["diagnosis"] and plots:
             assert {"residual", "scores", "diagnostics"} <= set(figures)
             assert "### Residual evidence" in section
-        if entry["added"]:
+        if entry["added"] and plots:
             assert "added" in figures and f"added_{entry['added']}" in figures["added"]
         for advice in entry.get("under_excited", []):  # recordings to add, as the JSON says
             assert advice["advice"] in subsection(section, "Not judged: recordings to add")

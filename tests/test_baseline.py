@@ -83,7 +83,8 @@ def test_wrong_uses_of_a_baseline_are_refused_with_a_fix(fitted, tmp_path):
                   splits=splits)
     with pytest.raises(ConfigError, match="the loop grows a model.*Fix"):
         run_loop({**SUBNET, "effects": [], "baseline": str(root / "linear")}, DATA, TRAINER,
-                 splits, tmp_path / "loop", LoopSettings(max_rounds=0), use_tensorboard=False)
+                 splits, tmp_path / "loop", LoopSettings(max_rounds=0), use_tensorboard=False,
+                 plots=False)
     two_inputs = Recording(u=np.zeros((100, 2)), y=np.zeros((100, 1)), fs=100.0, name="two")
     with pytest.raises(DataError, match="has 2 measured input.*reads 1"):
         load_baseline(root / "linear").channels_for([two_inputs])

@@ -337,7 +337,7 @@ def test_loop_drops_an_effect_whose_refit_does_not_help(tmp_path):
     train, tests = small_dataset(tmp_path, effects={"creep": {"enabled": True}})
     proc = run_app("loop", *data_overrides(train, tests), "model=ffnn", "loop.max_rounds=1",
                    "loop.min_refit_gain=0.99", "trainer.max_epochs=3",
-                   "trainer.enable_progress_bar=false", "logger=none",
+                   "trainer.enable_progress_bar=false", "logger=none", "plots=false",
                    f"hydra.run.dir={tmp_path}/loop")
     assert proc.returncode == 0, proc.stderr[-3000:]
     rounds = json.loads((tmp_path / "loop" / "loop_report.json").read_text())["rounds"]
@@ -383,7 +383,7 @@ def test_loop_runs_with_the_svm(tmp_path):
     train, tests = small_dataset(tmp_path, effects={"creep": {"enabled": True}})
     proc = run_app("loop", *data_overrides(train, tests), "model=svm", "model.n_components=100",
                    "model.max_samples=1000", "loop.max_rounds=1", "logger=none",
-                   "loop.folds=2", f"hydra.run.dir={tmp_path}/loop")
+                   "loop.folds=2", "plots=false", f"hydra.run.dir={tmp_path}/loop")
     assert proc.returncode == 0, proc.stderr[-3000:]
     rounds = json.loads((tmp_path / "loop" / "loop_report.json").read_text())["rounds"]
     assert all("refit_candidates" not in r for r in rounds)
@@ -405,7 +405,7 @@ def test_an_svm_refit_that_loses_on_validation_is_dropped(tmp_path):
     train, tests = small_dataset(tmp_path, effects={"creep": {"enabled": True}})
     proc = run_app("loop", *data_overrides(train, tests), "model=svm", "model.n_components=100",
                    "model.max_samples=1000", "loop.max_rounds=1", "loop.min_refit_gain=0.99",
-                   "loop.folds=2", "logger=none", f"hydra.run.dir={tmp_path}/loop")
+                   "loop.folds=2", "logger=none", "plots=false", f"hydra.run.dir={tmp_path}/loop")
     assert proc.returncode == 0, proc.stderr[-3000:]
     rounds = json.loads((tmp_path / "loop" / "loop_report.json").read_text())["rounds"]
     assert rounds[1]["rejected"] in [rounds[0]["added"], *rounds[0].get("alternatives", [])]
@@ -472,7 +472,7 @@ def test_full_and_cold_refits_run_end_to_end(setting, tmp_path):
     proc = run_app("loop", *data_overrides(train, tests), "model=ffnn", "loop.max_rounds=1",
                    setting, "loop.refit_lr_factors=[1.0]", "loop.folds=2", "trainer.max_epochs=2",
                    "model.simulation_epochs=1", "trainer.enable_progress_bar=false", "logger=none",
-                   "data.scaling.mode=paper",
+                   "data.scaling.mode=paper", "plots=false",
                    # the slow sine chooses, the other is the test; this short fit's held-out
                    # evidence is weak, so any positive score counts: a refit must run
                    "data.diagnose=[sine_5]", "loop.min_score=0", "loop.alpha=0.5",

@@ -195,7 +195,7 @@ def test_the_loop_reports_the_recordings_to_add(tmp_path, plant_alpha):
                       trainer, data, tmp_path,
                       LoopSettings(max_rounds=0, diagnosis_through_dynamics=False,
                                    plant_alpha=plant_alpha),
-                      use_tensorboard=False)
+                      use_tensorboard=False, plots=False)
     first = report["rounds"][0]
     score = next(d for d in first["diagnosis"] if d["effect"] == "saturation")
     assert score["score"] >= 0.05 and score["p_value"] > 0.01

@@ -43,7 +43,7 @@ def loop_run(tmp_path_factory) -> Path:
     report, seconds = run_fresh_loop(
         [*SMALL_DEFAULT, "model=ffnn", "loop.max_rounds=1", "loop.min_refit_gain=0.99",
          "trainer.max_epochs=2", "model.simulation_epochs=1",
-         "trainer.enable_progress_bar=false", "logger=none"], run)
+         "trainer.enable_progress_bar=false", "logger=none", "plots=false"], run)
     assert not (run / "stale.txt").exists()  # a fresh folder: no fit of an older run reused
     assert report == json.loads((run / "loop_report.json").read_text()) and seconds > 0
     return run

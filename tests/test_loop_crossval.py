@@ -123,7 +123,7 @@ def test_the_result_is_refitted_on_every_identification_sample(tmp_path):
     model = {"name": "linear", "order": 2, "effects": [], "lr": 0.01}
     data_spec = DataSpec.from_config({"name": "lowpass", "scaling": {"mode": "standard"}})
     report = run_loop(model, data_spec, TRAINER, splits, tmp_path / "loop",
-                      LoopSettings(max_rounds=0, folds=3), use_tensorboard=False)
+                      LoopSettings(max_rounds=0, folds=3), use_tensorboard=False, plots=False)
     start = report["rounds"][0]
     fitted = start["fitted_on"]
     assert (fitted["samples"], fitted["recordings"]) == (1200, ["train0"])
@@ -154,7 +154,7 @@ def test_two_confounded_effects_are_both_refitted_and_the_folds_keep_the_better(
     settings = LoopSettings(max_rounds=1, folds=3, refit_lr_factors=(1.0,),
                             confounded_margin=0.99, max_alternatives=2, alpha=0.2)
     report = run_loop(model, data_spec, TRAINER, _splits(n_train=1500), tmp_path, settings,
-                      use_tensorboard=False)
+                      use_tensorboard=False, plots=False)
     start, refit = report["rounds"][:2]
     assert len(start["alternatives"]) == 1
     compared = refit["compared"]

@@ -42,7 +42,7 @@ def test_the_final_refit_trains_the_folds_median_best_epoch(tmp_path):
     folder, the loop reuses it."""
     folder = tmp_path / "loop"
     report = run_loop(MODEL, DATA, TRAINER, _splits(), folder,
-                      LoopSettings(max_rounds=0, folds=3), use_tensorboard=False)
+                      LoopSettings(max_rounds=0, folds=3), use_tensorboard=False, plots=False)
     best = [_trained_epochs(folder / "round_0" / f"fold_{j}")["simulation"] for j in range(3)]
     median = max(1, math.ceil(float(np.median(best))))
     assert median < EPOCHS, f"the folds' best epochs {best} do not test the length"
@@ -55,7 +55,7 @@ def test_the_final_refit_trains_the_folds_median_best_epoch(tmp_path):
     assert f"simulation {median} epoch" in page and "median best epoch" in page
 
     again = run_loop(MODEL, DATA, TRAINER, _splits(), folder,
-                     LoopSettings(max_rounds=0, folds=3), use_tensorboard=False)
+                     LoopSettings(max_rounds=0, folds=3), use_tensorboard=False, plots=False)
     assert again["rounds"][0]["mean_rmse_free_run"] == report["rounds"][0]["mean_rmse_free_run"]
     assert again["rounds"][0]["fitted_on"] == report["rounds"][0]["fitted_on"]
 

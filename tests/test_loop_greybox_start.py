@@ -29,7 +29,7 @@ def test_the_loop_from_a_greybox_does_not_diagnose_the_hysteresis_it_has(tmp_pat
                                   max_test_samples=2000, val_samples=3000)
     model = {"name": "greybox", "effects": [], "hysteresis": "bouc_wen", "recording_repeats": 1}
     report = run_loop(model, DataSpec.from_config({"name": "small"}), TRAINER, splits,
-                      tmp_path, LoopSettings(max_rounds=0), use_tensorboard=False)
+                      tmp_path, LoopSettings(max_rounds=0), use_tensorboard=False, plots=False)
     scored = {d["effect"] for d in report["rounds"][0]["diagnosis"]}
     assert "hysteresis" not in scored
     assert {"creep", "resonance"} <= scored

@@ -75,7 +75,7 @@ def test_the_loop_names_overflow_and_its_refit_cuts_the_free_run_error(tmp_path)
     data = DataSpec.from_config({"name": "clip", "scaling": {"mode": "standard"}})
     report = run_loop(model, data, TRAINER, clipped_splits(), tmp_path,
                       LoopSettings(max_rounds=1, refit_lr_factors=(1.0,), confounded_margin=0.25),
-                      use_tensorboard=False)
+                      use_tensorboard=False, plots=False)
     first, refit = report["rounds"][:2]
     significant = [d["effect"] for d in first["diagnosis"] if d["significant"]]
     # overflow and the output-level feedback both flatten the peaks, their scores too close
@@ -120,7 +120,7 @@ def test_the_default_loop_starts_linear_and_names_its_start(tmp_path):
     run = tmp_path / "loop"
     proc = run_app("loop", *data_overrides(train, tests), "loop.max_rounds=0",
                    "trainer.max_epochs=2", "trainer.enable_progress_bar=false", "logger=none",
-                   f"hydra.run.dir={run}")
+                   "plots=false", f"hydra.run.dir={run}")
     assert proc.returncode == 0, proc.stderr[-3000:]
     report = json.loads((run / "loop_report.json").read_text())
     assert report["model"] == "linear"
@@ -151,7 +151,7 @@ def _dead_zone_loop(tmp_path, factors: tuple[float, ...] | None, polish: bool = 
                             min_refit_gain=min_refit_gain, folds=folds)
     return run_loop(model, DataSpec.from_config({"name": "small"}),
                     TRAINER.with_changes(max_epochs=epochs), splits, tmp_path, settings,
-                    use_tensorboard=False)
+                    use_tensorboard=False, plots=False)
 
 
 def test_a_refit_rate_that_diverges_is_no_candidate_and_the_loop_goes_on(tmp_path):

@@ -90,12 +90,14 @@ def test_only_an_effect_foreign_to_the_declared_plant_is_held_back_for_excitatio
     settings = LoopSettings(max_rounds=0, refit_lr_factors=(1.0,))
     tank = run_loop(model, DataSpec.from_config({"name": "clip", "plant": "tank",
                                                  "scaling": {"mode": "standard"}}),
-                    trainer, splits, tmp_path / "tank", settings, use_tensorboard=False)
+                    trainer, splits, tmp_path / "tank", settings, use_tensorboard=False,
+                    plots=False)
     held = tank["rounds"][0].get("not_added_under_excited", [])
     assert held and all(h["plant"] == "tank" and h["worst_ratio"] > 2.0 for h in held)
     assert "foreign to data.plant=tank" in (tmp_path / "tank" / "loop_report.md").read_text()
     free = run_loop(model, DataSpec.from_config({"name": "clip", "scaling": {"mode": "standard"}}),
-                    trainer, splits, tmp_path / "free", settings, use_tensorboard=False)
+                    trainer, splits, tmp_path / "free", settings, use_tensorboard=False,
+                    plots=False)
     assert "not_added_under_excited" not in free["rounds"][0]
 
 

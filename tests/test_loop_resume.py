@@ -16,6 +16,7 @@ from hysteresis_lab import fit_record
 from hysteresis_lab.data.recording import Recording
 from hysteresis_lab.data.splits import DatasetSplits
 from hysteresis_lab.models.ffnn import FFNN
+from loop_notebook import check_loop_notebook
 
 REUSED = "reusing the finished fit"
 FOLDS = 2  # loop.folds: the fewest, for a short test
@@ -32,6 +33,7 @@ def _loop_args(tmp_path):
         "trainer.max_epochs=3",
         "trainer.enable_progress_bar=false",
         "logger=none",
+        "plots=false",  # no figures: the report alone (and the loop is faster)
     ]
 
 
@@ -62,6 +64,8 @@ def test_a_killed_loop_resumes_without_retraining_its_finished_fits(tmp_path):
     assert whole.returncode == 0, whole.stderr[-3000:]
     expected = json.loads((tmp_path / "whole" / "loop_report.json").read_text())
     assert len(expected["rounds"]) == 2  # a refit ran after round 0: the kill lands between
+    assert expected["plots"] is False
+    check_loop_notebook(tmp_path / "whole")  # plots=false: no figure drawn or linked
 
     run_dir = tmp_path / "killed"
     killed = popen_app("loop", *args, f"hydra.run.dir={run_dir}")

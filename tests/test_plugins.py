@@ -116,7 +116,7 @@ def test_a_loop_that_never_names_a_broken_effect_runs_and_reports(tmp_path):
     root = install_broken_plugin(tmp_path / "site", {effect: GROUPS[effect]})
     train, tests = small_dataset(tmp_path, effects={"creep": {"enabled": True}})
     proc = run_app("loop", *data_overrides(train, tests), "model=svm", "model.n_components=100",
-                   "model.max_samples=1000", "loop.max_rounds=0", "logger=none",
+                   "model.max_samples=1000", "loop.max_rounds=0", "logger=none", "plots=false",
                    f"hydra.run.dir={tmp_path}/loop", env=with_plugin(root))
     assert proc.returncode == 0, proc.stderr[-3000:]
     log = proc.stdout + proc.stderr

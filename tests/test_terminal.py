@@ -101,7 +101,7 @@ def test_a_loop_prints_one_line_per_round_and_where_its_report_is(tmp_path):
     train, tests = small_dataset(tmp_path, effects={"creep": {"enabled": True}})
     run_dir = tmp_path / "loop"
     output = run_console("loop", *data_overrides(train, tests), "model=ffnn",
-                         "loop.max_rounds=1", "trainer.max_epochs=3", "logger=none",
+                         "loop.max_rounds=1", "trainer.max_epochs=3", "logger=none", "plots=false",
                          "loop.folds=2", "loop.refit_lr_factors=[1.0]",  # a short loop
                          f"hydra.run.dir={run_dir}", cwd=tmp_path)
     report = json.loads((run_dir / "loop_report.json").read_text())

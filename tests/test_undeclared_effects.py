@@ -173,7 +173,8 @@ def test_the_loop_adds_the_undeclared_effect_and_its_refit_cuts_the_error(case, 
                                 max_test_samples=3000, val_samples=4000)
     model = {"name": "linear", "effects": [], "lr": 0.02}
     report = run_loop(model, DataSpec.from_config({"name": "small"}), TRAINER, data, tmp_path,
-                      LoopSettings(max_rounds=1, refit_lr_factors=(1.0,)), use_tensorboard=False)
+                      LoopSettings(max_rounds=1, refit_lr_factors=(1.0,)), use_tensorboard=False,
+                      plots=False)
     first, refit = report["rounds"][:2]
     assert first["added"] == case, first["diagnosis"][:3]
     assert refit["effects"] == [case] and "rejected" not in refit
@@ -194,7 +195,8 @@ def test_a_backlash_the_loop_keeps_cuts_the_error(tmp_path):
                                 max_test_samples=3000, val_samples=4000)
     model = {"name": "linear", "effects": [], "lr": 0.005}
     report = run_loop(model, DataSpec.from_config({"name": "small"}), TRAINER, data, tmp_path,
-                      LoopSettings(max_rounds=1, refit_lr_factors=(1.0,)), use_tensorboard=False)
+                      LoopSettings(max_rounds=1, refit_lr_factors=(1.0,)), use_tensorboard=False,
+                      plots=False)
     first, result = report["rounds"][0], report["rounds"][report["result"]]
     assert first["added"] in CASES["backlash"][2], first["diagnosis"][:3]
     assert "backlash" in result["effects"], [r.get("note") for r in report["rounds"]]
@@ -214,7 +216,7 @@ def test_the_loop_setting_reads_the_residual_through_the_model_dynamics(tmp_path
                           DataSpec.from_config({"name": "small"}), TRAINER, data,
                           tmp_path / str(through),
                           LoopSettings(max_rounds=0, diagnosis_through_dynamics=through),
-                          use_tensorboard=False)
+                          use_tensorboard=False, plots=False)
         diagnosis = report["rounds"][0]["diagnosis"]
         scores[through] = next(d["score"] for d in diagnosis if d["effect"] == "saturation")
     assert scores[True] > scores[False] + 0.05, scores

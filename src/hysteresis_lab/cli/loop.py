@@ -74,6 +74,7 @@ def run_config(cfg: DictConfig, output_dir: Path) -> dict:
         seed=cfg.seed,
         use_tensorboard=bool(cfg.logger.enabled),
         training=OmegaConf.to_container(cfg.training, resolve=True),
+        plots=bool(cfg.plots),
     )
 
 

@@ -235,6 +235,8 @@ class _LoopRun:
     fold_judges: list[Callable[[RunResult], HeldOut]]
     folder: LoopFolder
     use_tensorboard: bool
+    #: the report's figures drawn (PNG, and the diagnostics in TensorBoard); the config's ``plots``
+    plots: bool
     #: the data config (the advice on recordings to add names its overrides)
     data_spec: DataSpec
     device: str
@@ -301,10 +303,12 @@ def run_loop(
     seed: int = 0,
     use_tensorboard: bool = True,
     training: Mapping[str, Any] | TrainingSettings | None = None,
+    plots: bool = True,
 ) -> dict[str, Any]:
     """Run the loop on ``splits``, the data set of ``data_spec``, from the model
     ``model_cfg`` trained with ``training`` (the ``training`` config, or settings; unset
-    values: the model's own); write ``loop_report.json``, ``loop_report.md`` and figures."""
+    values: the model's own); write ``loop_report.json``, ``loop_report.md`` and, with
+    ``plots``, the figures."""
     model = model_cfg if isinstance(model_cfg, ModelSpec) else ModelSpec.from_config(model_cfg)
     if not isinstance(training, TrainingSettings):
         training = model.training_settings(training)
@@ -319,7 +323,7 @@ def run_loop(
     log.info("loop start: %s", start_label(start))
     data = loop_data(splits, data_spec, settings.folds)
     log.info("loop data roles: %s", data.roles())
-    bookkeeping = RunSettings(seed=seed, use_tensorboard=use_tensorboard,
+    bookkeeping = RunSettings(seed=seed, use_tensorboard=use_tensorboard, plots=plots,
                               min_refit_gain=settings.min_refit_gain, reuse=settings.resume,
                               resume=settings.resume)
     base = RunConfig(model, data_spec, trainer, output_dir, bookkeeping, training)
@@ -339,6 +343,7 @@ def run_loop(
                      for fold in data.folds],
         folder=LoopFolder(output_dir),
         use_tensorboard=use_tensorboard,
+        plots=plots,
         data_spec=data_spec,
         device=device,
     )
@@ -361,8 +366,9 @@ def _run_rounds(run: _LoopRun, state: _LoopState) -> None:
     for number in itertools.count():
         entry, goes_on = _fit_round_and_decide(run, state, number)
         goes_on = goes_on and _choose_next_effect(run, state, entry)
-        write_round_figures(run.folder, number, entry, state.evidence, run.context,
-                            run.settings.min_score)
+        if run.plots:
+            write_round_figures(run.folder, number, entry, state.evidence, run.context,
+                                run.settings.min_score)
         report = {"units": {"y": run.data.fit.test[0].y_units}, "rounds": state.rounds}
         log.info("%s", round_line(report, number), extra=SUMMARY)
         if not goes_on:
@@ -383,6 +389,7 @@ def _report(
         "roles": run.data.roles(),
         "result": _result_round(state.rounds, state.kept),
         "rounds": state.rounds,
+        "plots": run.plots,
     }
     if stopped is not None:
         report["stopped"] = stopped
@@ -478,7 +485,8 @@ def _fit_round_and_decide(
                                settings.min_score, 1.0)
     if advice:
         entry["under_excited"] = advice
-    entry["figures"] = {"diagnostics": run.folder.relative(round_dir / DIAGNOSTICS_FIGURE)}
+    if run.plots:
+        entry["figures"] = {"diagnostics": run.folder.relative(round_dir / DIAGNOSTICS_FIGURE)}
     return entry, True
 
 
@@ -678,11 +686,11 @@ def beyond_identification(effect: str, identification: Sequence[Recording],
 
 
 def _write_report(run: _LoopRun, state: _LoopState, report: dict[str, Any]) -> None:
-    """``loop_report.json`` / ``.md`` and the before/after figure; the result and where the
-    report is, in the log."""
+    """``loop_report.json`` / ``.md`` and the before/after figure (``plots``); the result and
+    where the report is, in the log."""
     write_json(report, run.folder.report_json)
     run.folder.report_md.write_text(loop_markdown(report))
-    if state.kept:
+    if state.kept and run.plots:
         _before_after_figure(run.data.fit, state.kept[0].final, state.kept[-1].final,
                              state.rounds, state.effects, run.folder.before_after_figure)
     log.info("%s", result_line(report), extra=SUMMARY)
@@ -905,8 +913,9 @@ def _diagnose_round(
                                      settings.min_score)
     write_json(residual_analysis(shown, shown_predictions, 0),
                round_dir / "residual_analysis.json")
-    figure = diagnostics_figure(shown, shown_predictions, 0)
-    save_figure(figure, round_dir / DIAGNOSTICS_FIGURE)
+    figure = diagnostics_figure(shown, shown_predictions, 0) if run.plots else None
+    if figure is not None:
+        save_figure(figure, round_dir / DIAGNOSTICS_FIGURE)
     if run.use_tensorboard:
         _log_round_to_tensorboard(round_dir / "tensorboard", figure, diagnosis, number)
     evidence = ResidualEvidence(recordings, kept, starts, [part.name for part in shown])
@@ -969,13 +978,15 @@ def _refit_mode(refit: str, added: str | None, model_cls: type) -> str:
 
 
 def _log_round_to_tensorboard(
-    log_dir: Path, figure: Any, diagnosis: list[Any], number: int
+    log_dir: Path, figure: Any | None, diagnosis: list[Any], number: int
 ) -> None:
-    """Residual diagnostics figure and every tested effect's score, beside the round's
-    training logs."""
+    """Residual diagnostics figure (where drawn) and every tested effect's score, beside the
+    round's training logs."""
     from torch.utils.tensorboard import SummaryWriter
 
     with SummaryWriter(log_dir=str(log_dir)) as writer:
-        writer.add_figure("loop/residual_diagnostics", figure, global_step=number, close=False)
+        if figure is not None:
+            writer.add_figure("loop/residual_diagnostics", figure, global_step=number,
+                              close=False)
         for d in (d for d in diagnosis if d.tested):
             writer.add_scalar(f"loop/diagnosis_score/{d.effect}", d.score, global_step=number)

@@ -432,7 +432,8 @@ def _result_section(report: Mapping[str, Any], unit: str) -> list[str]:
     first, last = rounds[0]["mean_rmse_free_run"], result["mean_rmse_free_run"]
     lines += ["", f"Mean free-run RMSE {first:.4g} -> {last:.4g} {unit} "
               f"({_change(first, last)}).", ""]
-    lines.append(f"![test recordings: free run before and after]({LoopFolder.BEFORE_AFTER})")
+    if report.get("plots", True):  # plots=false: no figures drawn
+        lines.append(f"![test recordings: free run before and after]({LoopFolder.BEFORE_AFTER})")
     return lines
 
 
