@@ -231,14 +231,16 @@ PIECES = ("exponent", "asymmetry", "creep", "modes", "delay")
 #: modes (a feedthrough beside them) off the data and carries an asymmetric term, its cell a
 #: Bouc-Wen one whose exponent the L-BFGS polish learns or a Prandtl-Ishlinskii one;
 #: model=linear's cell is Bouc-Wen of exponent 1 or Prandtl-Ishlinskii, without an asymmetric
-#: term; none carries creep undeclared
+#: term; neither carries creep undeclared. The loop can grow asymmetry and creep (`GROWN`)
 GAPS = {"greybox": ("creep",),
         "linear+hysteresis": ("exponent", "asymmetry", "creep"),
-        "loop": ("exponent", "asymmetry", "creep")}
-#: the models whose cell can be a Prandtl-Ishlinskii one (model.hysteresis=auto). The loop
-#: tries both cells when it adds hysteresis since 758eaf4; its kept fits are older (add it
-#: here once they are refitted)
-HOLD_PLAYS = ("greybox", "linear+hysteresis")
+        "loop": ("exponent",)}
+#: pieces the loop can add, each with the effect that adds it: a loop fit that did not keep
+#: it misses it by its diagnosis, not its structure
+GROWN = {"asymmetry": "asymmetry", "creep": "creep"}
+#: the models whose cell can be a Prandtl-Ishlinskii one (model.hysteresis=auto; the loop
+#: tries both cells when it adds hysteresis: every kept loop fit is newer than 758eaf4)
+HOLD_PLAYS = ("greybox", "linear+hysteresis", "loop")
 
 
 def gap_sizes(effects: dict[str, Any], sigma: float) -> dict[str, float]:
@@ -281,6 +283,17 @@ def structure_gaps(row: dict[str, Any], fit: str) -> list[str]:
     return gaps
 
 
+def not_grown(row: dict[str, Any]) -> list[str]:
+    """The pieces of the plant the loop could have added but did not keep, each with its
+    size (pieces smaller than σ left out)."""
+    d, sizes = row["description"], row.get("gaps", {})
+    kept = row["fits"].get("loop", {}).get("effects", [])
+    names = {"asymmetry": "asymmetric loop",
+             "creep": f"creep {100 * d['creep_per_decade']:.1f} %/decade"}
+    return [f"{names[gap]} ({sizes[gap]:.3g} σ)" for gap, effect in GROWN.items()
+            if effect not in kept and sizes.get(gap, 0.0) >= 1.0]
+
+
 def why(row: dict[str, Any], fit: str) -> str:
     """Why a fit misses 3 σ, with numbers: excitation (validation far better than the tests),
     start (the loop's grown path far better), structure (what the model cannot hold),
@@ -299,9 +312,12 @@ def why(row: dict[str, Any], fit: str) -> str:
     if fit != "loop" and "ratio" in loop and loop["ratio"] < s["ratio"] / 1.2:
         reasons.append(f"start: the grown loop reaches {loop['ratio']:.3g} σ")
     gaps = structure_gaps(row, fit)
+    missed = not_grown(row) if fit == "loop" else []
     if gaps:
         reasons.append("structure (each piece's size alone): " + ", ".join(gaps))
-    elif math.isfinite(val) and val > 3.0:
+    if missed:
+        reasons.append("diagnosis: not added, though the loop can: " + ", ".join(missed))
+    if not gaps and not missed and math.isfinite(val) and val > 3.0:
         reasons.append(f"optimiser: validation {val:.3g} σ with the plant inside the class")
     if not any(reason.startswith("excitation") for reason in reasons):
         reasons.append(f"validation {val:.3g} σ, tests {s['ratio']:.3g} σ")
@@ -420,12 +436,14 @@ def render(kept: dict[str, dict]) -> str:
               "the plant has that the model cannot hold with its defaults (the greybox: the "
               "delay and 1–3 modes with a feedthrough read off the data, an asymmetric term, "
               "a Bouc–Wen cell whose exponent the L-BFGS polish learns or a "
-              "Prandtl–Ishlinskii cell; `model=linear`: a Bouc–Wen cell of exponent 1 or a "
-              "Prandtl–Ishlinskii cell, no asymmetric term; the loop's kept fits: a Bouc–Wen "
-              "cell of exponent 1; none carries creep undeclared); optimiser: validation far "
-              "above σ with nothing structural missing. Validation RMSE is read from the "
-              "fit's scaled validation loss times the training output's standard deviation "
-              "(the CSV path's standard scaling); the loop's is its held-out RMSE.", ""]
+              "Prandtl–Ishlinskii cell, no creep undeclared; `model=linear`: a Bouc–Wen cell "
+              "of exponent 1 or a Prandtl–Ishlinskii cell, no asymmetric term, no creep "
+              "undeclared; the loop: a Bouc–Wen cell of exponent 1 or a Prandtl–Ishlinskii "
+              "cell, and the effects it adds); diagnosis: an asymmetry or creep the loop "
+              "could have added and did not; optimiser: validation far above σ with nothing "
+              "structural missing. Validation RMSE is read from the fit's scaled validation "
+              "loss times the training output's standard deviation (the CSV path's standard "
+              "scaling); the loop's is its held-out RMSE.", ""]
     for row in rows:
         for fit in FITS:
             s = score(row, fit)

@@ -59,6 +59,24 @@ def test_a_model_fitted_on_fewer_plants_is_counted_over_its_own(monkeypatch):
     assert "Fitted on fewer plants: `loop` on 2." in page
 
 
+def test_a_piece_the_loop_can_grow_and_did_not_is_its_diagnosis_not_its_structure(
+        monkeypatch):
+    """Creep or asymmetry a loop fit lacks is named as not added (the loop can grow it), a
+    Bouc-Wen exponent as structure; once the loop keeps creep, creep is no reason."""
+    zoo = _script("zoo", monkeypatch)
+    kept = json.loads((REPO / "docs" / "results" / "zoo.json").read_text())
+    row = copy.deepcopy(kept["12"])  # Bouc-Wen n 2.43 with creep
+    row["gaps"].update(creep=11.0, exponent=58.0)
+    row["fits"]["loop"]["effects"] = ["hysteresis"]
+    reasons = zoo.why(row, "loop")
+    assert "diagnosis: not added, though the loop can: creep" in reasons
+    assert "structure (each piece's size alone): Bouc–Wen n = 2.43" in reasons
+    greybox = zoo.why(row, "greybox")  # the grey-box cannot grow creep undeclared
+    assert "structure (each piece's size alone): creep" in greybox and "diagnosis" not in greybox
+    row["fits"]["loop"]["effects"] = ["hysteresis", "creep"]
+    assert "creep" not in zoo.why(row, "loop")
+
+
 def test_a_comparison_without_cpu_records_is_timed_by_its_logs(monkeypatch, tmp_path):
     pair = _script("greybox_pair", monkeypatch)
     comparison = pair.COMPARISONS["feedthrough"]
