@@ -89,6 +89,21 @@ def test_a_declared_model_is_grown_from_its_fitted_linear_start(tmp_path):
     assert np.isfinite(metrics["mean"]["rmse_free_run"])
 
 
+def test_each_stage_is_polished_before_the_next_block_is_added(tmp_path):
+    """With ``model.polish`` a stage before the last ends with its own L-BFGS polish, and the
+    next block grows on the polished model, as the loop adds it."""
+    data, _ = _positioner()
+    result = run_model(RunConfig.build(
+        {"name": "linear", "effects": ["hysteresis"], "grow": True, "polish": True},
+        {"name": "default"}, TRAINER, tmp_path, {"lr": 0.002}, use_tensorboard=False,
+        plots=False), splits=data)
+    linear = tmp_path / "grow" / "0_linear"
+    adam, polished = _best_loss(linear / "checkpoints"), _best_loss(linear / "polish")
+    assert polished < adam
+    assert result.refit_validation is not None
+    assert result.refit_validation["start"] == pytest.approx(polished, rel=1e-3)
+
+
 def _best_loss(folder) -> float:
     """The lowest validation loss of the checkpoints kept under ``folder``."""
     return min(float(p.stem.split("val_loss=")[1]) for p in folder.rglob("best-*.ckpt"))

@@ -17,7 +17,7 @@ from hysteresis_lab.errors import ConfigError
 from hysteresis_lab.evaluation.predict import free_run
 from hysteresis_lab.fitting import build_model, fit
 from hysteresis_lab.lightning_trainer import TrainerSettings
-from hysteresis_lab.models.full_batch import lbfgs_closure
+from hysteresis_lab.models.full_batch import lbfgs_closure, make_lbfgs
 from hysteresis_lab.models.settings import TrainingSettings
 from hysteresis_lab.models.spec import ModelSpec
 from hysteresis_lab.sim.default_dataset import make_default_dataset
@@ -82,6 +82,25 @@ def test_a_trial_point_whose_free_run_is_not_finite_makes_the_line_search_step_b
     loss = closure()
     assert loss == math.inf
     assert torch.equal(weight.grad, torch.zeros(3))
+
+
+def test_a_step_past_the_finite_region_steps_back_and_still_descends():
+    """A loss finite only near the start (a free run stable only there): the first trial
+    step leaves that region, the line search steps back and the step still lowers the loss
+    (an infinite trial loss left the step where it began)."""
+    weight = torch.nn.Parameter(torch.zeros(2))
+    target = torch.tensor([3.0, -2.0])
+
+    def loss_of() -> torch.Tensor:
+        loss = ((weight - target) ** 2).sum()
+        return loss if float(weight.detach().abs().max()) < 0.05 else loss * math.nan
+
+    optimizer = make_lbfgs([weight], iterations=10)
+    start = float(loss_of())
+    closure = lbfgs_closure(optimizer, loss_of, lambda loss: loss.backward())
+    assert float(optimizer.step(closure)) == start  # the step's start
+    assert torch.isfinite(weight).all() and float(weight.abs().max()) < 0.05
+    assert float(loss_of()) < start - 0.1
 
 
 def test_lbfgs_refits_at_one_rate_adam_at_each_factor():

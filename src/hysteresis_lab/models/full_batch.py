@@ -6,8 +6,9 @@ rate. `torch.optim.LBFGS` with the strong-Wolfe line search does the work.
 An epoch is one L-BFGS step of `iterations` iterations over every training recording; the
 learning rate and schedule do not apply (the line search sets each step's length), and a
 stage ends once an epoch lowers the loss by less than `CONVERGED` of it. A trial
-point whose free run is not finite returns an infinite loss with no gradient, so the line
-search shortens its step instead of stopping the fit.
+point whose free run is not finite (a step that leaves the stable region) returns a loss far
+above the step's start with no gradient, so the line search steps back towards the start;
+an infinite one would turn its cubic interpolation into NaN and end the step where it began.
 """
 
 from __future__ import annotations
@@ -26,6 +27,9 @@ TOLERANCE_GRAD, TOLERANCE_CHANGE = 1e-12, 1e-15
 #: an epoch (one step of its iterations) that lowers the loss by less than this share of it:
 #: converged, the stage ends
 CONVERGED = 1e-4
+#: the loss of a trial point whose free run is not finite: this many times the step's start
+#: (at least `NON_FINITE_FLOOR`)
+NON_FINITE_FACTOR, NON_FINITE_FLOOR = 1e3, 1.0
 
 
 def make_lbfgs(parameters: Iterable[torch.nn.Parameter], iterations: int) -> torch.optim.LBFGS:
@@ -45,17 +49,28 @@ def lbfgs_closure(
     optimizer: torch.optim.Optimizer, loss_of: Callable[[], torch.Tensor],
     backward: Callable[[torch.Tensor], None],
 ) -> Callable[[], torch.Tensor]:
-    """The closure L-BFGS evaluates: the loss and its gradient at the current parameters; a
-    non-finite loss is returned as +inf with zero gradients (the line search steps back)."""
+    """The closure L-BFGS evaluates in one step: the loss and its gradient at the current
+    parameters. A non-finite loss comes with zero gradients: at the step's start (its first
+    evaluation) as +inf (the fit has diverged); at a trial point as a finite loss far above
+    the start (`NON_FINITE_FACTOR`), which the strong-Wolfe line search steps back from."""
+    start: float | None = None
 
     def closure() -> torch.Tensor:
+        nonlocal start
         optimizer.zero_grad()
         loss = loss_of()
-        if not math.isfinite(float(loss.detach())):
+        value = float(loss.detach())
+        first = start is None
+        if first:
+            start = value
+        if not math.isfinite(value):
             for group in optimizer.param_groups:
                 for parameter in group["params"]:
                     parameter.grad = torch.zeros_like(parameter)
-            return torch.tensor(math.inf, dtype=loss.dtype)
+            assert start is not None
+            far = (math.inf if first or not math.isfinite(start)
+                   else max(NON_FINITE_FLOOR, NON_FINITE_FACTOR * abs(start)))
+            return torch.tensor(far, dtype=loss.dtype)
         backward(loss)
         return loss
 

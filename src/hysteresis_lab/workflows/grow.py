@@ -24,7 +24,9 @@ with the settings the class gives it (``polish_settings``: the grey-box frees it
 exponent there) and kept where it lowers the validation free-run loss. Adam brings the few
 parameters of a physical model near their optimum; the second-order steps land on it (the
 grey-box on zoo plant 0, a Bouc–Wen cell of exponent 1.56: 156 σ before, 7.4 σ after,
-`docs/results/zoo.md`).
+`docs/results/zoo.md`). While growing, each stage before the last is polished too, with its
+own settings, in ``<run>/grow/<k>_<label>/polish/``: every block is added to a polished
+model, as the loop adds it.
 
 Every stage trains in ``<run>/grow/<k>_<label>/`` (a refit: one folder per learning rate),
 the fit at once in ``<run>/grow/at_once/``; the chosen model is the run's model, saved and
@@ -182,15 +184,23 @@ def polishes_fits(model_settings: Mapping[str, Any], training: TrainingSettings)
 
 
 def _polished(config: RunConfig, data: ModelData, fitted: TrainResult,
-              callbacks: list[Any] | None) -> TrainResult:
+              callbacks: list[Any] | None, stage: Stage | None = None,
+              folder: Path | None = None) -> TrainResult:
     """``fitted`` refined by full-batch L-BFGS in ``<run>/grow/polish`` (the model class's
     `polish_settings`: the grey-box frees its Bouc–Wen exponent there), kept where it lowers
     the validation free-run loss. Adam brings a physical model near its optimum; a
-    second-order step on its few parameters lands on it. A polish that diverges is none."""
+    second-order step on its few parameters lands on it. A polish that diverges is none.
+    A growth ``stage`` before the last is polished with its own settings in ``folder``."""
     name = config.model.name
-    folder = config.output_dir / STAGES_FOLDER / POLISH_FOLDER
-    settings = config.model.cls.polish_settings(config.model.settings)
-    log.info("%s: the fitted model polished by L-BFGS", name)
+    if stage is None:
+        folder = config.output_dir / STAGES_FOLDER / POLISH_FOLDER
+        settings = config.model.cls.polish_settings(config.model.settings)
+        log.info("%s: the fitted model polished by L-BFGS", name)
+    else:
+        assert folder is not None
+        settings = dict(stage.settings)
+        name = f"growing {name}: {stage.label}"
+        log.info("%s polished by L-BFGS before the next block is added", name)
     # the polish keeps its best weights, even after a fit that kept its last (a loop's)
     config = dataclasses.replace(config, settings=dataclasses.replace(config.settings,
                                                                       keep_last=False))
@@ -307,6 +317,10 @@ def grow(config: RunConfig, data: ModelData, callbacks: list[Any] | None = None,
             continue
         folder = config.output_dir / STAGES_FOLDER / f"{number}_{stage.label}"
         previous = _grow_stage(config, data, stage, folder, previous, callbacks, position)
+        if number < len(stages) - 1 and polishes(config):  # as the loop's rounds: each
+            # block is added to a polished model (the last stage: `train_model` polishes it)
+            previous = _polished(config, data, previous, callbacks, stage,
+                                 folder / POLISH_FOLDER)
         if key is not None:
             first_stages[key] = _copied(previous)
     assert previous is not None
