@@ -60,16 +60,15 @@ def lbfgs_closure(
         optimizer.zero_grad()
         loss = loss_of()
         value = float(loss.detach())
-        first = start is None
-        if first:
-            start = value
+        if start is None:  # the step's start
+            start, far = value, math.inf
+        else:
+            far = (max(NON_FINITE_FLOOR, NON_FINITE_FACTOR * abs(start))
+                   if math.isfinite(start) else math.inf)
         if not math.isfinite(value):
             for group in optimizer.param_groups:
                 for parameter in group["params"]:
                     parameter.grad = torch.zeros_like(parameter)
-            assert start is not None
-            far = (math.inf if first or not math.isfinite(start)
-                   else max(NON_FINITE_FLOOR, NON_FINITE_FACTOR * abs(start)))
             return torch.tensor(far, dtype=loss.dtype)
         backward(loss)
         return loss
