@@ -265,33 +265,34 @@ def gap_sizes(effects: dict[str, Any], sigma: float) -> dict[str, float]:
     return sizes
 
 
-def structure_gaps(row: dict[str, Any], fit: str) -> list[str]:
-    """What of the plant lies outside the fitted model's class, each with its size (pieces
-    smaller than σ left out)."""
+def _sized_pieces(row: dict[str, Any], pieces: Sequence[str]) -> list[str]:
+    """Each of ``pieces`` of the plant named with its size (`gap_sizes`), those smaller than
+    σ left out (a piece below the noise is no miss's reason)."""
     d, sizes = row["description"], row.get("gaps", {})
-    gaps = []
-    if d["cell"] == "prandtl_ishlinskii" and fit not in HOLD_PLAYS:
-        gaps.append(f"Prandtl–Ishlinskii cell ({d['plays']} plays, share {d['pi_share']:.2f})")
     names = {"exponent": f"Bouc–Wen n = {d.get('exponent', 1.0):.2f}",
              "asymmetry": "asymmetric loop",
              "creep": f"creep {100 * d['creep_per_decade']:.1f} %/decade",
              "modes": f"{len(d['modes_hz'])} modes",
              "delay": f"{d['delay_samples']} samples of delay"}
-    for gap in GAPS[fit]:
-        if sizes.get(gap, 0.0) >= 1.0:  # a piece below the noise is no miss's reason
-            gaps.append(f"{names[gap]} ({sizes[gap]:.3g} σ)")
-    return gaps
+    return [f"{names[piece]} ({sizes[piece]:.3g} σ)" for piece in pieces
+            if sizes.get(piece, 0.0) >= 1.0]
+
+
+def structure_gaps(row: dict[str, Any], fit: str) -> list[str]:
+    """What of the plant lies outside the fitted model's class, each with its size (pieces
+    smaller than σ left out)."""
+    d = row["description"]
+    gaps = []
+    if d["cell"] == "prandtl_ishlinskii" and fit not in HOLD_PLAYS:
+        gaps.append(f"Prandtl–Ishlinskii cell ({d['plays']} plays, share {d['pi_share']:.2f})")
+    return gaps + _sized_pieces(row, GAPS[fit])
 
 
 def not_grown(row: dict[str, Any]) -> list[str]:
     """The pieces of the plant the loop could have added but did not keep, each with its
     size (pieces smaller than σ left out)."""
-    d, sizes = row["description"], row.get("gaps", {})
     kept = row["fits"].get("loop", {}).get("effects", [])
-    names = {"asymmetry": "asymmetric loop",
-             "creep": f"creep {100 * d['creep_per_decade']:.1f} %/decade"}
-    return [f"{names[gap]} ({sizes[gap]:.3g} σ)" for gap, effect in GROWN.items()
-            if effect not in kept and sizes.get(gap, 0.0) >= 1.0]
+    return _sized_pieces(row, [piece for piece, effect in GROWN.items() if effect not in kept])
 
 
 def why(row: dict[str, Any], fit: str) -> str:

@@ -235,11 +235,15 @@ class _LoopRun:
     fold_judges: list[Callable[[RunResult], HeldOut]]
     folder: LoopFolder
     use_tensorboard: bool
-    #: the report's figures drawn (PNG, and the diagnostics in TensorBoard); the config's ``plots``
-    plots: bool
     #: the data config (the advice on recordings to add names its overrides)
     data_spec: DataSpec
     device: str
+
+    @property
+    def plots(self) -> bool:
+        """Whether the report's figures are drawn (PNG, and the diagnostics in TensorBoard):
+        the config's ``plots``, as the whole record's fits draw theirs."""
+        return self.whole.config.settings.plots
 
 
 @dataclass
@@ -343,7 +347,6 @@ def run_loop(
                      for fold in data.folds],
         folder=LoopFolder(output_dir),
         use_tensorboard=use_tensorboard,
-        plots=plots,
         data_spec=data_spec,
         device=device,
     )
