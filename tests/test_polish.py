@@ -49,7 +49,8 @@ def csv_run(tmp_path, model: str, *overrides: str,
 
 def test_the_polished_greybox_fits_better_with_its_exponent_learned(tmp_path):
     assert draw_effects(BOUC_WEN_PLANT)["hysteresis"]["exponent"] > 1.3
-    cell = ("model.hysteresis=bouc_wen", "model.grow=false")
+    # the delay fixed: a learned one takes up part of the misfit the exponent is checked on
+    cell = ("model.hysteresis=bouc_wen", "model.grow=false", "model.delay_span=0")
     plain, plain_model = csv_run(tmp_path / "plain", "greybox", *cell, "model.polish=false")
     polished, model = csv_run(tmp_path / "polished", "greybox", *cell)
     assert not (tmp_path / "plain" / "run" / "grow" / "polish").exists()

@@ -72,6 +72,7 @@ from hysteresis_lab.blocks.estimate import (
     ChainStructure,
     estimate_modes,
 )
+from hysteresis_lab.blocks.fractional_delay import LearnedDelay
 from hysteresis_lab.blocks.modal import ModalDynamics
 from hysteresis_lab.blocks.step import StepState, frozen
 from hysteresis_lab.data.recording import Recording
@@ -189,6 +190,7 @@ class GreyBox(PhysicalChainModule):
         feedthrough: bool = True,
         amplifier_hz: float | None = None,
         delay: int | str = AUTO,
+        delay_span: int = 0,
         creep_time_constants_s: Sequence[float] = (0.1, 1.0, 10.0, 100.0),
         operators: int = 8,
         residual_neurons: int = 0,
@@ -225,6 +227,9 @@ class GreyBox(PhysicalChainModule):
         if not (delay == AUTO or _whole(delay) and delay >= 0):
             problems.append(f"model.delay={delay!r} (whole samples >= 0, or auto: 0-"
                             f"{MAX_AUTO_DELAY} chosen from the data)")
+        if not (_whole(delay_span) and delay_span >= 0):
+            problems.append(f"model.delay_span={delay_span!r} (whole samples >= 0; 0: the "
+                            "delay stays fixed)")
         if not (isinstance(residual_neurons, int) and residual_neurons >= 0
                 and isinstance(residual_layers, int) and residual_layers >= 1):
             problems.append(f"model.residual_neurons={residual_neurons!r} / residual_layers="
@@ -277,7 +282,7 @@ class GreyBox(PhysicalChainModule):
         nyquist = 0.5 * fs
         self.amplifier = FirstOrderLag(fs, amplifier_hz or 0.25 * fs,
                                        min_cutoff_hz=self.f_floor)
-        self.delay = Delay(delay)
+        self.delay = self._delay_block(delay)
         self.hysteresis = _hysteresis_cell(hysteresis, operators,
                                            learn_exponent=self._learns_exponent(),
                                            amplitude=self._input_amplitude(0))
@@ -298,6 +303,12 @@ class GreyBox(PhysicalChainModule):
             with torch.no_grad():
                 self.residual[-1].weight.zero_()
                 self.residual[-1].bias.zero_()
+
+    def _delay_block(self, samples: int) -> Delay | LearnedDelay:
+        """The one-axis chain's input delay: ``samples`` fixed, or learned within
+        ``model.delay_span`` samples either side of it (`LearnedDelay`)."""
+        span = int(self.hparams.get("delay_span") or 0)
+        return LearnedDelay(samples, span) if span else Delay(samples)
 
     def _modes(self, fs: float, frequency_hz: float | Sequence[float],
                damping: float | Sequence[float], n_modes: int,
@@ -678,7 +689,7 @@ class GreyBox(PhysicalChainModule):
     def _set_structure(self, delay: int, n_modes: int, fs: float) -> None:
         """Rebuild the delay and the modes (placeholders) for ``delay`` samples and
         ``n_modes`` modes (plus the declared effects'), recorded in ``hparams``."""
-        self.delay = Delay(delay)
+        self.delay = self._delay_block(delay).to(self.offset.device)
         modes = n_modes + self.extra_modes
         if self.mode is None or self.mode.n_modes != modes:
             self.mode = (self._modes(fs, self.hparams.get("mode_hz") or 0.05 * fs,
@@ -840,7 +851,7 @@ class GreyBox(PhysicalChainModule):
                   "mode": self.mode}
         out = {name: block.export() for name, block in blocks.items() if block is not None}
         out.update(gain=float(self.gain.detach()), offset=float(self.offset.detach()),
-                   delay=self.delay.samples)
+                   delay=getattr(self.delay, "delay_samples", self.delay.samples))
         return out
 
     def _mimo_parameters(self) -> dict[str, Any]:
