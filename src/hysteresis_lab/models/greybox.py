@@ -37,7 +37,9 @@ parameters and fits exactly as before MIMO.
 
 The model starts from values read off the data (`initialise_from_data`: the static gain by
 least squares, the mode from the best linear approximation's resonance peak, the output
-offset) and is fitted on the free-run error of whole recordings, each simulated from rest
+offset, the input delay, which one axis then learns within ``model.delay_span`` samples of
+it: `hysteresis_lab.blocks.fractional_delay.LearnedDelay`) and is fitted on the free-run
+error of whole recordings, each simulated from rest
 (the physical state is known there; a segment cut from the middle of a recording would start
 from an unknown hysteresis state). It simulates from the input alone, so its one-step
 prediction is its free run (an output-error model's predictor) and it extrapolates to
@@ -190,7 +192,7 @@ class GreyBox(PhysicalChainModule):
         feedthrough: bool = True,
         amplifier_hz: float | None = None,
         delay: int | str = AUTO,
-        delay_span: int = 0,
+        delay_span: int = 0,  # the config's default is 1; 0 rebuilds models saved before it
         creep_time_constants_s: Sequence[float] = (0.1, 1.0, 10.0, 100.0),
         operators: int = 8,
         residual_neurons: int = 0,
