@@ -3,12 +3,11 @@ to start, a Lagrange fractional delay within the span learned on the simulation 
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 import torch
 
+from hysteresis_lab.blocks._util import logit
 from hysteresis_lab.blocks.fractional_delay import LearnedDelay
 from hysteresis_lab.blocks.linear import Delay
 from hysteresis_lab.blocks.step import StepState
@@ -21,9 +20,8 @@ FS = 20_000.0
 
 def _move(block: LearnedDelay, samples: float) -> None:
     """Set the block's learned delay."""
-    share = (samples - block.whole) / block.order
     with torch.no_grad():
-        block.raw_offset.fill_(math.log(share / (1.0 - share)))
+        block.raw_offset.fill_(logit((samples - block.whole) / block.order))
 
 
 @pytest.mark.parametrize(("samples", "span"), [(0, 1), (3, 1), (1, 2), (5, 2)])
@@ -73,7 +71,7 @@ def _greybox(**settings):
     return GreyBox(nu=1, ny=1, hysteresis="bouc_wen", delay=3, n_modes=1, **settings)
 
 
-def test_the_greybox_learns_its_delay_by_default_and_keeps_it_fixed_at_span_zero():
+def test_the_greybox_learns_its_delay_at_span_one_and_keeps_it_fixed_at_span_zero():
     learned, fixed = _greybox(delay_span=1), _greybox(delay_span=0)
     assert isinstance(learned.delay, LearnedDelay) and learned.delay.samples == 3
     assert type(fixed.delay) is Delay and fixed.delay.samples == 3

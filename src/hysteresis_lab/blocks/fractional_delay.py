@@ -9,13 +9,13 @@ a delay too long. With the offset learned, the simulation error sets it instead.
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import torch
 from torch import Tensor, nn
 from torch.nn import functional as F
 
+from hysteresis_lab.blocks._util import logit
 from hysteresis_lab.blocks.step import StepState, delay_step, frozen
 
 #: a delay starting at the span's edge (a delay of 0 samples, or below the span) starts this
@@ -52,8 +52,7 @@ class LearnedDelay(nn.Module):
         self.whole = max(self.samples - span, 0)
         self.order = 2 * span
         share = min(max((self.samples - self.whole) / self.order, EDGE), 1.0 - EDGE)
-        self.raw_offset = nn.Parameter(torch.tensor(math.log(share / (1.0 - share)),
-                                                    dtype=torch.float64))
+        self.raw_offset = nn.Parameter(torch.tensor(logit(share), dtype=torch.float64))
 
     @property
     def offset(self) -> Tensor:
