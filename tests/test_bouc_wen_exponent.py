@@ -204,3 +204,41 @@ def test_the_greybox_learns_the_exponent_of_any_bouc_wen_cell_it_is_told_to() ->
     chosen._set_cell("prandtl_ishlinskii")
     chosen._set_cell("bouc_wen")
     assert chosen.hysteresis.raw_exponent is not None
+
+
+def test_an_exponent_freed_on_a_fitted_cell_starts_where_the_loss_is_continuous_in_it() -> None:
+    """The polish frees the exponent of a cell fitted at 1: the warm start puts it at
+    `FREED_EXPONENT_START`. There a step of 1e-9 in it moves the output by about as much; from
+    exactly 1 the same step swaps the exact update for Runge–Kutta sub-steps and jumps the
+    output by ~1e-4 on a fast drive, more than a line search near the optimum can gain. An
+    exponent the earlier model learned is carried as it is."""
+    from hysteresis_lab.blocks.bouc_wen import FREED_EXPONENT_START
+    from hysteresis_lab.models.greybox import GreyBox
+
+    settings = {"nu": 1, "ny": 1, "fs": 20_000.0, "delay": 1, "n_modes": 1,
+                "hysteresis": "bouc_wen"}
+    freed = GreyBox(**settings, learn_exponent=True)
+    freed.warm_start_from(GreyBox(**settings))
+    cell = freed.hysteresis
+    assert float(cell.exponent) == pytest.approx(FREED_EXPONENT_START)
+
+    v = walk(4000, seed=0, batch=1)  # steps as large as a fast multisine's
+
+    def jump_of_a_small_step() -> float:
+        with torch.no_grad():
+            before = cell(v)[0]
+            cell.raw_exponent += 1e-9
+            after = cell(v)[0]
+            cell.raw_exponent -= 1e-9
+        return float((after - before).abs().max())
+
+    assert jump_of_a_small_step() < 1e-7
+    with torch.no_grad():
+        cell.raw_exponent.fill_(0.0)
+    assert jump_of_a_small_step() > 1e-6
+
+    with torch.no_grad():
+        cell.raw_exponent.fill_(0.3)
+    again = GreyBox(**settings, learn_exponent=True)
+    again.warm_start_from(freed)
+    assert float(again.hysteresis.exponent) == pytest.approx(1.3)

@@ -49,6 +49,11 @@ from hysteresis_lab.physics.bouc_wen import (
 )
 
 GAMMA_RATIO_MAX = 0.999  # |gamma| < beta: both rates beta -/+ gamma stay positive
+#: where an exponent freed on a fitted cell starts (`BoucWen.start_exponent_off_one`): at
+#: exactly 1 the update is the exact one and just above it the Runge–Kutta one, whose error
+#: (~1e-4 of the state) jumps the loss by more than a step near the optimum gains, so an
+#: L-BFGS line search started at 1 never leaves it
+FREED_EXPONENT_START = 1.02
 
 
 def bouc_wen_scaled_params(
@@ -156,6 +161,14 @@ class BoucWen(nn.Module):
         if self.raw_exponent is not None and key not in state_dict:
             state_dict[key] = torch.zeros_like(self.raw_exponent)
         super()._load_from_state_dict(state_dict, prefix, *args)
+
+    def start_exponent_off_one(self, exponent: float = FREED_EXPONENT_START) -> None:
+        """Start a learned exponent at ``exponent`` (> 1), inside the sub-stepped update,
+        where the loss is continuous in it (`FREED_EXPONENT_START`)."""
+        if self.raw_exponent is None:
+            raise ValueError("this Bouc-Wen cell's exponent is fixed at 1 (learn_exponent=False)")
+        with torch.no_grad():
+            self.raw_exponent.fill_(exponent - 1.0)
 
     @property
     def d(self) -> Tensor:

@@ -741,6 +741,17 @@ class GreyBox(PhysicalChainModule):
                                     n_modes if "n_modes" in self.auto_settings
                                     else int(self.hparams["n_modes"]), fs)
         super().warm_start_from(previous)
+        self._start_freed_exponents_off_one(previous)
+
+    def _start_freed_exponents_off_one(self, previous: NarxModule) -> None:
+        """A Bouc–Wen exponent this model learns and ``previous`` held at 1 (the polish
+        frees it) starts just above 1 (`BoucWen.start_exponent_off_one`): from exactly 1 the
+        L-BFGS polish cannot move it."""
+        held = {name for name, module in previous.named_modules()
+                if isinstance(module, BoucWen) and module.raw_exponent is None}
+        for name, module in self.named_modules():
+            if name in held and isinstance(module, BoucWen) and module.raw_exponent is not None:
+                module.start_exponent_off_one()
 
     def _initialise_mimo(
         self, us: Sequence[np.ndarray], ys: Sequence[np.ndarray], fs: float
