@@ -83,3 +83,23 @@ def test_the_greybox_learns_its_delay_at_span_one_and_keeps_it_fixed_at_span_zer
 def test_a_bad_delay_span_is_named():
     with pytest.raises(ConfigError, match="model.delay_span"):
         _greybox(delay_span=-1)
+
+
+def test_a_delay_the_data_cannot_show_stays_fixed_at_its_placeholder():
+    """Where the training input excites too few frequencies to read the delay off (one slow
+    sine), the delay's placeholder (one sample) is not learned either; where they show it,
+    the delay read is learned within its span."""
+    fs = 1000.0
+    t = np.arange(4000) / fs
+    slow = np.sin(2 * np.pi * 2.0 * t)
+    blind = GreyBox(nu=1, ny=1, hysteresis="bouc_wen", delay="auto", n_modes="auto", fs=fs,
+                    delay_span=1)
+    blind.initialise_from_data(slow, 0.5 * slow, fs)
+    assert type(blind.delay) is Delay and blind.delay.samples == 1
+    assert blind.hparams["delay_span"] == 0
+
+    rich = np.random.default_rng(0).normal(size=t.size)
+    seeing = GreyBox(nu=1, ny=1, hysteresis="bouc_wen", delay="auto", n_modes="auto", fs=fs,
+                     delay_span=1)
+    seeing.initialise_from_data(rich, 0.5 * np.roll(rich, 2), fs)
+    assert isinstance(seeing.delay, LearnedDelay)

@@ -615,16 +615,18 @@ class GreyBox(PhysicalChainModule):
         """The delay and mode count the data say (``auto`` settings, `select_chain_structure`
         on a training recording in physical units), set in the model (its blocks rebuilt,
         ``hparams`` updated so that a saved model is rebuilt with them); None where the data
-        say nothing (the placeholders stay: one sample, one mode)."""
+        say nothing (the placeholders stay: one sample, fixed, and one mode)."""
         delay, n_modes = self.hparams.get("delay"), self.hparams.get("n_modes")
         try:
             structure = chain_structure(u, y, fs, None if delay == AUTO else int(delay),
                                         None if n_modes == AUTO else max(int(n_modes), 1))
         except ValueError as exc:
-            log.warning("the delay and modes cannot be read off the training data (%s): %s",
-                        exc, ", ".join(f"model.{name}={value}" for name, value in
-                                       (("delay", 1), ("n_modes", 1))
-                                       if name in self.auto_settings))
+            placeholders = {name: 1 for name in ("delay", "n_modes") if name in self.auto_settings}
+            if delay == AUTO:  # a delay the data cannot show is not learned from them either
+                self.hparams.update(delay_span=0)
+                placeholders["delay_span"] = 0
+            log.warning("the delay and modes cannot be read off the training data (%s): %s", exc,
+                        ", ".join(f"model.{name}={value}" for name, value in placeholders.items()))
             self._set_structure(1 if delay == AUTO else int(delay),
                                 1 if n_modes == AUTO else int(n_modes), fs)
             return None
