@@ -264,6 +264,11 @@ class Delay(nn.Module):
         pad = torch.zeros_like(x[:, :n])
         return torch.cat([pad, x[:, :-n]], dim=1)
 
+    @property
+    def delay_samples(self) -> float:
+        """The delay in samples (as `LearnedDelay.delay_samples`)."""
+        return float(self.samples)
+
     def state_names(self) -> list[str]:
         return [f"delay_{i}" for i in range(self.samples)]
 

@@ -866,7 +866,7 @@ class GreyBox(PhysicalChainModule):
                   "mode": self.mode}
         out = {name: block.export() for name, block in blocks.items() if block is not None}
         out.update(gain=float(self.gain.detach()), offset=float(self.offset.detach()),
-                   delay=getattr(self.delay, "delay_samples", self.delay.samples))
+                   delay=self.delay.delay_samples)
         return out
 
     def _mimo_parameters(self) -> dict[str, Any]:

@@ -351,7 +351,7 @@ class PhysicalChainModule(NarxModule):
         the L-BFGS polish's line search, which compares such losses, ends where it began."""
         u, y = batch
         start = self.window.first_target
-        return self.loss_fn(self.simulate_full(u.double())[:, start:], y[:, start:].double())
+        return self.loss_fn(self.simulate_scaled(u.double(), y), y[:, start:].double())
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         raise ConfigError(
